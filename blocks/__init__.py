@@ -1,0 +1,1 @@
+"""Function blocks: the IEC standard library (timers, edges, counters, flip-flops) and, later, the fleet blocks."""

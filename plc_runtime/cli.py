@@ -1,0 +1,192 @@
+"""The ``plc-runtime`` command line.
+
+``plc-runtime run`` runs a program headless: on the virtual clock as fast as it can (the
+default), or on the wall clock with ``--realtime``. On a terminal it shows a live status
+screen; at the end it prints a summary (``--json``: one JSON object on stdout). Errors are
+one line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+import warnings
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from .clock import VirtualClock, WallClock
+from .errors import PlcError
+from .programs import PROGRAMS
+from .runtime import Runtime
+
+EXIT_FAULT = 1
+EXIT_ERROR = 2
+
+
+class CliError(Exception):
+    """A usage error to report as one line."""
+
+
+def _positive(kind: type) -> Any:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a program headless")
+    run.add_argument("--program", default="demo", choices=sorted(PROGRAMS), help="program to run (default: demo)")
+    length = run.add_mutually_exclusive_group()
+    length.add_argument("--cycles", type=_positive(int), help="number of base cycles to run")
+    length.add_argument("--duration", type=_positive(float), help="seconds to run (simulated; wall-clock with --realtime)")
+    run.add_argument("--realtime", action="store_true", help="run on the wall clock instead of the virtual clock")
+    run.add_argument("--cycle-time", type=_positive(float), default=0.010, help="base cycle time in seconds (default 0.010)")
+    run.add_argument("--watchdog", type=_positive(float), default=150.0, help="maximum cycle time in ms (default 150)")
+    run.add_argument("--spin", type=float, default=0.0, help="realtime: spin the last SPIN ms before each deadline")
+    run.add_argument("--rt", action="store_true", help="realtime: SCHED_FIFO, 1 ns timer slack, GC in idle slack")
+    run.add_argument("--retain", metavar="FILE", help="retain file (kept across runs)")
+    run.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except (PlcError, CliError, OSError) as exc:
+        print(f"plc-runtime: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not args.realtime and (args.rt or args.spin):
+        raise CliError("--rt and --spin only apply with --realtime")
+    if args.spin < 0:
+        raise CliError("--spin must be >= 0")
+    if args.realtime:
+        clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
+    else:
+        clock = VirtualClock()
+    rt = PROGRAMS[args.program](
+        clock=clock, cycle_time=args.cycle_time, watchdog=args.watchdog / 1e3, retain_file=args.retain
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rt.start()
+    for warning in caught:
+        print(f"plc-runtime: warning: {warning.message}", file=sys.stderr)
+    total = args.cycles if args.cycles is not None else (
+        round(args.duration / rt.cycle_time) if args.duration is not None else None
+    )
+    live = sys.stdout.isatty() and not args.json
+    previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt, previous))
+    wall_start = time.monotonic()
+    try:
+        _drive(rt, total, live)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    wall = time.monotonic() - wall_start
+    final_state = rt.state
+    summary = _summary(rt, args.program, final_state, wall)
+    rt.stop()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        Console().print(_summary_table(summary))
+    return EXIT_FAULT if final_state == "FAULT" else 0
+
+
+def _interrupt(rt: Runtime, previous: Any) -> None:
+    """First Ctrl-C: finish the current cycle and stop cleanly; a second one aborts."""
+    rt.request_stop()
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _drive(rt: Runtime, total: int | None, live: bool) -> None:
+    """Run in chunks of about a tenth of a second so the screen and Ctrl-C stay responsive."""
+    chunk = max(1, round(0.1 / rt.cycle_time)) if not rt.clock.is_virtual else 2000
+    done = 0
+    display = Live(_status_table(rt, total), refresh_per_second=4, transient=True) if live else None
+    if display:
+        display.start()
+    try:
+        while rt.state == "RUN" and (total is None or done < total):
+            n = chunk if total is None else min(chunk, total - done)
+            ran = rt.run(cycles=n)
+            done += ran
+            if display:
+                display.update(_status_table(rt, total))
+            if ran < n:
+                break
+    finally:
+        if display:
+            display.stop()
+
+
+def _status_table(rt: Runtime, total: int | None) -> Table:
+    table = Table(title=f"plc-runtime  state {rt.state}  cycle {rt.ticks}" + (f"/{total}" if total else "")
+                  + f"  clock {rt.clock_time:.2f} s")
+    for column in ("task", "cycles", "exec last us", "exec max us", "exec p99 us", "late p99 us", "overruns", "omitted"):
+        table.add_column(column, justify="right" if column != "task" else "left")
+    for name, stats in rt.stats.tasks.items():
+        d = stats.to_dict()
+        table.add_row(name, str(d["cycles"]), f"{d['exec_us']['last']:.1f}", f"{d['exec_us']['max']:.1f}",
+                      f"{d['exec_us']['p99']:.1f}", f"{d['lateness_us']['p99']:.1f}", str(d["overruns"]),
+                      str(d["omitted"]))
+    return table
+
+
+def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any]:
+    stats = rt.stats.to_dict()
+    return {
+        "program": program,
+        "cycles": stats["cycles"],
+        "overruns": stats["overruns"],
+        "omitted": stats["omitted"],
+        "state": state,
+        "fault_reason": stats["fault_reason"],
+        "clock": "virtual" if rt.clock.is_virtual else "wall",
+        "sim_time_s": stats["clock_time_s"],
+        "wall_time_s": round(wall, 3),
+        "scans_per_s": round(stats["cycles"] / wall, 1) if wall > 0 else None,
+        "tags": {tag.name: rt.image.read(tag.name) for tag in rt.image.tags},
+        "scan": stats["scan"],
+        "tasks": stats["tasks"],
+    }
+
+
+def _summary_table(summary: dict[str, Any]) -> Table:
+    table = Table(title=f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
+                  f"{summary['sim_time_s']:.2f} s {summary['clock']} time in {summary['wall_time_s']:.2f} s wall")
+    table.add_column("task")
+    for column in ("cycles", "exec mean us", "exec p99 us", "exec max us", "late p99 us", "late max us",
+                   "overruns", "omitted"):
+        table.add_column(column, justify="right")
+    for name, d in {**summary["tasks"], "(scan)": summary["scan"]}.items():
+        table.add_row(name, str(d["cycles"]), f"{d['exec_us']['mean']:.1f}", f"{d['exec_us']['p99']:.1f}",
+                      f"{d['exec_us']['max']:.1f}", f"{d['lateness_us']['p99']:.1f}", f"{d['lateness_us']['max']:.1f}",
+                      str(d["overruns"]), str(d["omitted"]))
+    if summary["fault_reason"]:
+        table.caption = f"FAULT: {summary['fault_reason']}"
+    else:
+        table.caption = "  ".join(f"{k}={v}" for k, v in summary["tags"].items())
+    return table
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""Clocks: the virtual clock for deterministic tests and simulation, the wall clock for plants.
+
+The runtime schedules every base tick against an absolute deadline ``t0 + k * tick``, so
+there is no drift however long it runs; the clock only has to *wait until* a deadline.
+
+``VirtualClock`` jumps there: each step advances exactly one tick, as fast as the CPU
+allows. The runtime charges the real execution time it measures to the virtual clock, so
+a scan that takes longer than its interval makes the following ticks late exactly as it
+would on a plant, and overrun policies and the watchdog behave the same in tests.
+
+``WallClock`` sleeps to the deadline (``time.sleep`` uses an absolute monotonic deadline
+since Python 3.11), optionally spinning the last part, and optionally in "rt" mode:
+SCHED_FIFO, 1 ns timer slack, ``gc.freeze()`` after startup and garbage collection only in
+idle slack. Each rt measure that the OS refuses is reported with a warning and skipped.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import gc
+import os
+import time
+import warnings
+
+PR_SET_TIMERSLACK = 29
+PR_GET_TIMERSLACK = 30
+
+
+class VirtualClock:
+    """Deterministic simulated time in integer nanoseconds."""
+
+    is_virtual = True
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._now_ns = round(start * 1e9)
+
+    def now_ns(self) -> int:
+        return self._now_ns
+
+    def now(self) -> float:
+        return self._now_ns / 1e9
+
+    def wait_until(self, deadline_ns: int) -> None:
+        if deadline_ns > self._now_ns:
+            self._now_ns = deadline_ns
+
+    def charge(self, elapsed_ns: int) -> None:
+        """Account real execution time to simulated time (a virtual CPU that is busy)."""
+        self._now_ns += elapsed_ns
+
+    def enter_run(self) -> None:
+        pass
+
+    def exit_run(self) -> None:
+        pass
+
+    def status(self) -> dict[str, object]:
+        return {"clock": "virtual"}
+
+
+class WallClock:
+    """Real time on the monotonic clock, with an optional spin tail and "rt" mode.
+
+    ``spin``: seconds before each deadline spent busy-waiting instead of sleeping (0.0002 to
+    0.001 cuts p99 lateness on an idle machine, but costs CPU and is worse under load).
+    ``rt``: request SCHED_FIFO (priority ``rt_priority``), 1 ns timer slack and GC control.
+    ``gc_slack``: in rt mode, collect garbage only when at least this much idle time
+    remains before the next deadline.
+    """
+
+    is_virtual = False
+
+    def __init__(self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.002) -> None:
+        if spin < 0 or gc_slack < 0:
+            raise ValueError("spin and gc_slack must be >= 0")
+        self.spin_ns = round(spin * 1e9)
+        self.rt = rt
+        self.rt_priority = rt_priority
+        self.gc_slack_ns = round(gc_slack * 1e9)
+        self._rt_state: dict[str, object] = {}
+        self._saved_sched: tuple[int, int] | None = None
+        self._saved_slack: int | None = None
+        self._gc_in_slack = False
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns()
+
+    def now(self) -> float:
+        return time.monotonic_ns() / 1e9
+
+    def charge(self, elapsed_ns: int) -> None:
+        pass  # real time passes by itself
+
+    def wait_until(self, deadline_ns: int) -> None:
+        now = time.monotonic_ns()
+        if self._gc_in_slack and deadline_ns - now > self.gc_slack_ns:
+            self._collect_in_slack()
+            now = time.monotonic_ns()
+        sleep_until = deadline_ns - self.spin_ns
+        if sleep_until > now:
+            time.sleep((sleep_until - now) / 1e9)
+        while time.monotonic_ns() < deadline_ns:
+            pass
+
+    @staticmethod
+    def _collect_in_slack() -> None:
+        """Run the youngest generation that is due, as the automatic collector would have."""
+        counts, thresholds = gc.get_count(), gc.get_threshold()
+        generation = -1
+        for gen in range(3):
+            if thresholds[gen] and counts[gen] >= thresholds[gen]:
+                generation = gen
+        if generation >= 0:
+            gc.collect(generation)
+
+    # ----- rt mode ------------------------------------------------------------------------
+    def enter_run(self) -> None:
+        """Called after the startup phase, right before the cyclic phase begins."""
+        self._rt_state = {}
+        if not self.rt:
+            return
+        self._set_fifo()
+        self._set_timer_slack()
+        gc.collect()
+        gc.freeze()  # startup objects never need scanning again
+        gc.disable()
+        self._gc_in_slack = True
+        self._rt_state["gc"] = "frozen after startup; collected only in idle slack"
+
+    def exit_run(self) -> None:
+        if self._gc_in_slack:
+            gc.unfreeze()
+            gc.enable()
+            self._gc_in_slack = False
+        if self._saved_sched is not None:
+            policy, priority = self._saved_sched
+            try:
+                os.sched_setscheduler(0, policy, os.sched_param(priority))
+            except OSError:
+                pass
+            self._saved_sched = None
+        if self._saved_slack is not None:
+            _prctl(PR_SET_TIMERSLACK, self._saved_slack)
+            self._saved_slack = None
+
+    def _set_fifo(self) -> None:
+        if not hasattr(os, "sched_setscheduler"):
+            self._degrade("sched_fifo", "SCHED_FIFO is not available on this platform")
+            return
+        try:
+            saved = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+        except (PermissionError, OSError) as exc:
+            self._degrade("sched_fifo", f"SCHED_FIFO not permitted ({exc.strerror or exc}); running with the normal scheduler")
+            return
+        self._saved_sched = saved
+        self._rt_state["sched_fifo"] = f"priority {self.rt_priority}"
+
+    def _set_timer_slack(self) -> None:
+        old = _prctl(PR_GET_TIMERSLACK, 0)
+        if old < 0 or _prctl(PR_SET_TIMERSLACK, 1) != 0:
+            self._degrade("timer_slack", "cannot set the timer slack to 1 ns (prctl unavailable)")
+            return
+        self._saved_slack = old
+        self._rt_state["timer_slack"] = "1 ns"
+
+    def _degrade(self, key: str, message: str) -> None:
+        self._rt_state[key] = f"unavailable: {message}"
+        warnings.warn(f"rt mode: {message}", RuntimeWarning, stacklevel=3)
+
+    def status(self) -> dict[str, object]:
+        status: dict[str, object] = {"clock": "wall", "spin_us": self.spin_ns / 1000, "rt": self.rt}
+        status.update(self._rt_state)
+        return status
+
+
+def _prctl(option: int, value: int) -> int:
+    """Call Linux prctl; -1 where there is no libc prctl."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        prctl = libc.prctl
+    except (OSError, AttributeError):
+        return -1
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
+    prctl.restype = ctypes.c_int
+    return prctl(option, value, 0, 0, 0)

@@ -1,0 +1,292 @@
+"""The process image: input (I), output (Q) and marker (M) areas, numpy-backed.
+
+Two views exist of the same memory, because a PLC program and the outside world must not
+see each other mid-scan:
+
+* ``ProcessImage`` (``rt.image``) is the outside view used by tests, drivers and HMIs.
+  Its writes and forces are *queued* and applied by the runtime at one quiet point
+  between cycles, so a value can never change while blocks are running, whichever thread
+  wrote it. Its reads show the image as the program last left it: inputs as copied in
+  (what the program saw), outputs as last copied out, markers as they are.
+* ``ProgramImage`` (``ctx.image``) is what blocks use during a scan: inputs come from the
+  snapshot taken at cycle start, outputs go to the working output image that is copied out
+  only after every block of the cycle ran (so the last assignment wins), markers are
+  direct memory.
+
+Forces follow CODESYS semantics: a forced value is written into the program's image at
+cycle start and again at cycle end before copy-out, so the program may compute with its
+own value during the scan but the forced value is what the field sees.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .address import AREAS, Address, parse_address
+from .datatypes import RAW_TYPE_OF_SIZE, DataType
+from .errors import AddressError
+from .tags import TagTable
+
+DEFAULT_SIZES: dict[str, int] = {"I": 2048, "Q": 2048, "M": 8192}
+
+
+class Memory:
+    """One area's bytes plus typed little-endian views of them (all views share the bytes)."""
+
+    __slots__ = ("bytes", "_views")
+
+    def __init__(self, size: int) -> None:
+        self.bytes = np.zeros(size, dtype=np.uint8)
+        self._views: dict[str, np.ndarray] = {}
+
+    def view(self, dtype: str) -> np.ndarray:
+        view = self._views.get(dtype)
+        if view is None:
+            usable = len(self.bytes) - len(self.bytes) % np.dtype(dtype).itemsize
+            view = self._views[dtype] = self.bytes[:usable].view(dtype)
+        return view
+
+
+@dataclass(frozen=True, slots=True)
+class Location:
+    """A resolved reference: where a value lives and how it is typed."""
+
+    ref: str  # what the user wrote: an address or a tag name
+    address: Address
+    type: DataType
+
+    @property
+    def area(self) -> str:
+        return self.address.area
+
+    def reader(self, mem: Memory) -> Callable[[], bool | int | float]:
+        if self.address.is_bit:
+            u8, offset, bit = mem.bytes, self.address.byte_offset, self.address.bit
+            return lambda: bool((u8[offset] >> bit) & 1)
+        view, element = mem.view(self.type.dtype), self.address.index
+        return lambda: view[element].item()
+
+    def writer(self, mem: Memory) -> Callable[[bool | int | float], None]:
+        """A function storing an already checked value."""
+        if self.address.is_bit:
+            u8, offset = mem.bytes, self.address.byte_offset
+            mask = 1 << self.address.bit
+            clear = 0xFF ^ mask
+
+            def write_bit(value: bool | int | float) -> None:
+                u8[offset] = (u8[offset] | mask) if value else (u8[offset] & clear)
+
+            return write_bit
+        view, element = mem.view(self.type.dtype), self.address.index
+
+        def write(value: bool | int | float) -> None:
+            view[element] = value
+
+        return write
+
+
+class ProcessImage:
+    """The I/Q/M image as seen from outside the scan (``rt.image``)."""
+
+    def __init__(self, sizes: Mapping[str, int] | None = None, tags: TagTable | None = None) -> None:
+        self.sizes = dict(DEFAULT_SIZES)
+        for area, size in (sizes or {}).items():
+            if area not in AREAS:
+                raise AddressError(f"unknown image area {area!r}: areas are I, Q and M")
+            if not isinstance(size, int) or size < 8 or size % 8:
+                raise AddressError(f"image area {area}: size must be a multiple of 8 bytes >= 8, got {size!r}")
+            self.sizes[area] = size
+        self.tags = tags if tags is not None else TagTable()
+        self.field_inputs = Memory(self.sizes["I"])  # what the field (drivers, tests) last wrote
+        self.inputs = Memory(self.sizes["I"])  # snapshot the program sees during a cycle
+        self.outputs = Memory(self.sizes["Q"])  # working output image the program writes
+        self.published_outputs = Memory(self.sizes["Q"])  # as last copied out
+        self.markers = Memory(self.sizes["M"])
+        self._locations: dict[str, Location] = {}
+        self._pending: deque[tuple[str, Location, object]] = deque()
+        self._forces: dict[str, tuple[Location, object]] = {}
+        self._force_writers: list[tuple[str, Callable, object]] = []
+        self._out_lock = threading.Lock()
+        self._readers: dict[str, Callable[[], object]] = {}
+        for tag in self.tags:
+            self._check_in_area(tag.address, tag.name)
+
+    # ----- resolution -------------------------------------------------------------
+    def resolve(self, ref: str) -> Location:
+        """Turn an address or tag name into a Location; raise AddressError naming it."""
+        loc = self._locations.get(ref)
+        if loc is not None:
+            return loc
+        if isinstance(ref, str) and ref.lstrip().startswith("%"):
+            address = parse_address(ref)
+            self._check_in_area(address, ref)
+            loc = Location(ref, address, RAW_TYPE_OF_SIZE[address.size])
+        elif isinstance(ref, str):
+            tag = self.tags.get(ref)
+            loc = Location(ref, tag.address, tag.type)
+        else:
+            raise AddressError(f"address or tag name must be a string, got {ref!r}")
+        self._locations[ref] = loc
+        return loc
+
+    def _check_in_area(self, address: Address, ref: str) -> None:
+        size = self.sizes[address.area]
+        if address.byte_offset + address.nbytes > size:
+            last = size // address.nbytes - 1
+            raise AddressError(
+                f"{ref}: outside the {address.area} area ({size} bytes; "
+                f"%{address.area}{address.size}0..%{address.area}{address.size}{last}"
+                + (".7" if address.is_bit else "") + ")"
+            )
+
+    def memory_for_program(self, area: str) -> Memory:
+        return {"I": self.inputs, "Q": self.outputs, "M": self.markers}[area]
+
+    # ----- outside view -----------------------------------------------------------
+    def read(self, ref: str) -> bool | int | float:
+        """Inputs as the program last saw them, outputs as last copied out, markers as they are."""
+        reader = self._readers.get(ref)
+        if reader is None:
+            loc = self.resolve(ref)
+            mem = {"I": self.inputs, "Q": self.published_outputs, "M": self.markers}[loc.area]
+            reader = self._readers[ref] = loc.reader(mem)
+        with self._out_lock:
+            return reader()
+
+    def write(self, ref: str, value: object) -> None:
+        """Queue a write; it takes effect at the next quiet point (before the next cycle).
+
+        Inputs become visible to the program at the next cycle start; an output written
+        from outside lands in the working output image (the program may overwrite it);
+        a marker is set before the next cycle.
+        """
+        loc = self.resolve(ref)
+        self._pending.append(("write", loc, loc.type.check(value, ref)))
+
+    def force(self, ref: str, value: object) -> None:
+        """Force a location to a value until unforced (applied at the next quiet point)."""
+        loc = self.resolve(ref)
+        self._pending.append(("force", loc, loc.type.check(value, ref)))
+
+    def unforce(self, ref: str) -> None:
+        loc = self.resolve(ref)
+        self._pending.append(("unforce", loc, None))
+
+    def unforce_all(self) -> None:
+        self._pending.append(("unforce_all", None, None))  # type: ignore[arg-type]
+
+    @property
+    def forces(self) -> dict[str, object]:
+        """The active force table: reference -> forced value."""
+        return {ref: value for ref, (_loc, value) in self._forces.items()}
+
+    @property
+    def pending_writes(self) -> int:
+        return len(self._pending)
+
+    # ----- runtime side -----------------------------------------------------------
+    def apply_quiet_point(self) -> None:
+        """Apply every queued external write and force change (called between cycles)."""
+        pending = self._pending
+        changed = False
+        while pending:
+            op, loc, value = pending.popleft()
+            if op == "write":
+                mem = {"I": self.field_inputs, "Q": self.outputs, "M": self.markers}[loc.area]
+                loc.writer(mem)(value)
+            elif op == "force":
+                self._forces.pop(loc.ref, None)
+                self._forces[loc.ref] = (loc, value)
+                changed = True
+            elif op == "unforce":
+                changed |= self._forces.pop(loc.ref, None) is not None
+            else:
+                changed |= bool(self._forces)
+                self._forces.clear()
+        if changed:
+            self._force_writers = [
+                (loc.area, loc.writer(self.memory_for_program(loc.area)), value)
+                for loc, value in self._forces.values()
+            ]
+
+    def copy_in(self) -> None:
+        """Cycle start: snapshot the field inputs, then apply forces to the program image."""
+        np.copyto(self.inputs.bytes, self.field_inputs.bytes)
+        for _area, write, value in self._force_writers:
+            write(value)
+
+    def copy_out(self) -> None:
+        """Cycle end: re-apply output and marker forces, then publish the output image."""
+        for area, write, value in self._force_writers:
+            if area != "I":
+                write(value)
+        with self._out_lock:
+            np.copyto(self.published_outputs.bytes, self.outputs.bytes)
+
+    def reset(self) -> None:
+        """Clear program memory for a (re)start: inputs read 0 in startup, outputs and markers 0."""
+        for mem in (self.inputs, self.outputs, self.markers):
+            mem.bytes.fill(0)
+        with self._out_lock:
+            self.published_outputs.bytes.fill(0)
+
+    def publish_safe_state(self, safe_outputs: Mapping[str, object]) -> None:
+        """On FAULT: every output 0 except the configured safe values (forces are not honoured)."""
+        staged = Memory(self.sizes["Q"])
+        for ref, value in safe_outputs.items():
+            loc = self.resolve(ref)
+            loc.writer(staged)(loc.type.check(value, f"safe output {ref}"))
+        with self._out_lock:
+            np.copyto(self.published_outputs.bytes, staged.bytes)
+            np.copyto(self.outputs.bytes, staged.bytes)
+
+
+class ProgramImage:
+    """The image as blocks see it during a scan (``ctx.image``)."""
+
+    __slots__ = ("_image", "_readers", "_writers")
+
+    def __init__(self, image: ProcessImage) -> None:
+        self._image = image
+        self._readers: dict[str, Callable[[], object]] = {}
+        self._writers: dict[str, Callable[[object], None]] = {}
+
+    def read(self, ref: str) -> bool | int | float:
+        reader = self._readers.get(ref)
+        if reader is None:
+            loc = self._image.resolve(ref)
+            reader = self._readers[ref] = loc.reader(self._image.memory_for_program(loc.area))
+        return reader()
+
+    def write(self, ref: str, value: object) -> None:
+        writer = self._writers.get(ref)
+        if writer is None:
+            writer = self._writers[ref] = self._make_writer(ref)
+        writer(value)
+
+    def _make_writer(self, ref: str) -> Callable[[object], None]:
+        loc = self._image.resolve(ref)
+        if loc.area == "I":
+            raise AddressError(f"{ref}: inputs are read-only for the program (write outputs %Q or markers %M)")
+        store = loc.writer(self._image.memory_for_program(loc.area))
+        check = loc.type.check
+        if loc.type.kind == "bool":
+
+            def write_bool(value: object) -> None:
+                store(value if value is True or value is False else check(value, ref))
+
+            return write_bool
+
+        def write_checked(value: object) -> None:
+            store(check(value, ref))
+
+        return write_checked
+
+    @property
+    def tags(self) -> TagTable:
+        return self._image.tags

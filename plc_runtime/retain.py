@@ -1,0 +1,91 @@
+"""Crash-safe storage of retentive data.
+
+The file is written to a temporary file in the same directory, fsynced, renamed over the
+old one and the directory fsynced, so a crash at any moment leaves either the old or the
+new file, never a mix. A header carries a CRC32 of the body and a hash of the program's
+retain layout (which variables exist, with which types): a file that was damaged, or that
+belongs to a different program version, is rejected with a reason instead of loading a
+silently wrong value.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import zlib
+from pathlib import Path
+
+from .errors import RetainError
+
+MAGIC = "PLCRETAIN"
+VERSION = 1
+
+
+def layout_hash(entries: list[tuple[str, str]]) -> str:
+    """Hash of the sorted (key, type) pairs that make up the retain layout."""
+    digest = hashlib.sha256()
+    for key, typ in sorted(entries):
+        digest.update(f"{key}\0{typ}\n".encode())
+    return digest.hexdigest()[:16]
+
+
+class RetainFile:
+    """Reads and writes one retain file."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+
+    def save(self, layout: str, values: dict[str, object]) -> None:
+        try:
+            body = json.dumps(values, sort_keys=True, allow_nan=True).encode()
+        except (TypeError, ValueError) as exc:
+            raise RetainError(f"retain data cannot be stored: {exc}") from None
+        header = f"{MAGIC} {VERSION} {layout} {zlib.crc32(body):08x} {len(body)}\n".encode()
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(tmp, "wb") as fh:
+                fh.write(header + body)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.path)
+            dir_fd = os.open(self.path.parent, os.O_RDONLY)
+            try:
+                os.fsync(dir_fd)
+            finally:
+                os.close(dir_fd)
+        except OSError as exc:
+            raise RetainError(f"{self.path}: cannot write retain file: {exc.strerror or exc}") from None
+
+    def load(self, layout: str) -> dict[str, object] | None:
+        """The stored values, None if there is no file; RetainError if it cannot be trusted."""
+        try:
+            raw = self.path.read_bytes()
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            raise RetainError(f"{self.path}: cannot read retain file: {exc.strerror or exc}") from None
+        head, sep, body = raw.partition(b"\n")
+        parts = head.decode("ascii", errors="replace").split(" ")
+        if not sep or len(parts) != 5 or parts[0] != MAGIC:
+            raise RetainError(f"{self.path}: not a retain file (bad header)")
+        _, version, file_layout, crc, length = parts
+        if version != str(VERSION):
+            raise RetainError(f"{self.path}: retain file version {version} is not supported (expected {VERSION})")
+        if not length.isdigit() or int(length) != len(body):
+            raise RetainError(f"{self.path}: truncated retain file ({len(body)} of {length} body bytes)")
+        if f"{zlib.crc32(body):08x}" != crc:
+            raise RetainError(f"{self.path}: retain file is corrupted (CRC mismatch)")
+        if file_layout != layout:
+            raise RetainError(
+                f"{self.path}: retain file was written by a different program layout "
+                f"({file_layout}, this program is {layout})"
+            )
+        try:
+            values = json.loads(body)
+        except ValueError:
+            raise RetainError(f"{self.path}: retain file body is not valid JSON") from None
+        if not isinstance(values, dict):
+            raise RetainError(f"{self.path}: retain file body is not an object")
+        return values
