@@ -39,8 +39,16 @@ class RetainFile:
     def save(self, layout: str, values: dict[str, object]) -> None:
         try:
             body = json.dumps(values, sort_keys=True, allow_nan=True).encode()
-        except (TypeError, ValueError) as exc:
-            raise RetainError(f"retain data cannot be stored: {exc}") from None
+        except (TypeError, ValueError):
+            for key, value in values.items():
+                try:
+                    json.dumps(value, allow_nan=True)
+                except (TypeError, ValueError):
+                    raise RetainError(
+                        f"retain value {key} of type {type(value).__name__} cannot be stored "
+                        "(retain numbers, strings, booleans and lists/dicts of them)"
+                    ) from None
+            raise
         header = f"{MAGIC} {VERSION} {layout} {zlib.crc32(body):08x} {len(body)}\n".encode()
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:

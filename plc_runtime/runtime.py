@@ -19,6 +19,7 @@ import math
 import signal
 import threading
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from time import perf_counter_ns
@@ -96,6 +97,7 @@ class Runtime:
         self.fault_reason: str | None = None
         self.fault_traceback: str | None = None
         self.start_info: str | None = None
+        self.retain_error: str | None = None  # last failure to write the retain file
         self.ticks = 0
         self.stats = RuntimeStats(self)
         self._tick_ns = round(self.cycle_time * 1e9)
@@ -213,7 +215,11 @@ class Runtime:
         self.clock.exit_run()
         if was_running:
             self._retained = self._collect_retain()
-            self._save_retain_file()
+            try:
+                self._save_retain_file()
+            except RetainError as exc:  # STOP must be reached even when the disk is not there
+                self.retain_error = str(exc)
+                warnings.warn(f"retain file not saved: {exc}", RuntimeWarning, stacklevel=2)
         self.image.publish_safe_state(self.safe_outputs)
         self.state = STOP
 
@@ -278,42 +284,53 @@ class Runtime:
             clock.wait_until(max(release, self._last_tick_start + self._min_cycle_ns))
         else:
             clock.wait_until(release)
-        image = self.image
         tick_real_start = perf_counter_ns()
         self._last_tick_start = clock.now_ns()
         if self.retain_interval and self._last_tick_start >= self._next_retain_save:
             self._save_retain_periodically()
-        self._arm_watchdog()
+        self.ticks = k + 1
         try:
-            image.apply_quiet_point()
-            copied_in = False
-            for task in self.tasks:
-                if task.next_release != k:
-                    continue
-                task.next_release += task.interval_ticks
-                now = clock.now_ns()
-                if task.overrun == "skip" and now >= release + task.interval_ns:
-                    task.stats.omitted += 1  # a later release has already passed: this one is stale
-                    continue
-                if not copied_in:
-                    image.copy_in()
-                    copied_in = True
-                if not self._scan_task(task, release, now):
-                    return
-            if copied_in:
-                image.copy_out()
+            completed = self._scan(k, release)
         except WatchdogTimeout:
+            self._disarm_watchdog()
             self._fault(f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted")
             return
-        finally:
+        except BaseException:  # KeyboardInterrupt and the like: leave no alarm behind
             self._disarm_watchdog()
-            self.ticks = k + 1
+            raise
+        if not completed:
+            return
         tick_exec = perf_counter_ns() - tick_real_start
         self._scan_stats.record(tick_exec, self._last_tick_start - release)
         if tick_exec > self._watchdog_ns:
             self._fault(
                 f"watchdog: scan {k} took {tick_exec / 1e6:.1f} ms, maximum cycle time is {self.watchdog * 1e3:g} ms"
             )
+
+    def _scan(self, k: int, release: int) -> bool:
+        """Quiet point, copy-in, due tasks, copy-out, all under the watchdog; False on FAULT."""
+        image = self.image
+        self._arm_watchdog()
+        image.apply_quiet_point()
+        copied_in = False
+        for task in self.tasks:
+            if task.next_release != k:
+                continue
+            task.next_release += task.interval_ticks
+            now = self.clock.now_ns()
+            if task.overrun == "skip" and now >= release + task.interval_ns:
+                task.stats.omitted += 1  # a later release has already passed: this one is stale
+                continue
+            if not copied_in:
+                image.copy_in()
+                copied_in = True
+            if not self._scan_task(task, release, now):
+                self._disarm_watchdog()
+                return False
+        if copied_in:
+            image.copy_out()
+        self._disarm_watchdog()
+        return True
 
     def _scan_task(self, task: Task, release: int, now: int) -> bool:
         """Run one scan of a task; False if the runtime faulted."""
@@ -425,6 +442,7 @@ class Runtime:
             loaded = self.retain_file.load(layout_hash(self._retain_layout))
         except RetainError as exc:
             self.start_info = f"cold: {exc}"
+            warnings.warn(f"retain data not used, cold start: {exc}", RuntimeWarning, stacklevel=3)
             return {}
         if loaded is None:
             self.start_info = f"warm ({self.retain_file.path} does not exist yet)"
@@ -446,7 +464,14 @@ class Runtime:
     def _save_retain_periodically(self) -> None:
         self._next_retain_save += round(self.retain_interval * 1e9)
         self._retained = self._collect_retain()
-        self._save_retain_file()
+        try:
+            self._save_retain_file()
+        except RetainError as exc:  # keep scanning; report it once per distinct problem
+            if self.retain_error != str(exc):
+                warnings.warn(f"retain file not saved: {exc}", RuntimeWarning, stacklevel=2)
+            self.retain_error = str(exc)
+        else:
+            self.retain_error = None
 
     def _require(self, state: str, action: str) -> None:
         if self.state != state:

@@ -137,6 +137,7 @@ class RuntimeStats:
             "omitted": self.omitted,
             "fault_reason": rt.fault_reason,
             "start_mode": rt.start_info,
+            "retain_error": rt.retain_error,
             "watchdog_ms": rt.watchdog * 1e3,
             "forces": rt.image.forces,
             "clock": rt.clock.status(),

@@ -1,0 +1,120 @@
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from plc_runtime import AddressError, ConfigError, ProcessImage, TagTable, ValueRangeError, parse_address
+
+
+@pytest.mark.parametrize(
+    "text,area,size,offset,bit",
+    [
+        ("%IX0.3", "I", "X", 0, 3),
+        ("%I1.7", "I", "X", 1, 7),
+        ("%IB1", "I", "B", 1, -1),
+        ("%QW4", "Q", "W", 8, -1),
+        ("%MD2", "M", "D", 8, -1),
+        ("%ML1", "M", "L", 8, -1),
+        ("%qx2.0", "Q", "X", 2, 0),
+    ],
+)
+def test_parse_valid(text, area, size, offset, bit):
+    a = parse_address(text)
+    assert (a.area, a.size, a.byte_offset, a.bit) == (area, size, offset, bit)
+
+
+@pytest.mark.parametrize("text", ["%IX0.8", "%IX0", "%IW0.1", "%ZW0", "IX0.0", "%I", "%MW-1", "", "%MX1.2.3"])
+def test_parse_invalid_names_the_address(text):
+    with pytest.raises(AddressError) as err:
+        parse_address(text)
+    assert repr(text) in str(err.value)
+
+
+def test_out_of_range_names_address_and_area():
+    img = ProcessImage({"I": 16, "Q": 16, "M": 16})
+    with pytest.raises(AddressError, match=r"%IW8: outside the I area \(16 bytes"):
+        img.read("%IW8")
+    with pytest.raises(AddressError, match="%MD4"):
+        img.write("%MD4", 1)
+    img.read("%IW7")  # last word fits
+
+
+def test_sizes_overlap_little_endian():
+    img = ProcessImage()
+    img.write("%MW1", 0x1234)
+    img.apply_quiet_point()
+    assert img.read("%MB2") == 0x34 and img.read("%MB3") == 0x12
+    assert img.read("%MX3.4") is True  # 0x12 = 0b0001_0010
+    assert img.read("%MD0") == 0x1234 << 16
+
+
+def test_value_range_is_checked_at_the_call():
+    img = ProcessImage()
+    with pytest.raises(ValueRangeError, match=r"%QW0: 70000 is outside the WORD range 0..65535"):
+        img.write("%QW0", 70000)
+    with pytest.raises(ValueRangeError, match="BOOL"):
+        img.write("%QX0.0", 2)
+    with pytest.raises(ValueRangeError, match="integer"):
+        img.write("%MB0", 1.5)
+    assert img.pending_writes == 0  # nothing invalid was queued
+
+
+def test_tags_typed_access():
+    tags = TagTable()
+    tags.add("speed", "%MD2", "REAL")
+    tags.add("offset", "%MW0", "INT")
+    img = ProcessImage(tags=tags)
+    img.write("speed", 1.5)
+    img.write("offset", -2)
+    img.apply_quiet_point()
+    assert img.read("speed") == 1.5
+    assert img.read("offset") == -2
+    assert img.read("%MW0") == 65534  # the raw WORD view of the same bytes
+    with pytest.raises(AddressError, match="unknown tag 'nope'"):
+        img.read("nope")
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (("x", "%MW0", "REAL"), "needs a D-sized address"),
+        (("x", "%MW0", "FLOAT"), "unknown data type"),
+        (("9x", "%MW0"), "not a valid identifier"),
+        (("x", "%QW0", "INT"), None),
+    ],
+)
+def test_tag_declaration_errors(args, message):
+    table = TagTable()
+    if message is None:
+        table.add(*args)
+        with pytest.raises(ConfigError, match="declared twice"):
+            table.add(*args)
+    else:
+        with pytest.raises(ConfigError, match=message):
+            table.add(*args)
+
+
+def test_retain_only_on_markers():
+    with pytest.raises(ConfigError, match="only marker"):
+        TagTable().add("x", "%QW0", retain=True)
+
+
+def test_tag_file_errors_name_file_and_tag(tmp_path):
+    path = tmp_path / "tags.toml"
+    path.write_text('[tags.speed]\naddress = "%MD2"\ntype = "REAL"\n[tags.bad]\naddress = "%MW0"\ntype = "REAL"\n')
+    with pytest.raises(ConfigError, match=r"tags.toml: \[tags.bad\]: .*D-sized"):
+        TagTable.from_toml(path)
+    path.write_text("[tags.x\naddress=")
+    with pytest.raises(ConfigError, match="tags.toml: invalid TOML"):
+        TagTable.from_toml(path)
+    path.write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ConfigError, match="not a UTF-8 text file"):
+        TagTable.from_toml(path)
+    path.write_text('[tags.lamp]\naddress = "%QX0.0"\ncomment = "the lamp"\n')
+    table = TagTable.from_toml(path)
+    assert table.get("lamp").type.name == "BOOL"
+
+
+@given(st.sampled_from(["I", "Q", "M"]), st.sampled_from(["B", "W", "D", "L"]), st.integers(0, 4000))
+def test_parse_roundtrip(area, size, index):
+    a = parse_address(f"%{area}{size}{index}")
+    assert a.byte_offset == index * {"B": 1, "W": 2, "D": 4, "L": 8}[size]

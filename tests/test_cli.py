@@ -1,0 +1,61 @@
+"""The plc-runtime command line: JSON summary, exit codes and one-line errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from plc_runtime.cli import main
+
+SCRIPT = Path(sys.executable).parent / "plc-runtime"
+
+
+def test_run_json_summary(capsys):
+    assert main(["run", "--cycles", "300", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["cycles"] == 300 and summary["state"] == "RUN" and summary["overruns"] == 0
+    assert summary["sim_time_s"] == pytest.approx(3.0)
+    assert set(summary["tasks"]) == {"main", "slow"}
+    assert summary["tasks"]["slow"]["cycles"] == 30
+    assert summary["tags"]["flash_count"] == 3  # the demo lamp flashes at 1 Hz
+    for key in ("p50", "p99", "max", "mean", "min", "last"):
+        assert key in summary["tasks"]["main"]["exec_us"]
+
+
+def test_duration_and_retain_file(tmp_path, capsys):
+    retain = tmp_path / "demo.retain"
+    assert main(["run", "--duration", "2.5", "--json", "--retain", str(retain)]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["cycles"] == 250
+    assert main(["run", "--duration", "2", "--json", "--retain", str(retain)]) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert second["tags"]["flash_count"] == first["tags"]["flash_count"] + 2  # retained across processes
+
+
+def test_fault_gives_exit_code_1(capsys):
+    assert main(["run", "--cycles", "10", "--json", "--watchdog", "0.001"]) == 1
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["state"] == "FAULT" and "watchdog" in summary["fault_reason"]
+
+
+def test_usage_errors_are_one_line(capsys):
+    assert main(["run", "--rt"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["plc-runtime: error: --rt and --spin only apply with --realtime"]
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--cycles", "-3"])
+    assert exc.value.code == 2
+    assert "must be > 0" in capsys.readouterr().err
+
+
+def test_console_script_realtime():
+    out = subprocess.run(
+        [str(SCRIPT), "run", "--cycles", "20", "--cycle-time", "0.005", "--realtime", "--json"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout)
+    assert summary["clock"] == "wall" and summary["cycles"] == 20
+    assert summary["wall_time_s"] >= 19 * 0.005  # absolute deadlines: never faster than real time

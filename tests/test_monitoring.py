@@ -1,0 +1,150 @@
+"""Cycle monitoring: watchdog, overrun policies, faults and minimum cycle time.
+
+Budgets are blown with real busy-waiting (``Busy``) on the virtual clock: execution time is
+always measured in real time, so these behave as they would on a plant.
+"""
+
+import pytest
+from conftest import Busy, Probe
+
+from plc_runtime import Runtime, StartupError, StateError, VirtualClock
+
+MS = 1_000_000
+
+
+def test_skip_policy_omits_the_releases_that_passed():
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Busy(0.035, scans={0})], overrun="skip")
+    rt.start()
+    rt.step(10)
+    stats = rt.stats["main"]
+    assert stats.overruns == 1
+    # releases at 10, 20, 30 ms passed during the 35 ms scan: the latest runs (late), the rest are omitted
+    assert stats.omitted == stats.exec_max_ns // (10 * MS) - 1 >= 2
+    assert stats.cycles == 10 - stats.omitted
+    assert rt.state == "RUN"
+    rt.stop()
+
+
+def test_skip_policy_with_slower_task():
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("fast", [Probe(lambda ctx: None)], priority=0, overrun="catch_up")
+    rt.add_task("slow", [Busy(0.045, scans={0})], interval=0.020, priority=1, overrun="skip")
+    rt.start()
+    rt.step(20)
+    slow = rt.stats["slow"]
+    assert slow.omitted == slow.exec_max_ns // (20 * MS) - 1 >= 1
+    assert slow.cycles + slow.omitted == 10
+    assert rt.stats["fast"].cycles == 20  # a catch-up task loses no release, it only runs late
+    assert rt.stats["fast"].late_max_ns >= 25 * MS
+    rt.stop()
+
+
+def test_catch_up_policy_runs_every_release():
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Busy(0.035, scans={0})], overrun="catch_up")
+    rt.start()
+    rt.step(10)
+    stats = rt.stats["main"]
+    assert stats.cycles == 10 and stats.omitted == 0
+    assert stats.overruns >= 3  # scan 0 and the late scans 1, 2 end after their next release
+    assert stats.late_max_ns >= 15 * MS
+    rt.stop()
+
+
+def test_fault_policy_goes_to_fault_with_safe_outputs():
+    def cycle(ctx):
+        ctx.image.write("%QW1", 5)
+        ctx.image.write("%QX0.0", False)
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), safe_outputs={"%QX0.0": True})
+    rt.add_task("main", [Probe(cycle), Busy(0.015, scans={2})], overrun="fault")
+    rt.start()
+    assert rt.step(10) == 3
+    assert rt.image.read("%QW1") == 0 and rt.image.read("%QX0.0") is True
+    assert rt.state == "FAULT"
+    assert "task main: overrun" in rt.fault_reason and "interval is 10 ms" in rt.fault_reason
+    with pytest.raises(StateError, match="FAULT"):
+        rt.step()
+    rt.stop()
+    rt.start()  # recovers after STOP
+    assert rt.state == "RUN"
+    rt.stop()
+
+
+def test_watchdog_measured_in_real_time_on_the_virtual_clock():
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock(), watchdog=0.020, watchdog_interrupt=False)
+    rt.add_task("main", [Busy(0.030, scans={1})], overrun="catch_up")
+    rt.start()
+    assert rt.step(5) == 2
+    assert rt.state == "FAULT"
+    assert "watchdog: scan 1 took" in rt.fault_reason and "maximum cycle time is 20 ms" in rt.fault_reason
+
+
+def test_watchdog_interrupts_a_hung_block():
+    def hang(ctx):
+        try:
+            while True:
+                pass
+        except Exception:  # a block cannot swallow the watchdog
+            pass
+
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock(), watchdog=0.050)
+    rt.add_task("main", [Probe(hang)])
+    rt.start()
+    rt.step()
+    assert rt.state == "FAULT"
+    assert "exceeded the maximum cycle time of 50 ms and was aborted" in rt.fault_reason
+
+
+def test_block_exception_faults_and_names_the_block():
+    def boom(ctx):
+        if ctx.cycle == 3:
+            raise ZeroDivisionError("division by zero")
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Probe(lambda ctx: None), Probe(boom)])
+    rt.start()
+    assert rt.step(10) == 4
+    assert rt.fault_reason == "task main: block 1:Probe raised ZeroDivisionError: division by zero"
+    assert "ZeroDivisionError" in rt.fault_traceback
+    with pytest.raises(StateError):
+        rt.run(cycles=5)
+
+
+def test_startup_is_not_monitored():
+    def slow_startup(ctx):
+        Busy(0.060).cycle(ctx)
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=0.020)
+    rt.add_task("main", [Probe(lambda ctx: None, slow_startup)])
+    rt.start()
+    assert rt.state == "RUN"
+    rt.step(3)
+    assert rt.state == "RUN"
+    rt.stop()
+
+
+def test_startup_failure_raises_and_faults():
+    def bad(ctx):
+        raise KeyError("recipe table")
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Probe(lambda ctx: None, bad)])
+    with pytest.raises(StartupError, match="startup of main/0:Probe raised KeyError"):
+        rt.start()
+    assert rt.state == "FAULT"
+    rt.stop()
+
+
+def test_minimum_cycle_time_spaces_catch_up_ticks():
+    starts = []
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), min_cycle_time=0.008)
+    rt.add_task("main", [Probe(lambda ctx: starts.append(rt.clock.now_ns())), Busy(0.035, scans={0})],
+                overrun="catch_up")
+    rt.start()
+    rt.step(20)
+    gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
+    assert min(gaps[1:]) >= 8 * MS  # after the overrun, ticks are at least 8 ms apart
+    assert rt.stats["main"].cycles == 20
+    rt.stop()

@@ -1,0 +1,176 @@
+"""Retentive memory: warm and cold restarts, the crash-safe file and its failure modes."""
+
+import os
+import re
+
+import pytest
+
+from blocks.standard import CTU
+from plc_runtime import FunctionBlock, RetainError, Runtime, Static, TagTable, VirtualClock
+from plc_runtime.retain import RetainFile, layout_hash
+
+
+class Machine(FunctionBlock):
+    """Counts scans into retentive and non-retentive state, and into two marker tags."""
+
+    total = Static(0, retain=True)
+    since_start = Static(0)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.parts = CTU(retain=True)
+
+    def cycle(self, ctx) -> None:
+        self.total += 1
+        self.since_start += 1
+        self.parts(ctx, CU=ctx.cycle % 2 == 0, PV=100)
+        ctx.image.write("kept", self.total)
+        ctx.image.write("lost", self.since_start)
+
+
+def build(path=None, extra_retain=False) -> tuple[Runtime, Machine]:
+    tags = TagTable()
+    tags.add("kept", "%MW0", "INT", retain=True)
+    tags.add("lost", "%MW1", "INT")
+    if extra_retain:
+        tags.add("extra", "%MW2", "INT", retain=True)
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), tags=tags, retain_file=path)
+    machine = Machine()
+    rt.add_task("main", [machine])
+    return rt, machine
+
+
+def values(rt, machine):
+    return machine.total, machine.since_start, machine.parts.CV, rt.image.read("kept"), rt.image.read("lost")
+
+
+def test_warm_restart_keeps_retain_and_resets_the_rest():
+    rt, m = build()
+    rt.start()
+    rt.step(10)
+    rt.stop()
+    rt.start()
+    assert values(rt, m) == (10, 0, 5, 10, 0)
+    rt.step(1)
+    assert values(rt, m) == (11, 1, 6, 11, 1)
+    rt.stop()
+
+
+def test_cold_restart_clears_retain():
+    rt, m = build()
+    rt.start()
+    rt.step(10)
+    rt.stop()
+    rt.start(mode="cold")
+    assert values(rt, m) == (0, 0, 0, 0, 0)
+    rt.stop()
+
+
+def test_process_restart_through_the_file(tmp_path):
+    path = tmp_path / "plc.retain"
+    rt, m = build(path)
+    rt.start()
+    assert "does not exist yet" in rt.start_info
+    rt.step(7)
+    rt.stop()
+    assert path.exists() and not (tmp_path / "plc.retain.tmp").exists()
+    rt2, m2 = build(path)  # a new process: a new runtime and new blocks
+    rt2.start()
+    assert values(rt2, m2) == (7, 0, 4, 7, 0)
+    assert "retain data from" in rt2.start_info
+    rt2.stop()
+
+
+def _saved(tmp_path, steps=5):
+    path = tmp_path / "plc.retain"
+    rt, _ = build(path)
+    rt.start()
+    rt.step(steps)
+    rt.stop()
+    return path
+
+
+@pytest.mark.parametrize(
+    "damage,message",
+    [
+        (lambda raw: raw[:-3] + bytes([raw[-3] ^ 0x01]) + raw[-2:], "corrupted (CRC mismatch)"),
+        (lambda raw: raw[:-5], "truncated retain file"),
+        (lambda raw: b"\x00\xff garbage \x13" * 10, "not a retain file"),
+        (lambda raw: b"", "not a retain file"),
+    ],
+)
+def test_damaged_file_gives_a_message_and_a_cold_start(tmp_path, damage, message):
+    path = _saved(tmp_path)
+    path.write_bytes(damage(path.read_bytes()))
+    rt, m = build(path)
+    with pytest.warns(RuntimeWarning, match=re.escape(message)):
+        rt.start()
+    assert rt.start_info.startswith("cold:") and message in rt.start_info
+    assert values(rt, m) == (0, 0, 0, 0, 0)
+    rt.stop()
+
+
+def test_layout_mismatch_gives_a_cold_start(tmp_path):
+    path = _saved(tmp_path)
+    rt, m = build(path, extra_retain=True)
+    with pytest.warns(RuntimeWarning, match="different program layout"):
+        rt.start()
+    assert values(rt, m)[0] == 0
+    rt.stop()
+
+
+def test_crash_during_write_keeps_the_previous_file(tmp_path, monkeypatch):
+    path = _saved(tmp_path, steps=5)
+    before = path.read_bytes()
+    rt, m = build(path)
+    rt.start()
+    rt.step(3)
+
+    def crash(src, dst):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(RetainError, match="cannot write retain file"):
+        rt.save_retain()
+    assert path.read_bytes() == before
+    monkeypatch.undo()
+    rt.stop()
+    rt2, m2 = build(path)
+    rt2.start()
+    assert m2.total == 8
+    rt2.stop()
+
+
+def test_periodic_save(tmp_path):
+    path = tmp_path / "plc.retain"
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path, retain_interval=0.05)
+    machine = Machine()
+    rt.image.tags.add("kept", "%MW0", "INT", retain=True)
+    rt.image.tags.add("lost", "%MW1", "INT")
+    rt.add_task("main", [machine])
+    rt.start()
+    rt.step(12)  # saves at the quiet point before ticks 5 and 10: state after 10 scans
+    assert path.exists()  # written while running, before any stop()
+    layout = layout_hash([("tag:kept", "%MW0:INT"), ("fb:main/0:Machine.total", "Machine"), ("fb:main/0:Machine.parts.CV", "CTU")])
+    stored = RetainFile(path).load(layout)
+    assert stored["fb:main/0:Machine.total"] == 10 and stored["tag:kept"] == 10
+    rt.stop()
+
+
+def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
+    class Bad(FunctionBlock):
+        thing = Static(None, retain=True)
+
+        def cycle(self, ctx):
+            self.thing = object()
+
+    path = tmp_path / "x.retain"
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path)
+    rt.add_task("main", [Bad()])
+    rt.start()
+    rt.step()
+    with pytest.raises(RetainError, match="retain value fb:main/0:Bad.thing of type object cannot be stored"):
+        rt.save_retain()
+    with pytest.warns(RuntimeWarning, match="retain file not saved"):
+        rt.stop()
+    assert rt.state == "STOP" and not path.exists()
