@@ -178,7 +178,9 @@ class _Counter(FunctionBlock):
     def _pv(self) -> int:
         pv = self.PV
         if isinstance(pv, bool) or not isinstance(pv, int) or not INT_MIN <= pv <= INT_MAX:
-            raise ConfigError(f"{type(self).__name__}: PV must be an INT ({INT_MIN}..{INT_MAX}), got {pv!r}")
+            raise ConfigError(
+                f"{type(self).__name__}: PV must be an INT ({INT_MIN}..{INT_MAX}), got {pv!r}"
+            )
         return pv
 
 
@@ -192,7 +194,13 @@ class CTU(_Counter):
     CV = Output(0)
     cu_prev = Static(False)
 
-    def __call__(self, ctx: CycleContext, CU: bool | None = None, R: bool | None = None, PV: int | None = None) -> bool:
+    def __call__(
+        self,
+        ctx: CycleContext,
+        CU: bool | None = None,
+        R: bool | None = None,
+        PV: int | None = None,
+    ) -> bool:
         if CU is not None:
             self.CU = CU
         if R is not None:
@@ -223,7 +231,13 @@ class CTD(_Counter):
     CV = Output(0)
     cd_prev = Static(False)
 
-    def __call__(self, ctx: CycleContext, CD: bool | None = None, LD: bool | None = None, PV: int | None = None) -> bool:
+    def __call__(
+        self,
+        ctx: CycleContext,
+        CD: bool | None = None,
+        LD: bool | None = None,
+        PV: int | None = None,
+    ) -> bool:
         if CD is not None:
             self.CD = CD
         if LD is not None:

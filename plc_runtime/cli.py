@@ -47,30 +47,69 @@ def _positive(kind: type) -> Any:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets.")
+    parser = argparse.ArgumentParser(
+        prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets."
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a program headless")
-    run.add_argument("--program", default="demo", choices=sorted(PROGRAMS), help="program to run (default: demo)")
+    run.add_argument(
+        "--program", default="demo", choices=sorted(PROGRAMS), help="program to run (default: demo)"
+    )
     length = run.add_mutually_exclusive_group()
     length.add_argument("--cycles", type=_positive(int), help="number of base cycles to run")
-    length.add_argument("--duration", type=_positive(float), help="seconds to run (simulated; wall-clock with --realtime)")
-    run.add_argument("--realtime", action="store_true", help="run on the wall clock instead of the virtual clock")
-    run.add_argument("--cycle-time", type=_positive(float), default=0.010, help="base cycle time in seconds (default 0.010)")
-    run.add_argument("--watchdog", type=_positive(float), default=150.0, help="maximum cycle time in ms (default 150)")
-    run.add_argument("--spin", type=float, default=0.0, help="realtime: spin the last SPIN ms before each deadline")
-    run.add_argument("--rt", action="store_true", help="realtime: SCHED_FIFO, 1 ns timer slack, GC in idle slack")
+    length.add_argument(
+        "--duration",
+        type=_positive(float),
+        help="seconds to run (simulated; wall-clock with --realtime)",
+    )
+    run.add_argument(
+        "--realtime", action="store_true", help="run on the wall clock instead of the virtual clock"
+    )
+    run.add_argument(
+        "--cycle-time",
+        type=_positive(float),
+        default=0.010,
+        help="base cycle time in seconds (default 0.010)",
+    )
+    run.add_argument(
+        "--watchdog",
+        type=_positive(float),
+        default=150.0,
+        help="maximum cycle time in ms (default 150)",
+    )
+    run.add_argument(
+        "--spin",
+        type=float,
+        default=0.0,
+        help="realtime: spin the last SPIN ms before each deadline",
+    )
+    run.add_argument(
+        "--rt", action="store_true", help="realtime: SCHED_FIFO, 1 ns timer slack, GC in idle slack"
+    )
     run.add_argument("--retain", metavar="FILE", help="retain file (kept across runs)")
-    run.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
+    run.add_argument(
+        "--json", action="store_true", help="print the summary as one JSON object on stdout"
+    )
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    show_warning = warnings.showwarning
+    warnings.showwarning = _one_line_warning
     try:
         return _run(args)
+    except BrokenPipeError:  # stdout closed early (e.g. piped into head): nothing left to report
+        return EXIT_ERROR
     except (PlcError, CliError, OSError) as exc:
         print(f"plc-runtime: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
+    finally:
+        warnings.showwarning = show_warning
+
+
+def _one_line_warning(message: Warning | str, category: type, *args: Any, **kwargs: Any) -> None:
+    print(f"plc-runtime: warning: {message}", file=sys.stderr)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -83,21 +122,27 @@ def _run(args: argparse.Namespace) -> int:
     else:
         clock = VirtualClock()
     rt = PROGRAMS[args.program](
-        clock=clock, cycle_time=args.cycle_time, watchdog=args.watchdog / 1e3, retain_file=args.retain
+        clock=clock,
+        cycle_time=args.cycle_time,
+        watchdog=args.watchdog / 1e3,
+        retain_file=args.retain,
     )
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        rt.start()
-    for warning in caught:
-        print(f"plc-runtime: warning: {warning.message}", file=sys.stderr)
-    total = args.cycles if args.cycles is not None else (
-        round(args.duration / rt.cycle_time) if args.duration is not None else None
+    rt.start()
+    total = (
+        args.cycles
+        if args.cycles is not None
+        else (round(args.duration / rt.cycle_time) if args.duration is not None else None)
     )
     live = sys.stdout.isatty() and not args.json
-    previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt, previous))
+    previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt))
     wall_start = time.monotonic()
     try:
-        _drive(rt, total, live)
+        _drive(
+            rt,
+            total,
+            live,
+            announce=f"plc-runtime: running {args.program} until Ctrl-C" if total is None else None,
+        )
     finally:
         signal.signal(signal.SIGINT, previous)
     wall = time.monotonic() - wall_start
@@ -111,14 +156,17 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_FAULT if final_state == "FAULT" else 0
 
 
-def _interrupt(rt: Runtime, previous: Any) -> None:
+def _interrupt(rt: Runtime) -> None:
     """First Ctrl-C: finish the current cycle and stop cleanly; a second one aborts."""
     rt.request_stop()
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def _drive(rt: Runtime, total: int | None, live: bool) -> None:
-    """Run in chunks of about a tenth of a second so the screen and Ctrl-C stay responsive."""
+def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> None:
+    """Run in chunks of about a tenth of a second so the screen and Ctrl-C stay responsive.
+
+    ``announce`` goes to stderr once the first chunk has run, so a supervising process
+    knows the program is in its cyclic phase."""
     chunk = max(1, round(0.1 / rt.cycle_time)) if not rt.clock.is_virtual else 2000
     done = 0
     display = Live(_status_table(rt, total), refresh_per_second=4, transient=True) if live else None
@@ -129,6 +177,9 @@ def _drive(rt: Runtime, total: int | None, live: bool) -> None:
             n = chunk if total is None else min(chunk, total - done)
             ran = rt.run(cycles=n)
             done += ran
+            if announce:
+                print(announce, file=sys.stderr, flush=True)
+                announce = None
             if display:
                 display.update(_status_table(rt, total))
             if ran < n:
@@ -139,15 +190,34 @@ def _drive(rt: Runtime, total: int | None, live: bool) -> None:
 
 
 def _status_table(rt: Runtime, total: int | None) -> Table:
-    table = Table(title=f"plc-runtime  state {rt.state}  cycle {rt.ticks}" + (f"/{total}" if total else "")
-                  + f"  clock {rt.clock_time:.2f} s")
-    for column in ("task", "cycles", "exec last us", "exec max us", "exec p99 us", "late p99 us", "overruns", "omitted"):
+    table = Table(
+        title=f"plc-runtime  state {rt.state}  cycle {rt.ticks}"
+        + (f"/{total}" if total else "")
+        + f"  clock {rt.clock_time:.2f} s"
+    )
+    for column in (
+        "task",
+        "cycles",
+        "exec last us",
+        "exec max us",
+        "exec p99 us",
+        "late p99 us",
+        "overruns",
+        "omitted",
+    ):
         table.add_column(column, justify="right" if column != "task" else "left")
     for name, stats in rt.stats.tasks.items():
         d = stats.to_dict()
-        table.add_row(name, str(d["cycles"]), f"{d['exec_us']['last']:.1f}", f"{d['exec_us']['max']:.1f}",
-                      f"{d['exec_us']['p99']:.1f}", f"{d['lateness_us']['p99']:.1f}", str(d["overruns"]),
-                      str(d["omitted"]))
+        table.add_row(
+            name,
+            str(d["cycles"]),
+            f"{d['exec_us']['last']:.1f}",
+            f"{d['exec_us']['max']:.1f}",
+            f"{d['exec_us']['p99']:.1f}",
+            f"{d['lateness_us']['p99']:.1f}",
+            str(d["overruns"]),
+            str(d["omitted"]),
+        )
     return table
 
 
@@ -171,16 +241,34 @@ def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, An
 
 
 def _summary_table(summary: dict[str, Any]) -> Table:
-    table = Table(title=f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
-                  f"{summary['sim_time_s']:.2f} s {summary['clock']} time in {summary['wall_time_s']:.2f} s wall")
+    table = Table(
+        title=f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
+        f"{summary['sim_time_s']:.2f} s {summary['clock']} time in {summary['wall_time_s']:.2f} s wall"
+    )
     table.add_column("task")
-    for column in ("cycles", "exec mean us", "exec p99 us", "exec max us", "late p99 us", "late max us",
-                   "overruns", "omitted"):
+    for column in (
+        "cycles",
+        "exec mean us",
+        "exec p99 us",
+        "exec max us",
+        "late p99 us",
+        "late max us",
+        "overruns",
+        "omitted",
+    ):
         table.add_column(column, justify="right")
     for name, d in {**summary["tasks"], "(scan)": summary["scan"]}.items():
-        table.add_row(name, str(d["cycles"]), f"{d['exec_us']['mean']:.1f}", f"{d['exec_us']['p99']:.1f}",
-                      f"{d['exec_us']['max']:.1f}", f"{d['lateness_us']['p99']:.1f}", f"{d['lateness_us']['max']:.1f}",
-                      str(d["overruns"]), str(d["omitted"]))
+        table.add_row(
+            name,
+            str(d["cycles"]),
+            f"{d['exec_us']['mean']:.1f}",
+            f"{d['exec_us']['p99']:.1f}",
+            f"{d['exec_us']['max']:.1f}",
+            f"{d['lateness_us']['p99']:.1f}",
+            f"{d['lateness_us']['max']:.1f}",
+            str(d["overruns"]),
+            str(d["omitted"]),
+        )
     if summary["fault_reason"]:
         table.caption = f"FAULT: {summary['fault_reason']}"
     else:

@@ -70,7 +70,9 @@ class WallClock:
 
     is_virtual = False
 
-    def __init__(self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.002) -> None:
+    def __init__(
+        self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.002
+    ) -> None:
         if spin < 0 or gc_slack < 0:
             raise ValueError("spin and gc_slack must be >= 0")
         self.spin_ns = round(spin * 1e9)
@@ -151,7 +153,10 @@ class WallClock:
             saved = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
         except (PermissionError, OSError) as exc:
-            self._degrade("sched_fifo", f"SCHED_FIFO not permitted ({exc.strerror or exc}); running with the normal scheduler")
+            self._degrade(
+                "sched_fifo",
+                f"SCHED_FIFO not permitted ({exc.strerror or exc}); running with the normal scheduler",
+            )
             return
         self._saved_sched = saved
         self._rt_state["sched_fifo"] = f"priority {self.rt_priority}"

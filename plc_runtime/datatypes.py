@@ -28,7 +28,9 @@ class DataType:
         if self.kind == "bool":
             if isinstance(value, bool | int) and value in (0, 1):
                 return bool(value)
-            raise ValueRangeError(f"{where}: {self.name} expects True/False (or 0/1), got {value!r}")
+            raise ValueRangeError(
+                f"{where}: {self.name} expects True/False (or 0/1), got {value!r}"
+            )
         if self.kind == "int":
             if isinstance(value, bool) or not isinstance(value, numbers.Integral):
                 raise ValueRangeError(f"{where}: {self.name} expects an integer, got {value!r}")
@@ -76,4 +78,10 @@ TYPES: dict[str, DataType] = {
 }
 
 # The type a bare direct address is read and written as (bit strings, unsigned).
-RAW_TYPE_OF_SIZE = {"X": TYPES["BOOL"], "B": TYPES["BYTE"], "W": TYPES["WORD"], "D": TYPES["DWORD"], "L": TYPES["LWORD"]}
+RAW_TYPE_OF_SIZE = {
+    "X": TYPES["BOOL"],
+    "B": TYPES["BYTE"],
+    "W": TYPES["WORD"],
+    "D": TYPES["DWORD"],
+    "L": TYPES["LWORD"],
+}

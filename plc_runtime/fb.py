@@ -86,7 +86,9 @@ class FunctionBlock:
         if cls.main_output is None:
             cls.main_output = next((n for n, v in declared.items() if v.kind == "output"), None)
         elif cls.main_output not in declared:
-            raise ConfigError(f"{cls.__name__}.main_output names undeclared variable {cls.main_output!r}")
+            raise ConfigError(
+                f"{cls.__name__}.main_output names undeclared variable {cls.main_output!r}"
+            )
 
     def __new__(cls, *args: Any, **kwargs: Any) -> FunctionBlock:
         # Defaults are set here, not in __init__, so a subclass __init__ may assign
@@ -134,7 +136,9 @@ class FunctionBlock:
         for name in names:
             var = self._vars.get(name)
             if var is None or var.kind == "input":
-                raise ConfigError(f"{type(self).__name__}: {name!r} is not a declared output or static")
+                raise ConfigError(
+                    f"{type(self).__name__}: {name!r} is not a declared output or static"
+                )
             self._extra_retain.add(name)
 
     def retain_names(self) -> list[str]:

@@ -93,13 +93,17 @@ class Location:
 class ProcessImage:
     """The I/Q/M image as seen from outside the scan (``rt.image``)."""
 
-    def __init__(self, sizes: Mapping[str, int] | None = None, tags: TagTable | None = None) -> None:
+    def __init__(
+        self, sizes: Mapping[str, int] | None = None, tags: TagTable | None = None
+    ) -> None:
         self.sizes = dict(DEFAULT_SIZES)
         for area, size in (sizes or {}).items():
             if area not in AREAS:
                 raise AddressError(f"unknown image area {area!r}: areas are I, Q and M")
             if not isinstance(size, int) or size < 8 or size % 8:
-                raise AddressError(f"image area {area}: size must be a multiple of 8 bytes >= 8, got {size!r}")
+                raise AddressError(
+                    f"image area {area}: size must be a multiple of 8 bytes >= 8, got {size!r}"
+                )
             self.sizes[area] = size
         self.tags = tags if tags is not None else TagTable()
         self.field_inputs = Memory(self.sizes["I"])  # what the field (drivers, tests) last wrote
@@ -141,7 +145,8 @@ class ProcessImage:
             raise AddressError(
                 f"{ref}: outside the {address.area} area ({size} bytes; "
                 f"%{address.area}{address.size}0..%{address.area}{address.size}{last}"
-                + (".7" if address.is_bit else "") + ")"
+                + (".7" if address.is_bit else "")
+                + ")"
             )
 
     def memory_for_program(self, area: str) -> Memory:
@@ -272,7 +277,9 @@ class ProgramImage:
     def _make_writer(self, ref: str) -> Callable[[object], None]:
         loc = self._image.resolve(ref)
         if loc.area == "I":
-            raise AddressError(f"{ref}: inputs are read-only for the program (write outputs %Q or markers %M)")
+            raise AddressError(
+                f"{ref}: inputs are read-only for the program (write outputs %Q or markers %M)"
+            )
         store = loc.writer(self._image.memory_for_program(loc.area))
         check = loc.type.check
         if loc.type.kind == "bool":

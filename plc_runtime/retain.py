@@ -64,7 +64,9 @@ class RetainFile:
             finally:
                 os.close(dir_fd)
         except OSError as exc:
-            raise RetainError(f"{self.path}: cannot write retain file: {exc.strerror or exc}") from None
+            raise RetainError(
+                f"{self.path}: cannot write retain file: {exc.strerror or exc}"
+            ) from None
 
     def load(self, layout: str) -> dict[str, object] | None:
         """The stored values, None if there is no file; RetainError if it cannot be trusted."""
@@ -73,16 +75,22 @@ class RetainFile:
         except FileNotFoundError:
             return None
         except OSError as exc:
-            raise RetainError(f"{self.path}: cannot read retain file: {exc.strerror or exc}") from None
+            raise RetainError(
+                f"{self.path}: cannot read retain file: {exc.strerror or exc}"
+            ) from None
         head, sep, body = raw.partition(b"\n")
         parts = head.decode("ascii", errors="replace").split(" ")
         if not sep or len(parts) != 5 or parts[0] != MAGIC:
             raise RetainError(f"{self.path}: not a retain file (bad header)")
         _, version, file_layout, crc, length = parts
         if version != str(VERSION):
-            raise RetainError(f"{self.path}: retain file version {version} is not supported (expected {VERSION})")
+            raise RetainError(
+                f"{self.path}: retain file version {version} is not supported (expected {VERSION})"
+            )
         if not length.isdigit() or int(length) != len(body):
-            raise RetainError(f"{self.path}: truncated retain file ({len(body)} of {length} body bytes)")
+            raise RetainError(
+                f"{self.path}: truncated retain file ({len(body)} of {length} body bytes)"
+            )
         if f"{zlib.crc32(body):08x}" != crc:
             raise RetainError(f"{self.path}: retain file is corrupted (CRC mismatch)")
         if file_layout != layout:

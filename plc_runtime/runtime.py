@@ -23,6 +23,7 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from time import perf_counter_ns
+from types import FrameType
 
 from .clock import VirtualClock, WallClock
 from .context import CycleContext
@@ -70,12 +71,18 @@ class Runtime:
         retain_interval: float | None = None,
         watchdog_interrupt: bool = True,
     ) -> None:
-        if not (isinstance(cycle_time, int | float) and math.isfinite(cycle_time) and cycle_time > 0):
-            raise ConfigError(f"cycle_time must be a positive number of seconds, got {cycle_time!r}")
+        if not (
+            isinstance(cycle_time, int | float) and math.isfinite(cycle_time) and cycle_time > 0
+        ):
+            raise ConfigError(
+                f"cycle_time must be a positive number of seconds, got {cycle_time!r}"
+            )
         if not (isinstance(watchdog, int | float) and 0 < watchdog <= 6000):
             raise ConfigError(f"watchdog must be between 0 and 6000 s, got {watchdog!r}")
         if min_cycle_time is not None and not 0 <= min_cycle_time <= watchdog:
-            raise ConfigError(f"min_cycle_time must be between 0 and the watchdog time, got {min_cycle_time!r}")
+            raise ConfigError(
+                f"min_cycle_time must be between 0 and the watchdog time, got {min_cycle_time!r}"
+            )
         if retain_interval is not None and retain_interval <= 0:
             raise ConfigError(f"retain_interval must be positive, got {retain_interval!r}")
         self.cycle_time = float(cycle_time)
@@ -112,7 +119,11 @@ class Runtime:
         self._next_retain_save = 0
         self._stop_requested = threading.Event()
         self._in_scan = False
-        self._alarm_armed = False
+        self._scan_start_ns = 0
+        self._alarm_pending = False
+        self._ticks_at_alarm = 0
+        self._alarm_thread: int | None = None
+        self._previous_alarm_handler: object = signal.SIG_DFL
 
     # ----- configuration ------------------------------------------------------------------
     def add_task(
@@ -136,24 +147,34 @@ class Runtime:
         known = {id(b) for t in self.tasks for b in t.blocks}
         for i, block in enumerate(blocks):
             if not isinstance(block, FunctionBlock):
-                raise ConfigError(f"task {name!r}: block #{i} is {type(block).__name__}, not a FunctionBlock")
+                raise ConfigError(
+                    f"task {name!r}: block #{i} is {type(block).__name__}, not a FunctionBlock"
+                )
             if id(block) in known or blocks.index(block) != i:
-                raise ConfigError(f"task {name!r}: block #{i} ({type(block).__name__}) is already scheduled")
+                raise ConfigError(
+                    f"task {name!r}: block #{i} ({type(block).__name__}) is already scheduled"
+                )
         interval = self.cycle_time if interval is None else interval
         if not (isinstance(interval, int | float) and interval > 0):
             raise ConfigError(f"task {name!r}: interval must be positive, got {interval!r}")
         interval_ticks = _ticks(interval, self.cycle_time, f"task {name!r}: interval")
         if interval_ticks < 1:
-            raise ConfigError(f"task {name!r}: interval {interval} s is shorter than the base cycle")
+            raise ConfigError(
+                f"task {name!r}: interval {interval} s is shorter than the base cycle"
+            )
         if not (isinstance(phase, int | float) and phase >= 0):
             raise ConfigError(f"task {name!r}: phase must be >= 0, got {phase!r}")
         phase_ticks = _ticks(phase, self.cycle_time, f"task {name!r}: phase")
         if phase_ticks >= interval_ticks:
-            raise ConfigError(f"task {name!r}: phase {phase} s must be smaller than the interval {interval} s")
+            raise ConfigError(
+                f"task {name!r}: phase {phase} s must be smaller than the interval {interval} s"
+            )
         if not isinstance(priority, int):
             raise ConfigError(f"task {name!r}: priority must be an integer, got {priority!r}")
         if overrun not in OVERRUN_POLICIES:
-            raise ConfigError(f"task {name!r}: overrun policy {overrun!r} is not one of {', '.join(OVERRUN_POLICIES)}")
+            raise ConfigError(
+                f"task {name!r}: overrun policy {overrun!r} is not one of {', '.join(OVERRUN_POLICIES)}"
+            )
         if budget is not None and not budget > 0:
             raise ConfigError(f"task {name!r}: budget must be positive, got {budget!r}")
         interval_ns = interval_ticks * self._tick_ns
@@ -199,12 +220,15 @@ class Runtime:
                 try:
                     block.startup(startup_ctx)
                 except Exception as exc:
-                    self._fault(f"startup of {task.name}/{i}:{type(block).__name__} raised {type(exc).__name__}: {exc}")
+                    self._fault(
+                        f"startup of {task.name}/{i}:{type(block).__name__} raised {type(exc).__name__}: {exc}"
+                    )
                     raise StartupError(self.fault_reason) from exc
         self._t0 = self.clock.now_ns()
         self._last_tick_start = None
         self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
         self.clock.enter_run()
+        self._install_alarm()
         self.state = RUN
 
     def stop(self) -> None:
@@ -213,6 +237,7 @@ class Runtime:
             return
         was_running = self.state in (RUN, FAULT)
         self.clock.exit_run()
+        self._uninstall_alarm()
         if was_running:
             self._retained = self._collect_retain()
             try:
@@ -251,7 +276,11 @@ class Runtime:
         if cycles is not None and (not isinstance(cycles, int) or cycles < 0):
             raise ConfigError(f"cycles must be a non-negative integer, got {cycles!r}")
         done = 0
-        while (cycles is None or done < cycles) and self.state == RUN and not self._stop_requested.is_set():
+        while (
+            (cycles is None or done < cycles)
+            and self.state == RUN
+            and not self._stop_requested.is_set()
+        ):
             self._tick()
             done += 1
         self._stop_requested.clear()
@@ -289,15 +318,20 @@ class Runtime:
         if self.retain_interval and self._last_tick_start >= self._next_retain_save:
             self._save_retain_periodically()
         self.ticks = k + 1
+        self._scan_start_ns = tick_real_start
+        self._in_scan = True
         try:
+            if not self._alarm_pending and self._alarm_thread is not None:
+                self._arm_alarm(self._watchdog_ns)
             completed = self._scan(k, release)
         except WatchdogTimeout:
-            self._disarm_watchdog()
-            self._fault(f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted")
+            self._in_scan = False
+            self._fault(
+                f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted"
+            )
             return
-        except BaseException:  # KeyboardInterrupt and the like: leave no alarm behind
-            self._disarm_watchdog()
-            raise
+        finally:
+            self._in_scan = False
         if not completed:
             return
         tick_exec = perf_counter_ns() - tick_real_start
@@ -308,9 +342,8 @@ class Runtime:
             )
 
     def _scan(self, k: int, release: int) -> bool:
-        """Quiet point, copy-in, due tasks, copy-out, all under the watchdog; False on FAULT."""
+        """Quiet point, copy-in, due tasks, copy-out (under the watchdog); False on FAULT."""
         image = self.image
-        self._arm_watchdog()
         image.apply_quiet_point()
         copied_in = False
         for task in self.tasks:
@@ -325,11 +358,9 @@ class Runtime:
                 image.copy_in()
                 copied_in = True
             if not self._scan_task(task, release, now):
-                self._disarm_watchdog()
                 return False
         if copied_in:
             image.copy_out()
-        self._disarm_watchdog()
         return True
 
     def _scan_task(self, task: Task, release: int, now: int) -> bool:
@@ -347,7 +378,9 @@ class Runtime:
         except Exception as exc:
             self.fault_traceback = traceback.format_exc()
             index = task.blocks.index(block)
-            self._fault(f"task {task.name}: block {index}:{type(block).__name__} raised {type(exc).__name__}: {exc}")
+            self._fault(
+                f"task {task.name}: block {index}:{type(block).__name__} raised {type(exc).__name__}: {exc}"
+            )
             return False
         elapsed = perf_counter_ns() - start
         self.clock.charge(elapsed)
@@ -368,25 +401,46 @@ class Runtime:
         self.image.publish_safe_state(self.safe_outputs)
 
     # ----- watchdog interrupt -------------------------------------------------------------
-    def _arm_watchdog(self) -> None:
-        if not self.watchdog_interrupt or threading.current_thread() is not threading.main_thread():
-            return
-        if signal.getsignal(signal.SIGALRM) is not self._on_alarm:
-            signal.signal(signal.SIGALRM, self._on_alarm)
-        self._in_scan = True
-        self._alarm_armed = True
-        signal.setitimer(signal.ITIMER_REAL, self.watchdog)
+    # A one-shot SIGALRM timer that re-arms itself from its handler: no system call per
+    # tick, detection exactly at the watchdog time (a too-early alarm re-arms for the rest
+    # of the current scan), and the chain ends by itself once no tick ran since the last
+    # alarm, so an idle or abandoned runtime leaves no timer behind. SIGALRM can only be
+    # handled in the main thread: a runtime started from another thread keeps the
+    # after-the-fact watchdog check but cannot interrupt a hung block.
+    def _install_alarm(self) -> None:
+        self._alarm_thread = None
+        self._alarm_pending = False
+        if self.watchdog_interrupt and threading.current_thread() is threading.main_thread():
+            self._previous_alarm_handler = signal.signal(signal.SIGALRM, self._on_alarm)
+            self._alarm_thread = threading.get_ident()
 
-    def _disarm_watchdog(self) -> None:
+    def _uninstall_alarm(self) -> None:
         self._in_scan = False
-        if self._alarm_armed:
+        if self._alarm_thread is not None and threading.get_ident() == self._alarm_thread:
             signal.setitimer(signal.ITIMER_REAL, 0)
-            self._alarm_armed = False
+            signal.signal(signal.SIGALRM, self._previous_alarm_handler)
+        self._alarm_thread = None
+        self._alarm_pending = False
 
-    def _on_alarm(self, signum: int, frame: object) -> None:
+    def _arm_alarm(self, delay_ns: int) -> None:
+        self._alarm_pending = True
+        self._ticks_at_alarm = self.ticks
+        signal.setitimer(signal.ITIMER_REAL, max(delay_ns, 1000) / 1e9)
+
+    def _on_alarm(self, signum: int, frame: FrameType | None) -> None:
+        self._alarm_pending = False
         if self._in_scan:
-            self._in_scan = False
-            raise WatchdogTimeout()
+            overdue = perf_counter_ns() - self._scan_start_ns - self._watchdog_ns
+            if frame is not None and frame.f_code is _TICK_CODE:
+                # Interrupted the tick's own bookkeeping, outside the guarded scan: an
+                # exception here would escape, so look again in a millisecond.
+                self._arm_alarm(1_000_000)
+            elif overdue >= 0:
+                self._in_scan = False
+                raise WatchdogTimeout()
+            self._arm_alarm(-overdue)
+        elif self.state == RUN and self.ticks != self._ticks_at_alarm:
+            self._arm_alarm(self._watchdog_ns)
 
     # ----- instance data and retain -------------------------------------------------------
     def _block_paths(self) -> Iterable[tuple[str, FunctionBlock]]:
@@ -395,9 +449,15 @@ class Runtime:
                 yield from block.walk(f"{task.name}/{i}:{type(block).__name__}")
 
     def _layout(self) -> list[tuple[str, str]]:
-        entries = [(f"tag:{t.name}", f"{t.address.text}:{t.type.name}") for t in self.image.tags if t.retain]
+        entries = [
+            (f"tag:{t.name}", f"{t.address.text}:{t.type.name}")
+            for t in self.image.tags
+            if t.retain
+        ]
         for path, block in self._block_paths():
-            entries += [(f"fb:{path}.{name}", type(block).__name__) for name in block.retain_names()]
+            entries += [
+                (f"fb:{path}.{name}", type(block).__name__) for name in block.retain_names()
+            ]
         return entries
 
     def _init_block_data(self, retained: dict[str, object]) -> None:
@@ -476,4 +536,9 @@ class Runtime:
     def _require(self, state: str, action: str) -> None:
         if self.state != state:
             detail = f" ({self.fault_reason})" if self.state == FAULT else ""
-            raise StateError(f"cannot {action} in state {self.state}{detail}; required state is {state}")
+            raise StateError(
+                f"cannot {action} in state {self.state}{detail}; required state is {state}"
+            )
+
+
+_TICK_CODE = Runtime._tick.__code__

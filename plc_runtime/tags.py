@@ -35,7 +35,15 @@ class TagTable:
     def __init__(self) -> None:
         self._tags: dict[str, Tag] = {}
 
-    def add(self, name: str, address: str, type: str | None = None, *, retain: bool = False, comment: str = "") -> Tag:
+    def add(
+        self,
+        name: str,
+        address: str,
+        type: str | None = None,
+        *,
+        retain: bool = False,
+        comment: str = "",
+    ) -> Tag:
         """Declare a tag; the type defaults to the raw type of the address size (BOOL, BYTE, WORD, ...)."""
         if not isinstance(name, str) or not _NAME_RE.match(name) or name.startswith("%"):
             raise ConfigError(f"tag name {name!r} is not a valid identifier")
@@ -46,13 +54,17 @@ class TagTable:
             type = {"X": "BOOL", "B": "BYTE", "W": "WORD", "D": "DWORD", "L": "LWORD"}[addr.size]
         dt = TYPES.get(str(type).upper())
         if dt is None:
-            raise ConfigError(f"tag {name!r}: unknown data type {type!r} (known: {', '.join(TYPES)})")
+            raise ConfigError(
+                f"tag {name!r}: unknown data type {type!r} (known: {', '.join(TYPES)})"
+            )
         if dt.size != addr.size:
             raise ConfigError(
                 f"tag {name!r}: type {dt.name} needs a {dt.size}-sized address, but {address} is {addr.size}-sized"
             )
         if retain and addr.area != "M":
-            raise ConfigError(f"tag {name!r}: only marker (%M) tags can be retentive, {address} is in area {addr.area}")
+            raise ConfigError(
+                f"tag {name!r}: only marker (%M) tags can be retentive, {address} is in area {addr.area}"
+            )
         tag = Tag(name, addr, dt, bool(retain), comment)
         self._tags[name] = tag
         return tag
@@ -61,7 +73,9 @@ class TagTable:
         try:
             return self._tags[name]
         except KeyError:
-            raise AddressError(f"unknown tag {name!r} (not an IEC address and not in the tag table)") from None
+            raise AddressError(
+                f"unknown tag {name!r} (not an IEC address and not in the tag table)"
+            ) from None
 
     def __contains__(self, name: object) -> bool:
         return name in self._tags
@@ -100,8 +114,13 @@ class TagTable:
             if not isinstance(spec.get("retain", False), bool):
                 raise ConfigError(f"{where}: 'retain' must be true or false")
             try:
-                table.add(name, spec["address"], spec.get("type"), retain=spec.get("retain", False),
-                          comment=str(spec.get("comment", "")))
+                table.add(
+                    name,
+                    spec["address"],
+                    spec.get("type"),
+                    retain=spec.get("retain", False),
+                    comment=str(spec.get("comment", "")),
+                )
             except (ConfigError, AddressError) as exc:
                 raise ConfigError(f"{where}: {exc}") from None
         return table

@@ -2,7 +2,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from plc_runtime import AddressError, ConfigError, ProcessImage, TagTable, ValueRangeError, parse_address
+from plc_runtime import (
+    AddressError,
+    ConfigError,
+    ProcessImage,
+    TagTable,
+    ValueRangeError,
+    parse_address,
+)
 
 
 @pytest.mark.parametrize(
@@ -22,7 +29,9 @@ def test_parse_valid(text, area, size, offset, bit):
     assert (a.area, a.size, a.byte_offset, a.bit) == (area, size, offset, bit)
 
 
-@pytest.mark.parametrize("text", ["%IX0.8", "%IX0", "%IW0.1", "%ZW0", "IX0.0", "%I", "%MW-1", "", "%MX1.2.3"])
+@pytest.mark.parametrize(
+    "text", ["%IX0.8", "%IX0", "%IW0.1", "%ZW0", "IX0.0", "%I", "%MW-1", "", "%MX1.2.3"]
+)
 def test_parse_invalid_names_the_address(text):
     with pytest.raises(AddressError) as err:
         parse_address(text)
@@ -100,7 +109,9 @@ def test_retain_only_on_markers():
 
 def test_tag_file_errors_name_file_and_tag(tmp_path):
     path = tmp_path / "tags.toml"
-    path.write_text('[tags.speed]\naddress = "%MD2"\ntype = "REAL"\n[tags.bad]\naddress = "%MW0"\ntype = "REAL"\n')
+    path.write_text(
+        '[tags.speed]\naddress = "%MD2"\ntype = "REAL"\n[tags.bad]\naddress = "%MW0"\ntype = "REAL"\n'
+    )
     with pytest.raises(ConfigError, match=r"tags.toml: \[tags.bad\]: .*D-sized"):
         TagTable.from_toml(path)
     path.write_text("[tags.x\naddress=")
@@ -114,7 +125,9 @@ def test_tag_file_errors_name_file_and_tag(tmp_path):
     assert table.get("lamp").type.name == "BOOL"
 
 
-@given(st.sampled_from(["I", "Q", "M"]), st.sampled_from(["B", "W", "D", "L"]), st.integers(0, 4000))
+@given(
+    st.sampled_from(["I", "Q", "M"]), st.sampled_from(["B", "W", "D", "L"]), st.integers(0, 4000)
+)
 def test_parse_roundtrip(area, size, index):
     a = parse_address(f"%{area}{size}{index}")
     assert a.byte_offset == index * {"B": 1, "W": 2, "D": 4, "L": 8}[size]

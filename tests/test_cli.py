@@ -31,7 +31,9 @@ def test_duration_and_retain_file(tmp_path, capsys):
     assert first["cycles"] == 250
     assert main(["run", "--duration", "2", "--json", "--retain", str(retain)]) == 0
     second = json.loads(capsys.readouterr().out)
-    assert second["tags"]["flash_count"] == first["tags"]["flash_count"] + 2  # retained across processes
+    assert (
+        second["tags"]["flash_count"] == first["tags"]["flash_count"] + 2
+    )  # retained across processes
 
 
 def test_fault_gives_exit_code_1(capsys):
@@ -53,9 +55,38 @@ def test_usage_errors_are_one_line(capsys):
 def test_console_script_realtime():
     out = subprocess.run(
         [str(SCRIPT), "run", "--cycles", "20", "--cycle-time", "0.005", "--realtime", "--json"],
-        capture_output=True, text=True, timeout=60, check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
     )
     assert out.returncode == 0, out.stderr
     summary = json.loads(out.stdout)
     assert summary["clock"] == "wall" and summary["cycles"] == 20
     assert summary["wall_time_s"] >= 19 * 0.005  # absolute deadlines: never faster than real time
+
+
+def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
+    proc = subprocess.Popen(
+        [str(SCRIPT), "run", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert "until Ctrl-C" in proc.stderr.readline()  # it is running now
+        proc.send_signal(subprocess.signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0
+    summary = json.loads(out)
+    assert summary["state"] == "RUN" and summary["cycles"] > 0
+
+
+def test_retain_problems_are_one_line_warnings(tmp_path, capsys):
+    retain = tmp_path / "demo.retain"
+    retain.write_text("not a retain file\n")
+    assert main(["run", "--cycles", "5", "--json", "--retain", str(retain)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        "plc-runtime: warning: retain data not used, cold start:"
+    )

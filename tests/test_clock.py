@@ -57,7 +57,11 @@ def test_rt_mode_degrades_with_a_warning(monkeypatch):
 
 def test_rt_mode_sets_and_restores_the_scheduler(monkeypatch):
     calls = []
-    monkeypatch.setattr(os, "sched_setscheduler", lambda pid, policy, param: calls.append((policy, param.sched_priority)))
+    monkeypatch.setattr(
+        os,
+        "sched_setscheduler",
+        lambda pid, policy, param: calls.append((policy, param.sched_priority)),
+    )
     clock = WallClock(rt=True, rt_priority=42)
     clock.enter_run()
     assert calls[-1] == (os.SCHED_FIFO, 42)

@@ -20,7 +20,11 @@ def imported_packages(path: Path) -> set[str]:
 
 
 def sources(package: str, exclude: tuple[str, ...] = ()) -> list[Path]:
-    return [p for p in (ROOT / package).rglob("*.py") if not any(part in exclude for part in p.relative_to(ROOT).parts)]
+    return [
+        p
+        for p in (ROOT / package).rglob("*.py")
+        if not any(part in exclude for part in p.relative_to(ROOT).parts)
+    ]
 
 
 @pytest.mark.parametrize("path", sources("plc_runtime", exclude=("cli.py", "programs")), ids=str)

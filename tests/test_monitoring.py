@@ -78,7 +78,10 @@ def test_watchdog_measured_in_real_time_on_the_virtual_clock():
     rt.start()
     assert rt.step(5) == 2
     assert rt.state == "FAULT"
-    assert "watchdog: scan 1 took" in rt.fault_reason and "maximum cycle time is 20 ms" in rt.fault_reason
+    assert (
+        "watchdog: scan 1 took" in rt.fault_reason
+        and "maximum cycle time is 20 ms" in rt.fault_reason
+    )
 
 
 def test_watchdog_interrupts_a_hung_block():
@@ -140,8 +143,11 @@ def test_startup_failure_raises_and_faults():
 def test_minimum_cycle_time_spaces_catch_up_ticks():
     starts = []
     rt = Runtime(cycle_time=0.010, clock=VirtualClock(), min_cycle_time=0.008)
-    rt.add_task("main", [Probe(lambda ctx: starts.append(rt.clock.now_ns())), Busy(0.035, scans={0})],
-                overrun="catch_up")
+    rt.add_task(
+        "main",
+        [Probe(lambda ctx: starts.append(rt.clock.now_ns())), Busy(0.035, scans={0})],
+        overrun="catch_up",
+    )
     rt.start()
     rt.step(20)
     gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]

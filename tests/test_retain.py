@@ -41,7 +41,13 @@ def build(path=None, extra_retain=False) -> tuple[Runtime, Machine]:
 
 
 def values(rt, machine):
-    return machine.total, machine.since_start, machine.parts.CV, rt.image.read("kept"), rt.image.read("lost")
+    return (
+        machine.total,
+        machine.since_start,
+        machine.parts.CV,
+        rt.image.read("kept"),
+        rt.image.read("lost"),
+    )
 
 
 def test_warm_restart_keeps_retain_and_resets_the_rest():
@@ -151,7 +157,13 @@ def test_periodic_save(tmp_path):
     rt.start()
     rt.step(12)  # saves at the quiet point before ticks 5 and 10: state after 10 scans
     assert path.exists()  # written while running, before any stop()
-    layout = layout_hash([("tag:kept", "%MW0:INT"), ("fb:main/0:Machine.total", "Machine"), ("fb:main/0:Machine.parts.CV", "CTU")])
+    layout = layout_hash(
+        [
+            ("tag:kept", "%MW0:INT"),
+            ("fb:main/0:Machine.total", "Machine"),
+            ("fb:main/0:Machine.parts.CV", "CTU"),
+        ]
+    )
     stored = RetainFile(path).load(layout)
     assert stored["fb:main/0:Machine.total"] == 10 and stored["tag:kept"] == 10
     rt.stop()
@@ -169,7 +181,9 @@ def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
     rt.add_task("main", [Bad()])
     rt.start()
     rt.step()
-    with pytest.raises(RetainError, match="retain value fb:main/0:Bad.thing of type object cannot be stored"):
+    with pytest.raises(
+        RetainError, match="retain value fb:main/0:Bad.thing of type object cannot be stored"
+    ):
         rt.save_retain()
     with pytest.warns(RuntimeWarning, match="retain file not saved"):
         rt.stop()

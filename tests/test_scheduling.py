@@ -126,3 +126,13 @@ def test_structural_errors():
         Runtime(cycle_time=0)
     rt.stop()
     assert rt.state == "STOP"
+
+
+def test_request_stop_ends_an_open_ended_run():
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Probe(lambda ctx: ctx.cycle == 41 and rt.request_stop())])
+    rt.start()
+    assert rt.run() == 42  # returns after the tick in which the stop was requested
+    assert rt.state == "RUN"
+    assert rt.run(cycles=3) == 3  # the request does not stick
+    rt.stop()

@@ -11,7 +11,9 @@ from plc_runtime import ConfigError, FunctionBlock, Runtime, VirtualClock
 TICK = 0.1
 
 
-def drive(fb: FunctionBlock, inputs: dict[str, list], outputs: tuple[str, ...], preset=None) -> dict[str, list]:
+def drive(
+    fb: FunctionBlock, inputs: dict[str, list], outputs: tuple[str, ...], preset=None
+) -> dict[str, list]:
     """Call ``fb`` once per tick with the k-th value of every input; record its outputs.
 
     ``preset(fb)`` runs in the startup phase (a start re-initialises the block's variables)."""
@@ -90,11 +92,16 @@ def test_ctu():
 
 def test_ctu_saturates_at_int_max():
     preset = lambda fb: setattr(fb, "CV", 32767)  # noqa: E731
-    assert drive(CTU(), {"CU": bits("1 0 1"), "PV": [10] * 3}, ("Q", "CV"), preset)["CV"] == [32767] * 3
+    assert (
+        drive(CTU(), {"CU": bits("1 0 1"), "PV": [10] * 3}, ("Q", "CV"), preset)["CV"]
+        == [32767] * 3
+    )
 
 
 def test_ctd():
-    out = drive(CTD(), {"CD": bits("0 1 0 1 0 1"), "LD": bits("1 0 0 0 0 0"), "PV": [2] * 6}, ("Q", "CV"))
+    out = drive(
+        CTD(), {"CD": bits("0 1 0 1 0 1"), "LD": bits("1 0 0 0 0 0"), "PV": [2] * 6}, ("Q", "CV")
+    )
     assert out["CV"] == [2, 1, 1, 0, 0, -1]
     assert out["Q"] == bits("0 0 0 1 1 1")
 
@@ -117,20 +124,34 @@ def test_ctud():
 
 
 def test_sr_set_dominant_and_rs_reset_dominant():
-    assert drive(SR(), {"S1": bits("1 0 0 1 0"), "R": bits("0 0 1 1 1")}, ("Q1",))["Q1"] == bits("1 1 0 1 0")
-    assert drive(RS(), {"S": bits("1 0 0 1 0"), "R1": bits("0 0 1 1 0")}, ("Q1",))["Q1"] == bits("1 1 0 0 0")
+    assert drive(SR(), {"S1": bits("1 0 0 1 0"), "R": bits("0 0 1 1 1")}, ("Q1",))["Q1"] == bits(
+        "1 1 0 1 0"
+    )
+    assert drive(RS(), {"S": bits("1 0 0 1 0"), "R1": bits("0 0 1 1 0")}, ("Q1",))["Q1"] == bits(
+        "1 1 0 0 0"
+    )
 
 
 def test_omitted_inputs_keep_their_value_and_interface():
     out = drive(TON(), {"IN": bits("1 1 1 1")}, ("Q",))  # PT keeps its default 0.0
     assert out["Q"] == bits("1 1 1 1")
-    assert TON.interface() == {"inputs": ["IN", "PT"], "outputs": ["Q", "ET"], "static": ["start_ns"]}
+    assert TON.interface() == {
+        "inputs": ["IN", "PT"],
+        "outputs": ["Q", "ET"],
+        "static": ["start_ns"],
+    }
 
 
 @pytest.mark.parametrize(
     "fb,call,message",
-    [(TON(), {"IN": True, "PT": bad}, "TON: PT must be a time >= 0 in seconds") for bad in (-0.1, float("nan"), "1s", True)]
-    + [(CTU(), {"CU": True, "PV": 40000}, "CTU: PV must be an INT"), (CTD(), {"PV": 1.5}, "CTD: PV must be an INT")],
+    [
+        (TON(), {"IN": True, "PT": bad}, "TON: PT must be a time >= 0 in seconds")
+        for bad in (-0.1, float("nan"), "1s", True)
+    ]
+    + [
+        (CTU(), {"CU": True, "PV": 40000}, "CTU: PV must be an INT"),
+        (CTD(), {"PV": 1.5}, "CTD: PV must be an INT"),
+    ],
 )
 def test_bad_preset_is_a_clear_error(fb, call, message):
     with pytest.raises(ConfigError, match=message):

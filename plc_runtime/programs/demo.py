@@ -67,8 +67,16 @@ def build(
     watchdog: float = 0.150,
     retain_file: str | None = None,
 ) -> Runtime:
-    rt = Runtime(cycle_time=cycle_time, clock=clock, watchdog=watchdog, tags=tags(), retain_file=retain_file)
+    rt = Runtime(
+        cycle_time=cycle_time, clock=clock, watchdog=watchdog, tags=tags(), retain_file=retain_file
+    )
     slow = max(cycle_time, round(0.100 / cycle_time) * cycle_time)
     rt.add_task("main", [Flasher()], interval=cycle_time, priority=0)
-    rt.add_task("slow", [Supervisor()], interval=slow, priority=1, phase=(round(slow / cycle_time) // 2) * cycle_time)
+    rt.add_task(
+        "slow",
+        [Supervisor()],
+        interval=slow,
+        priority=1,
+        phase=(round(slow / cycle_time) // 2) * cycle_time,
+    )
     return rt

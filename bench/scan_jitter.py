@@ -1,0 +1,109 @@
+"""Wall-clock scan lateness (jitter) of the runtime at 10 ms and 1 ms cycles.
+
+Lateness = actual start of a scan minus its release time on the absolute grid
+``t0 + k * cycle``. Modes: the runtime on ``WallClock()`` (sleep to deadline),
+``WallClock(spin=...)`` (sleep, then spin the tail), and rt mode (SCHED_FIFO, 1 ns timer
+slack, GC in idle slack; reported as unavailable where the OS refuses it), with and
+without spin. Baseline, in the same process: the naive loop many soft-PLCs started with,
+``work(); time.sleep(cycle)``, whose lateness against the same grid grows with every
+cycle (drift). Ratios are p99 lateness over the baseline's p99.
+
+    .venv/bin/python bench/scan_jitter.py [--cycles 2000] [--spin-ms 0.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from plc_runtime import FunctionBlock, Runtime, Static, WallClock  # noqa: E402
+
+
+class Trivial(FunctionBlock):
+    n = Static(0)
+
+    def cycle(self, ctx) -> None:
+        self.n += 1
+
+
+def naive_relative_sleep(cycle: float, cycles: int) -> np.ndarray:
+    block = Trivial()
+    starts = np.zeros(cycles, dtype=np.int64)
+    t0 = time.monotonic_ns()
+    for k in range(cycles):
+        starts[k] = time.monotonic_ns()
+        block.cycle(None)
+        time.sleep(cycle)
+    return starts - (t0 + np.arange(cycles, dtype=np.int64) * round(cycle * 1e9))
+
+
+def runtime_lateness(cycle: float, cycles: int, clock: WallClock) -> tuple[np.ndarray, dict]:
+    rt = Runtime(cycle_time=cycle, clock=clock, watchdog=1.0)
+    rt.add_task("main", [Trivial() for _ in range(10)], overrun="catch_up")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rt.start()
+        rt.run(cycles=cycles)
+        status = rt.clock.status()
+        lateness = rt.stats["main"].lateness_ns()
+        rt.stop()
+    status["warnings"] = [str(w.message) for w in caught]
+    return lateness, status
+
+
+def row(
+    name: str, cycle: float, late_ns: np.ndarray, base_p99: float | None, note: str = ""
+) -> str:
+    us = late_ns / 1e3
+    p50, p99, mx = np.percentile(us, 50), np.percentile(us, 99), us.max()
+    ratio = f"{p99 / base_p99:.4f}" if base_p99 else "1 (baseline)"
+    return f"| {cycle * 1e3:g} ms | {name} | {len(us)} | {p50:,.1f} | {p99:,.1f} | {mx:,.1f} | {ratio} | {note} |"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cycles", type=int, default=2000)
+    parser.add_argument("--spin-ms", type=float, default=0.5, help="spin tail for the spin modes")
+    args = parser.parse_args()
+    spin = args.spin_ms / 1e3
+    print(
+        f"Scan lateness in us over {args.cycles} cycles each, 10 trivial FBs, Python {sys.version.split()[0]}"
+    )
+    print()
+    print("| cycle | mode | scans | p50 us | p99 us | max us | p99 / baseline p99 | note |")
+    print("|---|---|---:|---:|---:|---:|---:|---|")
+    for cycle in (0.010, 0.001):
+        base = naive_relative_sleep(cycle, args.cycles)
+        base_p99 = float(np.percentile(base / 1e3, 99))
+        print(
+            row(
+                "baseline: work(); sleep(cycle)",
+                cycle,
+                base,
+                None,
+                f"drift after {args.cycles} cycles: {base[-1] / 1e6:.1f} ms",
+            )
+        )
+        modes = [
+            ("sleep to deadline", WallClock()),
+            (f"sleep + spin {args.spin_ms:g} ms", WallClock(spin=spin)),
+            ("rt mode", WallClock(rt=True)),
+            (f"rt mode + spin {args.spin_ms:g} ms", WallClock(spin=spin, rt=True)),
+        ]
+        for name, clock in modes:
+            late, status = runtime_lateness(cycle, args.cycles, clock)
+            note = "; ".join(status["warnings"]) if status["warnings"] else ""
+            if clock.rt and not note:
+                note = f"SCHED_FIFO {status.get('sched_fifo')}, slack {status.get('timer_slack')}"
+            print(row(name, cycle, late, base_p99, note))
+
+
+if __name__ == "__main__":
+    main()
