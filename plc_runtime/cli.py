@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import time
@@ -27,6 +28,7 @@ from .runtime import Runtime
 
 EXIT_FAULT = 1
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
 
 
 class CliError(Exception):
@@ -39,11 +41,21 @@ def _positive(kind: type) -> Any:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text!r}")
         return value
 
     return parse
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0: {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -79,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--spin",
-        type=float,
+        type=_non_negative,
         default=0.0,
         help="realtime: spin the last SPIN ms before each deadline",
     )
@@ -115,8 +127,6 @@ def _one_line_warning(message: Warning | str, category: type, *args: Any, **kwar
 def _run(args: argparse.Namespace) -> int:
     if not args.realtime and (args.rt or args.spin):
         raise CliError("--rt and --spin only apply with --realtime")
-    if args.spin < 0:
-        raise CliError("--spin must be >= 0")
     if args.realtime:
         clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
     else:
@@ -143,6 +153,10 @@ def _run(args: argparse.Namespace) -> int:
             live,
             announce=f"plc-runtime: running {args.program} until Ctrl-C" if total is None else None,
         )
+    except KeyboardInterrupt:  # the second Ctrl-C: abort at once, but still stop cleanly
+        rt.stop()
+        print(f"plc-runtime: interrupted in cycle {rt.ticks}; runtime stopped", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         signal.signal(signal.SIGINT, previous)
     wall = time.monotonic() - wall_start

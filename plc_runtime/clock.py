@@ -4,9 +4,10 @@ The runtime schedules every base tick against an absolute deadline ``t0 + k * ti
 there is no drift however long it runs; the clock only has to *wait until* a deadline.
 
 ``VirtualClock`` jumps there: each step advances exactly one tick, as fast as the CPU
-allows. The runtime charges the real execution time it measures to the virtual clock, so
-a scan that takes longer than its interval makes the following ticks late exactly as it
-would on a plant, and overrun policies and the watchdog behave the same in tests.
+allows, deterministically. Execution time is still measured in real time, so overruns and
+the watchdog are caught in tests; with ``charge_execution=True`` the measured time is also
+added to simulated time, so an overrunning scan makes the following ticks late exactly as
+it would on a plant.
 
 ``WallClock`` sleeps to the deadline (``time.sleep`` uses an absolute monotonic deadline
 since Python 3.11), optionally spinning the last part, and optionally in "rt" mode:
@@ -18,21 +19,33 @@ from __future__ import annotations
 
 import ctypes
 import gc
+import math
 import os
 import time
 import warnings
+
+from .errors import ConfigError
 
 PR_SET_TIMERSLACK = 29
 PR_GET_TIMERSLACK = 30
 
 
 class VirtualClock:
-    """Deterministic simulated time in integer nanoseconds."""
+    """Deterministic simulated time in integer nanoseconds.
+
+    ``charge_execution=False`` (default): time advances by exactly one tick per step, so a
+    run is reproducible bit for bit whatever the host does; overruns and the watchdog are
+    still detected from the measured real execution time. ``charge_execution=True``:
+    measured execution time is also added to simulated time, so an overrunning scan makes
+    the following ticks late and the ``skip`` policy drops releases as it would on a plant
+    (reproducible only as long as no scan overruns).
+    """
 
     is_virtual = True
 
-    def __init__(self, start: float = 0.0) -> None:
+    def __init__(self, start: float = 0.0, charge_execution: bool = False) -> None:
         self._now_ns = round(start * 1e9)
+        self.charge_execution = charge_execution
 
     def now_ns(self) -> int:
         return self._now_ns
@@ -45,8 +58,9 @@ class VirtualClock:
             self._now_ns = deadline_ns
 
     def charge(self, elapsed_ns: int) -> None:
-        """Account real execution time to simulated time (a virtual CPU that is busy)."""
-        self._now_ns += elapsed_ns
+        """Account real execution time to simulated time, if this clock emulates a busy CPU."""
+        if self.charge_execution:
+            self._now_ns += elapsed_ns
 
     def enter_run(self) -> None:
         pass
@@ -55,7 +69,7 @@ class VirtualClock:
         pass
 
     def status(self) -> dict[str, object]:
-        return {"clock": "virtual"}
+        return {"clock": "virtual", "charge_execution": self.charge_execution}
 
 
 class WallClock:
@@ -73,8 +87,9 @@ class WallClock:
     def __init__(
         self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.002
     ) -> None:
-        if spin < 0 or gc_slack < 0:
-            raise ValueError("spin and gc_slack must be >= 0")
+        for name, value in (("spin", spin), ("gc_slack", gc_slack)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and 0 <= value <= 1):
+                raise ConfigError(f"WallClock {name} must be between 0 and 1 second, got {value!r}")
         self.spin_ns = round(spin * 1e9)
         self.rt = rt
         self.rt_priority = rt_priority

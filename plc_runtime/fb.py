@@ -141,6 +141,10 @@ class FunctionBlock:
                 )
             self._extra_retain.add(name)
 
+    def declared_type(self, name: str) -> str:
+        """Type name of a variable's declared default (part of the retain layout)."""
+        return type(self._vars[name].default).__name__
+
     def retain_names(self) -> list[str]:
         return [n for n, v in self._vars.items() if v.retain or n in self._extra_retain]
 

@@ -115,8 +115,9 @@ class ProcessImage:
         self._pending: deque[tuple[str, Location, object]] = deque()
         self._forces: dict[str, tuple[Location, object]] = {}
         self._force_writers: list[tuple[str, Callable, object]] = []
-        self._out_lock = threading.Lock()
+        self._lock = threading.Lock()
         self._readers: dict[str, Callable[[], object]] = {}
+        self._external_writers: dict[str, Callable[[object], None]] = {}
         for tag in self.tags:
             self._check_in_area(tag.address, tag.name)
 
@@ -132,6 +133,7 @@ class ProcessImage:
             loc = Location(ref, address, RAW_TYPE_OF_SIZE[address.size])
         elif isinstance(ref, str):
             tag = self.tags.get(ref)
+            self._check_in_area(tag.address, f"tag {ref} ({tag.address.text})")
             loc = Location(ref, tag.address, tag.type)
         else:
             raise AddressError(f"address or tag name must be a string, got {ref!r}")
@@ -160,7 +162,7 @@ class ProcessImage:
             loc = self.resolve(ref)
             mem = {"I": self.inputs, "Q": self.published_outputs, "M": self.markers}[loc.area]
             reader = self._readers[ref] = loc.reader(mem)
-        with self._out_lock:
+        with self._lock:
             return reader()
 
     def write(self, ref: str, value: object) -> None:
@@ -172,6 +174,15 @@ class ProcessImage:
         """
         loc = self.resolve(ref)
         self._pending.append(("write", loc, loc.type.check(value, ref)))
+
+    def write_many(self, values: Mapping[str, object]) -> None:
+        """Queue several writes that take effect together, at the same quiet point
+        (e.g. the two words of a setpoint). Nothing is queued if any value is invalid."""
+        batch = []
+        for ref, value in values.items():
+            loc = self.resolve(ref)
+            batch.append((loc, loc.type.check(value, ref)))
+        self._pending.append(("batch", None, batch))  # type: ignore[arg-type]
 
     def force(self, ref: str, value: object) -> None:
         """Force a location to a value until unforced (applied at the next quiet point)."""
@@ -188,7 +199,8 @@ class ProcessImage:
     @property
     def forces(self) -> dict[str, object]:
         """The active force table: reference -> forced value."""
-        return {ref: value for ref, (_loc, value) in self._forces.items()}
+        with self._lock:
+            return {ref: value for ref, (_loc, value) in self._forces.items()}
 
     @property
     def pending_writes(self) -> int:
@@ -198,46 +210,61 @@ class ProcessImage:
     def apply_quiet_point(self) -> None:
         """Apply every queued external write and force change (called between cycles)."""
         pending = self._pending
-        changed = False
-        while pending:
-            op, loc, value = pending.popleft()
-            if op == "write":
-                mem = {"I": self.field_inputs, "Q": self.outputs, "M": self.markers}[loc.area]
-                loc.writer(mem)(value)
-            elif op == "force":
-                self._forces.pop(loc.ref, None)
-                self._forces[loc.ref] = (loc, value)
-                changed = True
-            elif op == "unforce":
-                changed |= self._forces.pop(loc.ref, None) is not None
-            else:
-                changed |= bool(self._forces)
-                self._forces.clear()
-        if changed:
-            self._force_writers = [
-                (loc.area, loc.writer(self.memory_for_program(loc.area)), value)
-                for loc, value in self._forces.values()
-            ]
+        if not pending:
+            return
+        with self._lock:
+            changed = False
+            while pending:
+                op, loc, value = pending.popleft()
+                if op == "write":
+                    self._write_external(loc, value)
+                elif op == "batch":
+                    for batch_loc, batch_value in value:  # type: ignore[attr-defined]
+                        self._write_external(batch_loc, batch_value)
+                elif op == "force":
+                    self._forces.pop(loc.ref, None)
+                    self._forces[loc.ref] = (loc, value)
+                    changed = True
+                elif op == "unforce":
+                    changed |= self._forces.pop(loc.ref, None) is not None
+                else:
+                    changed |= bool(self._forces)
+                    self._forces.clear()
+            if changed:
+                self._force_writers = [
+                    (loc.area, loc.writer(self.memory_for_program(loc.area)), value)
+                    for loc, value in self._forces.values()
+                ]
+
+    def _write_external(self, loc: Location, value: object) -> None:
+        write = self._external_writers.get(loc.ref)
+        if write is None:
+            mem = {"I": self.field_inputs, "Q": self.outputs, "M": self.markers}[loc.area]
+            write = self._external_writers[loc.ref] = loc.writer(mem)
+        write(value)
 
     def copy_in(self) -> None:
-        """Cycle start: snapshot the field inputs, then apply forces to the program image."""
-        np.copyto(self.inputs.bytes, self.field_inputs.bytes)
-        for _area, write, value in self._force_writers:
-            write(value)
+        """Cycle start: snapshot the field inputs, then apply forces to the program image.
+
+        Under the lock, so an outside reader never sees a forced input at its field value."""
+        with self._lock:
+            np.copyto(self.inputs.bytes, self.field_inputs.bytes)
+            for _area, write, value in self._force_writers:
+                write(value)
 
     def copy_out(self) -> None:
         """Cycle end: re-apply output and marker forces, then publish the output image."""
-        for area, write, value in self._force_writers:
-            if area != "I":
-                write(value)
-        with self._out_lock:
+        with self._lock:
+            for area, write, value in self._force_writers:
+                if area != "I":
+                    write(value)
             np.copyto(self.published_outputs.bytes, self.outputs.bytes)
 
     def reset(self) -> None:
         """Clear program memory for a (re)start: inputs read 0 in startup, outputs and markers 0."""
         for mem in (self.inputs, self.outputs, self.markers):
             mem.bytes.fill(0)
-        with self._out_lock:
+        with self._lock:
             self.published_outputs.bytes.fill(0)
 
     def publish_safe_state(self, safe_outputs: Mapping[str, object]) -> None:
@@ -246,7 +273,7 @@ class ProcessImage:
         for ref, value in safe_outputs.items():
             loc = self.resolve(ref)
             loc.writer(staged)(loc.type.check(value, f"safe output {ref}"))
-        with self._out_lock:
+        with self._lock:
             np.copyto(self.published_outputs.bytes, staged.bytes)
             np.copyto(self.outputs.bytes, staged.bytes)
 

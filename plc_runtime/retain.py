@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 import zlib
 from pathlib import Path
 
@@ -105,3 +106,60 @@ class RetainFile:
         if not isinstance(values, dict):
             raise RetainError(f"{self.path}: retain file body is not an object")
         return values
+
+
+class RetainStore:
+    """The retentive values of one program: in memory across stop()/start(), and in an
+    optional file across processes. Failures to write never stop the PLC: they are
+    recorded in ``error`` and reported with a RuntimeWarning."""
+
+    def __init__(self, path: str | os.PathLike[str] | None) -> None:
+        self.file = RetainFile(path) if path is not None else None
+        self.memory: dict[str, object] | None = None
+        self.layout = ""
+        self.start_info: str | None = None
+        self.error: str | None = None
+
+    def forget(self) -> None:
+        """The program changed: values kept in memory no longer fit it."""
+        self.memory = None
+
+    def load(self, mode: str, layout: list[tuple[str, str]]) -> dict[str, object]:
+        """The values to restore for a start in ``mode`` ("warm" or "cold")."""
+        self.layout = layout_hash(layout)
+        if mode == "cold":
+            self.memory = None
+            self.start_info = "cold"
+            return {}
+        if self.memory is not None:
+            self.start_info = "warm (retain data from memory)"
+            return self.memory
+        if self.file is None:
+            self.start_info = "warm (no retain data yet)"
+            return {}
+        try:
+            loaded = self.file.load(self.layout)
+        except RetainError as exc:
+            self.start_info = f"cold: {exc}"
+            warnings.warn(f"retain data not used, cold start: {exc}", RuntimeWarning, stacklevel=4)
+            return {}
+        if loaded is None:
+            self.start_info = f"warm ({self.file.path} does not exist yet)"
+            return {}
+        self.start_info = f"warm (retain data from {self.file.path})"
+        return loaded
+
+    def save(self, values: dict[str, object]) -> None:
+        """Keep ``values`` in memory and write the file; RetainError if the file write fails."""
+        self.memory = values
+        if self.file is not None:
+            self.file.save(self.layout, values)
+        self.error = None
+
+    def save_or_warn(self, values: dict[str, object], action: str = "saved") -> None:
+        try:
+            self.save(values)
+        except RetainError as exc:
+            if self.error != str(exc):  # once per distinct problem, not once per tick
+                warnings.warn(f"retain file not {action}: {exc}", RuntimeWarning, stacklevel=4)
+            self.error = str(exc)

@@ -16,26 +16,37 @@ that hangs, as a hardware watchdog would.
 from __future__ import annotations
 
 import math
-import signal
 import threading
 import traceback
-import warnings
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from time import perf_counter_ns
-from types import FrameType
 
 from .clock import VirtualClock, WallClock
 from .context import CycleContext
-from .errors import ConfigError, RetainError, StartupError, StateError, WatchdogTimeout
+from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
 from .image import ProcessImage, ProgramImage
-from .retain import RetainFile, layout_hash
+from .retain import RetainStore
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
+from .watchdog import WatchdogAlarm
 
 STOP, STARTUP, RUN, FAULT = "STOP", "STARTUP", "RUN", "FAULT"
+MIN_CYCLE_TIME = 1e-6  # below a microsecond the nanosecond tick grid loses its meaning
+MAX_TIME = 6000.0  # the S7 upper limit for cycle and watchdog times, in seconds
+
+
+def _seconds(
+    value: object, what: str, low: float = 0.0, high: float = MAX_TIME, low_ok: bool = True
+) -> float:
+    """Check a time in seconds; ConfigError naming ``what`` when it is not a finite number in range."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and (value >= low if low_ok else value > low) and value <= high:
+        return float(value)
+    lower = f">= {low:g}" if low_ok else f"> {low:g}"
+    raise ConfigError(f"{what} must be a number of seconds {lower} and <= {high:g}, got {value!r}")
 
 
 def _ticks(value: float, tick: float, what: str) -> int:
@@ -51,10 +62,12 @@ class Runtime:
 
     ``cycle_time``: the base tick in seconds; task intervals are multiples of it.
     ``watchdog``: maximum cycle time in seconds (S7-1200 default 0.150).
-    ``min_cycle_time``: optional; a tick never starts sooner than this after the previous one.
+    ``min_cycle_time``: optional, at most ``cycle_time``; a tick never starts sooner than
+    this after the previous one (spaces out catch-up ticks after an overrun).
     ``safe_outputs``: output values published on FAULT and STOP (every other output is 0).
     ``retain_file``: path of the crash-safe retain file (None: retain only in memory).
     ``retain_interval``: also save the retain file every this many clock seconds while running.
+    ``watchdog_interrupt``: let the watchdog abort a hung block (main thread only).
     """
 
     def __init__(
@@ -71,23 +84,15 @@ class Runtime:
         retain_interval: float | None = None,
         watchdog_interrupt: bool = True,
     ) -> None:
-        if not (
-            isinstance(cycle_time, int | float) and math.isfinite(cycle_time) and cycle_time > 0
-        ):
-            raise ConfigError(
-                f"cycle_time must be a positive number of seconds, got {cycle_time!r}"
+        self.cycle_time = _seconds(cycle_time, "cycle_time", low=MIN_CYCLE_TIME)
+        self.watchdog = _seconds(watchdog, "watchdog", low=0.0, low_ok=False)
+        if min_cycle_time is not None:
+            _seconds(
+                min_cycle_time, "min_cycle_time (at most the cycle time)", high=self.cycle_time
             )
-        if not (isinstance(watchdog, int | float) and 0 < watchdog <= 6000):
-            raise ConfigError(f"watchdog must be between 0 and 6000 s, got {watchdog!r}")
-        if min_cycle_time is not None and not 0 <= min_cycle_time <= watchdog:
-            raise ConfigError(
-                f"min_cycle_time must be between 0 and the watchdog time, got {min_cycle_time!r}"
-            )
-        if retain_interval is not None and retain_interval <= 0:
-            raise ConfigError(f"retain_interval must be positive, got {retain_interval!r}")
-        self.cycle_time = float(cycle_time)
+        if retain_interval is not None:
+            _seconds(retain_interval, "retain_interval", low=0.0, low_ok=False, high=math.inf)
         self.clock = clock if clock is not None else VirtualClock()
-        self.watchdog = float(watchdog)
         self.min_cycle_time = min_cycle_time
         self.image = ProcessImage(image_sizes, tags)
         self.safe_outputs = dict(safe_outputs or {})
@@ -96,34 +101,29 @@ class Runtime:
             if loc.area != "Q":
                 raise ConfigError(f"safe output {ref} is not an output (%Q) location")
             loc.type.check(value, f"safe output {ref}")
-        self.retain_file = RetainFile(retain_file) if retain_file is not None else None
         self.retain_interval = retain_interval
         self.watchdog_interrupt = watchdog_interrupt
         self.tasks: list[Task] = []
         self.state = STOP
         self.fault_reason: str | None = None
         self.fault_traceback: str | None = None
-        self.start_info: str | None = None
-        self.retain_error: str | None = None  # last failure to write the retain file
         self.ticks = 0
         self.stats = RuntimeStats(self)
+        self._retain = RetainStore(retain_file)
         self._tick_ns = round(self.cycle_time * 1e9)
         self._watchdog_ns = round(self.watchdog * 1e9)
         self._min_cycle_ns = round(min_cycle_time * 1e9) if min_cycle_time else 0
         self._scan_stats = ScanStats("scan")
         self._program_image = ProgramImage(self.image)
+        self._alarm = WatchdogAlarm(self._watchdog_ns)
         self._t0 = 0
         self._last_tick_start: int | None = None
-        self._retained: dict[str, object] | None = None
-        self._retain_layout: list[tuple[str, str]] = []
         self._next_retain_save = 0
         self._stop_requested = threading.Event()
-        self._in_scan = False
-        self._scan_start_ns = 0
-        self._alarm_pending = False
-        self._ticks_at_alarm = 0
-        self._alarm_thread: int | None = None
-        self._previous_alarm_handler: object = signal.SIG_DFL
+        # Held while a tick runs and by start/stop/save_retain, so another thread (an HMI,
+        # a supervisor) can stop the runtime or save retain data safely between two scans.
+        self._lock = threading.RLock()
+        self._scan_thread: int | None = None  # thread id while a scan runs
 
     # ----- configuration ------------------------------------------------------------------
     def add_task(
@@ -154,29 +154,27 @@ class Runtime:
                 raise ConfigError(
                     f"task {name!r}: block #{i} ({type(block).__name__}) is already scheduled"
                 )
-        interval = self.cycle_time if interval is None else interval
-        if not (isinstance(interval, int | float) and interval > 0):
-            raise ConfigError(f"task {name!r}: interval must be positive, got {interval!r}")
-        interval_ticks = _ticks(interval, self.cycle_time, f"task {name!r}: interval")
+        what = f"task {name!r}:"
+        interval = _seconds(
+            self.cycle_time if interval is None else interval, f"{what} interval", low_ok=False
+        )
+        interval_ticks = _ticks(interval, self.cycle_time, f"{what} interval")
         if interval_ticks < 1:
-            raise ConfigError(
-                f"task {name!r}: interval {interval} s is shorter than the base cycle"
-            )
-        if not (isinstance(phase, int | float) and phase >= 0):
-            raise ConfigError(f"task {name!r}: phase must be >= 0, got {phase!r}")
-        phase_ticks = _ticks(phase, self.cycle_time, f"task {name!r}: phase")
+            raise ConfigError(f"{what} interval {interval} s is shorter than the base cycle")
+        phase = _seconds(phase, f"{what} phase")
+        phase_ticks = _ticks(phase, self.cycle_time, f"{what} phase")
         if phase_ticks >= interval_ticks:
             raise ConfigError(
-                f"task {name!r}: phase {phase} s must be smaller than the interval {interval} s"
+                f"{what} phase {phase} s must be smaller than the interval {interval} s"
             )
-        if not isinstance(priority, int):
-            raise ConfigError(f"task {name!r}: priority must be an integer, got {priority!r}")
+        if not isinstance(priority, int) or isinstance(priority, bool):
+            raise ConfigError(f"{what} priority must be an integer, got {priority!r}")
         if overrun not in OVERRUN_POLICIES:
             raise ConfigError(
-                f"task {name!r}: overrun policy {overrun!r} is not one of {', '.join(OVERRUN_POLICIES)}"
+                f"{what} overrun policy {overrun!r} is not one of {', '.join(OVERRUN_POLICIES)}"
             )
-        if budget is not None and not budget > 0:
-            raise ConfigError(f"task {name!r}: budget must be positive, got {budget!r}")
+        if budget is not None:
+            budget = _seconds(budget, f"{what} budget", low_ok=False)
         interval_ns = interval_ticks * self._tick_ns
         task = Task(
             name=name,
@@ -191,71 +189,98 @@ class Runtime:
         )
         self.tasks.append(task)
         self.tasks.sort(key=lambda t: t.sort_key)
-        self._retained = None  # a new program layout: in-memory retain data no longer fits
+        self._retain.forget()  # a new program layout: retain data kept in memory no longer fits
         return task
 
     # ----- operating state ----------------------------------------------------------------
     def start(self, mode: str = "warm") -> None:
         """STOP -> STARTUP -> RUN. ``warm`` keeps retentive data, ``cold`` clears it."""
-        self._require(STOP, "start")
-        if mode not in ("warm", "cold"):
-            raise ConfigError(f"start mode must be 'warm' or 'cold', got {mode!r}")
-        if not self.tasks:
-            raise ConfigError("no tasks: add at least one task before start()")
-        self.state = STARTUP
-        self.fault_reason = self.fault_traceback = None
-        self._stop_requested.clear()
-        self.image.reset()
-        retained = self._load_retain(mode)
-        self._init_block_data(retained)
-        for task in self.tasks:
-            task.reset()
-            task.ctx = CycleContext(self._program_image, task.name, task.interval_ns)
-        self._scan_stats.reset()
-        self.ticks = 0
-        startup_ctx = CycleContext(self._program_image, "startup", self._tick_ns)
-        startup_ctx.deadline_ns = 2**63 - 1  # no cycle monitoring in startup
+        with self._lock:
+            self._require(STOP, "start")
+            if mode not in ("warm", "cold"):
+                raise ConfigError(f"start mode must be 'warm' or 'cold', got {mode!r}")
+            if not self.tasks:
+                raise ConfigError("no tasks: add at least one task before start()")
+            self.state = STARTUP
+            self.fault_reason = self.fault_traceback = None
+            self._stop_requested.clear()
+            self.image.reset()
+            self._init_block_data(self._retain.load(mode, self._retain_layout()))
+            if mode == "cold" and self._retain.file is not None:
+                self._retain.save_or_warn(
+                    self._collect_retain(), "cleared"
+                )  # no old values after a crash
+            for task in self.tasks:
+                task.reset()
+                task.ctx = CycleContext(self._program_image, task.name, task.interval_ns)
+            self._scan_stats.reset()
+            self.ticks = 0
+            self._run_startup()
+            self._t0 = self.clock.now_ns()
+            self._last_tick_start = None
+            self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
+            self.clock.enter_run()
+            if self.watchdog_interrupt:
+                self._alarm.install(frozenset({Runtime._run_tick.__code__}))
+            self.state = RUN
+
+    def _run_startup(self) -> None:
+        """Every block's startup, in task priority order, without cycle monitoring."""
+        ctx = CycleContext(self._program_image, "startup", self._tick_ns)
+        ctx.deadline_ns = 2**63 - 1
         for task in self.tasks:
             for i, block in enumerate(task.blocks):
                 try:
-                    block.startup(startup_ctx)
+                    block.startup(ctx)
                 except Exception as exc:
+                    self.fault_traceback = traceback.format_exc()
                     self._fault(
                         f"startup of {task.name}/{i}:{type(block).__name__} raised {type(exc).__name__}: {exc}"
                     )
                     raise StartupError(self.fault_reason) from exc
-        self._t0 = self.clock.now_ns()
-        self._last_tick_start = None
-        self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
-        self.clock.enter_run()
-        self._install_alarm()
-        self.state = RUN
 
     def stop(self) -> None:
-        """RUN/FAULT -> STOP: keep retentive data (and save the retain file), outputs to safe state."""
-        if self.state == STOP:
-            return
-        was_running = self.state in (RUN, FAULT)
-        self.clock.exit_run()
-        self._uninstall_alarm()
-        if was_running:
-            self._retained = self._collect_retain()
-            try:
-                self._save_retain_file()
-            except RetainError as exc:  # STOP must be reached even when the disk is not there
-                self.retain_error = str(exc)
-                warnings.warn(f"retain file not saved: {exc}", RuntimeWarning, stacklevel=2)
-        self.image.publish_safe_state(self.safe_outputs)
-        self.state = STOP
+        """RUN/FAULT -> STOP: keep retentive data (and save the retain file), outputs to safe state.
+
+        Safe to call from another thread: it waits for the current scan to finish. From
+        inside a block, use ``request_stop()``.
+        """
+        self._refuse_inside_scan("stop()")
+        with self._lock:
+            if self.state == STOP:
+                return
+            was_running = self.state in (RUN, FAULT)
+            self.clock.exit_run()
+            self._alarm.uninstall()
+            if was_running:
+                self._retain.save_or_warn(self._collect_retain())
+            self.image.publish_safe_state(self.safe_outputs)
+            self.state = STOP
 
     def request_stop(self) -> None:
         """Ask a running ``run()`` loop to return after the current tick (thread/signal safe)."""
         self._stop_requested.set()
 
+    @property
+    def start_info(self) -> str | None:
+        """How the last start went: warm or cold, and where retain data came from (or why not)."""
+        return self._retain.start_info
+
+    @property
+    def retain_error(self) -> str | None:
+        """The last failure to write the retain file, None after a successful write."""
+        return self._retain.error
+
+    @property
+    def clock_time(self) -> float:
+        """Seconds of clock time since the current run started (release time of the next tick)."""
+        return self.ticks * self.cycle_time
+
     # ----- stepping -----------------------------------------------------------------------
     def step(self, n: int = 1) -> int:
         """Run ``n`` base ticks; return how many ran (fewer if the runtime faulted)."""
         self._require(RUN, "step")
+        self._refuse_inside_scan("step()")
         if not isinstance(n, int) or n < 0:
             raise ConfigError(f"step count must be a non-negative integer, got {n!r}")
         for done in range(n):
@@ -267,12 +292,11 @@ class Runtime:
     def run(self, cycles: int | None = None, duration: float | None = None) -> int:
         """Run ``cycles`` ticks, or ``duration`` seconds of clock time, or until ``request_stop()``."""
         self._require(RUN, "run")
+        self._refuse_inside_scan("run()")
         if cycles is not None and duration is not None:
             raise ConfigError("give either cycles or duration, not both")
         if duration is not None:
-            if not duration >= 0:
-                raise ConfigError(f"duration must be >= 0, got {duration!r}")
-            cycles = round(duration / self.cycle_time)
+            cycles = round(_seconds(duration, "duration", high=math.inf) / self.cycle_time)
         if cycles is not None and (not isinstance(cycles, int) or cycles < 0):
             raise ConfigError(f"cycles must be a non-negative integer, got {cycles!r}")
         done = 0
@@ -289,6 +313,7 @@ class Runtime:
     def run_until(self, predicate: Callable[[], object], max_cycles: int) -> bool:
         """Step until ``predicate()`` is true (checked after every tick); False if it never was."""
         self._require(RUN, "run")
+        self._refuse_inside_scan("run_until()")
         if predicate():
             return True
         for _ in range(max_cycles):
@@ -299,39 +324,41 @@ class Runtime:
                 return False
         return False
 
-    @property
-    def clock_time(self) -> float:
-        """Seconds of clock time since the current run started (release time of the next tick)."""
-        return self.ticks * self.cycle_time
-
     # ----- the scan -----------------------------------------------------------------------
     def _tick(self) -> None:
         k = self.ticks
-        clock = self.clock
         release = self._t0 + k * self._tick_ns
         if self._min_cycle_ns and self._last_tick_start is not None:
-            clock.wait_until(max(release, self._last_tick_start + self._min_cycle_ns))
+            self.clock.wait_until(max(release, self._last_tick_start + self._min_cycle_ns))
         else:
-            clock.wait_until(release)
+            self.clock.wait_until(release)
+        with self._lock:
+            if self.state != RUN:  # stopped by another thread while this one waited
+                return
+            if self.retain_interval and self.clock.now_ns() >= self._next_retain_save:
+                self._next_retain_save = self.clock.now_ns() + round(self.retain_interval * 1e9)
+                self._retain.save_or_warn(self._collect_retain())  # costs lateness, not scan time
+            self._scan_thread = threading.get_ident()
+            try:
+                self._run_tick(k, release)
+            finally:
+                self._scan_thread = None
+
+    def _run_tick(self, k: int, release: int) -> None:
+        """One scan under the watchdog, then its statistics."""
         tick_real_start = perf_counter_ns()
-        self._last_tick_start = clock.now_ns()
-        if self.retain_interval and self._last_tick_start >= self._next_retain_save:
-            self._save_retain_periodically()
+        self._last_tick_start = self.clock.now_ns()
         self.ticks = k + 1
-        self._scan_start_ns = tick_real_start
-        self._in_scan = True
         try:
-            if not self._alarm_pending and self._alarm_thread is not None:
-                self._arm_alarm(self._watchdog_ns)
+            self._alarm.begin_scan(tick_real_start)
             completed = self._scan(k, release)
         except WatchdogTimeout:
-            self._in_scan = False
             self._fault(
                 f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted"
             )
             return
         finally:
-            self._in_scan = False
+            self._alarm.end_scan()
         if not completed:
             return
         tick_exec = perf_counter_ns() - tick_real_start
@@ -342,7 +369,7 @@ class Runtime:
             )
 
     def _scan(self, k: int, release: int) -> bool:
-        """Quiet point, copy-in, due tasks, copy-out (under the watchdog); False on FAULT."""
+        """Quiet point, copy-in, due tasks, copy-out; False if the runtime faulted."""
         image = self.image
         image.apply_quiet_point()
         copied_in = False
@@ -371,25 +398,26 @@ class Runtime:
         ctx.first_scan = ctx.cycle == 0
         start = perf_counter_ns()
         ctx.deadline_ns = start + task.budget_ns
-        block = None
+        index = 0
         try:
-            for block in task.blocks:
+            for index, block in enumerate(task.blocks):  # noqa: B007 - index names the failing block
                 block.cycle(ctx)
         except Exception as exc:
             self.fault_traceback = traceback.format_exc()
-            index = task.blocks.index(block)
+            name = type(task.blocks[index]).__name__
             self._fault(
-                f"task {task.name}: block {index}:{type(block).__name__} raised {type(exc).__name__}: {exc}"
+                f"task {task.name}: block {index}:{name} raised {type(exc).__name__}: {exc}"
             )
             return False
         elapsed = perf_counter_ns() - start
         self.clock.charge(elapsed)
-        task.stats.record(elapsed, now - release)
-        if self.clock.now_ns() > release + task.interval_ns:
+        late = now - release
+        task.stats.record(elapsed, late)
+        if late + elapsed > task.interval_ns:  # the scan ended after the task's next release
             task.stats.overruns += 1
             if task.overrun == "fault":
                 self._fault(
-                    f"task {task.name}: overrun, scan finished {(self.clock.now_ns() - release) / 1e6:.2f} ms "
+                    f"task {task.name}: overrun, scan finished {(late + elapsed) / 1e6:.2f} ms "
                     f"after its release, interval is {task.interval_ns / 1e6:g} ms"
                 )
                 return False
@@ -400,55 +428,14 @@ class Runtime:
         self.fault_reason = reason
         self.image.publish_safe_state(self.safe_outputs)
 
-    # ----- watchdog interrupt -------------------------------------------------------------
-    # A one-shot SIGALRM timer that re-arms itself from its handler: no system call per
-    # tick, detection exactly at the watchdog time (a too-early alarm re-arms for the rest
-    # of the current scan), and the chain ends by itself once no tick ran since the last
-    # alarm, so an idle or abandoned runtime leaves no timer behind. SIGALRM can only be
-    # handled in the main thread: a runtime started from another thread keeps the
-    # after-the-fact watchdog check but cannot interrupt a hung block.
-    def _install_alarm(self) -> None:
-        self._alarm_thread = None
-        self._alarm_pending = False
-        if self.watchdog_interrupt and threading.current_thread() is threading.main_thread():
-            self._previous_alarm_handler = signal.signal(signal.SIGALRM, self._on_alarm)
-            self._alarm_thread = threading.get_ident()
-
-    def _uninstall_alarm(self) -> None:
-        self._in_scan = False
-        if self._alarm_thread is not None and threading.get_ident() == self._alarm_thread:
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            signal.signal(signal.SIGALRM, self._previous_alarm_handler)
-        self._alarm_thread = None
-        self._alarm_pending = False
-
-    def _arm_alarm(self, delay_ns: int) -> None:
-        self._alarm_pending = True
-        self._ticks_at_alarm = self.ticks
-        signal.setitimer(signal.ITIMER_REAL, max(delay_ns, 1000) / 1e9)
-
-    def _on_alarm(self, signum: int, frame: FrameType | None) -> None:
-        self._alarm_pending = False
-        if self._in_scan:
-            overdue = perf_counter_ns() - self._scan_start_ns - self._watchdog_ns
-            if frame is not None and frame.f_code is _TICK_CODE:
-                # Interrupted the tick's own bookkeeping, outside the guarded scan: an
-                # exception here would escape, so look again in a millisecond.
-                self._arm_alarm(1_000_000)
-            elif overdue >= 0:
-                self._in_scan = False
-                raise WatchdogTimeout()
-            self._arm_alarm(-overdue)
-        elif self.state == RUN and self.ticks != self._ticks_at_alarm:
-            self._arm_alarm(self._watchdog_ns)
-
     # ----- instance data and retain -------------------------------------------------------
     def _block_paths(self) -> Iterable[tuple[str, FunctionBlock]]:
         for task in self.tasks:
             for i, block in enumerate(task.blocks):
                 yield from block.walk(f"{task.name}/{i}:{type(block).__name__}")
 
-    def _layout(self) -> list[tuple[str, str]]:
+    def _retain_layout(self) -> list[tuple[str, str]]:
+        """Which retentive variables exist, with their types: a changed program gets a cold start."""
         entries = [
             (f"tag:{t.name}", f"{t.address.text}:{t.type.name}")
             for t in self.image.tags
@@ -456,7 +443,8 @@ class Runtime:
         ]
         for path, block in self._block_paths():
             entries += [
-                (f"fb:{path}.{name}", type(block).__name__) for name in block.retain_names()
+                (f"fb:{path}.{name}", f"{type(block).__name__}:{block.declared_type(name)}")
+                for name in block.retain_names()
             ]
         return entries
 
@@ -473,8 +461,7 @@ class Runtime:
         for tag in self.image.tags:
             key = f"tag:{tag.name}"
             if tag.retain and key in retained:
-                tag_loc = self.image.resolve(tag.name)
-                tag_loc.writer(self.image.markers)(retained[key])
+                self.image.resolve(tag.name).writer(self.image.markers)(retained[key])
 
     def _collect_retain(self) -> dict[str, object]:
         values: dict[str, object] = {}
@@ -486,53 +473,14 @@ class Runtime:
                 values[f"fb:{path}.{name}"] = getattr(block, name)
         return values
 
-    def _load_retain(self, mode: str) -> dict[str, object]:
-        self._retain_layout = self._layout()
-        if mode == "cold":
-            self._retained = None
-            self.start_info = "cold"
-            return {}
-        if self._retained is not None:
-            self.start_info = "warm (retain data from memory)"
-            return self._retained
-        if self.retain_file is None:
-            self.start_info = "warm (no retain data yet)"
-            return {}
-        try:
-            loaded = self.retain_file.load(layout_hash(self._retain_layout))
-        except RetainError as exc:
-            self.start_info = f"cold: {exc}"
-            warnings.warn(f"retain data not used, cold start: {exc}", RuntimeWarning, stacklevel=3)
-            return {}
-        if loaded is None:
-            self.start_info = f"warm ({self.retain_file.path} does not exist yet)"
-            return {}
-        self.start_info = f"warm (retain data from {self.retain_file.path})"
-        return loaded
-
     def save_retain(self) -> None:
         """Write the retain file now (also done on stop() and every ``retain_interval``)."""
-        if self.state not in (RUN, FAULT):
-            raise StateError(f"cannot save retain data in state {self.state}")
-        self._retained = self._collect_retain()
-        self._save_retain_file()
+        with self._lock:
+            if self.state not in (RUN, FAULT):
+                raise StateError(f"cannot save retain data in state {self.state}")
+            self._retain.save(self._collect_retain())
 
-    def _save_retain_file(self) -> None:
-        if self.retain_file is not None and self._retained is not None:
-            self.retain_file.save(layout_hash(self._retain_layout), self._retained)
-
-    def _save_retain_periodically(self) -> None:
-        self._next_retain_save += round(self.retain_interval * 1e9)
-        self._retained = self._collect_retain()
-        try:
-            self._save_retain_file()
-        except RetainError as exc:  # keep scanning; report it once per distinct problem
-            if self.retain_error != str(exc):
-                warnings.warn(f"retain file not saved: {exc}", RuntimeWarning, stacklevel=2)
-            self.retain_error = str(exc)
-        else:
-            self.retain_error = None
-
+    # ----- guards -------------------------------------------------------------------------
     def _require(self, state: str, action: str) -> None:
         if self.state != state:
             detail = f" ({self.fault_reason})" if self.state == FAULT else ""
@@ -540,5 +488,8 @@ class Runtime:
                 f"cannot {action} in state {self.state}{detail}; required state is {state}"
             )
 
-
-_TICK_CODE = Runtime._tick.__code__
+    def _refuse_inside_scan(self, action: str) -> None:
+        if self._scan_thread == threading.get_ident():
+            raise StateError(
+                f"cannot call {action} from inside a scan; use request_stop() from a block"
+            )

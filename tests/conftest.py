@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Callable
 
 import pytest
 
-from plc_runtime import FunctionBlock, Runtime, VirtualClock
+from plc_runtime import FunctionBlock
 
 
 class Probe(FunctionBlock):
@@ -41,17 +42,10 @@ class Busy(FunctionBlock):
                 pass
 
 
-@pytest.fixture
-def make_runtime() -> Callable[..., Runtime]:
-    """A Runtime on a fresh virtual clock; stopped again after the test."""
-    created: list[Runtime] = []
-
-    def make(cycle_time: float = 0.010, **kwargs) -> Runtime:
-        kwargs.setdefault("clock", VirtualClock())
-        rt = Runtime(cycle_time=cycle_time, **kwargs)
-        created.append(rt)
-        return rt
-
-    yield make
-    for rt in created:
-        rt.stop()
+@pytest.fixture(autouse=True)
+def no_alarm_left_behind():
+    """A test that forgets rt.stop() must not leave a watchdog timer for the next one."""
+    handler = signal.getsignal(signal.SIGALRM)
+    yield
+    signal.setitimer(signal.ITIMER_REAL, 0)
+    signal.signal(signal.SIGALRM, handler)

@@ -131,3 +131,22 @@ def test_tag_file_errors_name_file_and_tag(tmp_path):
 def test_parse_roundtrip(area, size, index):
     a = parse_address(f"%{area}{size}{index}")
     assert a.byte_offset == index * {"B": 1, "W": 2, "D": 4, "L": 8}[size]
+
+
+def test_tag_added_after_the_image_is_range_checked():
+    img = ProcessImage({"I": 16, "Q": 16, "M": 16})
+    img.tags.add("far", "%MW100", "INT")
+    with pytest.raises(AddressError, match=r"tag far \(%MW100\): outside the M area"):
+        img.write("far", 1)
+    assert img.pending_writes == 0
+
+
+def test_write_many_is_applied_together_or_not_at_all():
+    img = ProcessImage()
+    with pytest.raises(ValueRangeError):
+        img.write_many({"%MW0": 1, "%MW1": -1})
+    assert img.pending_writes == 0
+    img.write_many({"%MW0": 0x1111, "%MW1": 0x2222})
+    assert img.pending_writes == 1
+    img.apply_quiet_point()
+    assert img.read("%MD0") == 0x22221111

@@ -49,7 +49,7 @@ def test_usage_errors_are_one_line(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run", "--cycles", "-3"])
     assert exc.value.code == 2
-    assert "must be > 0" in capsys.readouterr().err
+    assert "must be a finite number > 0" in capsys.readouterr().err
 
 
 def test_console_script_realtime():
@@ -90,3 +90,30 @@ def test_retain_problems_are_one_line_warnings(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith(
         "plc-runtime: warning: retain data not used, cold start:"
     )
+
+
+def test_demo_flashes_at_exactly_one_hertz(capsys):
+    assert main(["run", "--duration", "100", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["tags"]["flash_count"] == 100
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--duration", "inf"],
+        ["--duration", "nan"],
+        ["--realtime", "--spin", "nan"],
+        ["--cycles", "1.5"],
+    ],
+)
+def test_non_finite_numbers_are_usage_errors(args, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", *args])
+    assert exc.value.code == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_bad_cycle_time_is_one_line(capsys):
+    assert main(["run", "--cycle-time", "1e-320", "--cycles", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cycle_time must be a number of seconds" in err[0]

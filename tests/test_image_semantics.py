@@ -189,3 +189,38 @@ def test_image_semantics_against_a_model(operations):
             assert seen[-1] == expected
             assert [rt.image.read(f"%QB{j}") for j in range(4)] == expected
     rt.stop()
+
+
+def test_writes_from_another_thread_never_change_inputs_mid_scan():
+    """A writer thread races the scan; blocks must still see one constant snapshot per
+    scan, and every value they see must be one the writer wrote, in order."""
+    import threading
+
+    seen = []
+
+    def cycle(ctx):
+        first = ctx.image.read("%ID0")
+        for _ in range(50):
+            assert ctx.image.read("%ID0") == first
+        seen.append(first)
+
+    rt = started(Probe(cycle))
+    stop = threading.Event()
+
+    def writer():
+        value = 0
+        while not stop.is_set() and value < 200_000:
+            value += 1
+            rt.image.write("%ID0", value)
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    try:
+        rt.step(300)
+    finally:
+        stop.set()
+        thread.join()
+    rt.step()
+    assert rt.state == "RUN", rt.fault_reason
+    assert seen == sorted(seen)  # applied in order, never going back
+    assert seen[-1] > 0

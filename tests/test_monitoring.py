@@ -1,7 +1,9 @@
 """Cycle monitoring: watchdog, overrun policies, faults and minimum cycle time.
 
 Budgets are blown with real busy-waiting (``Busy``) on the virtual clock: execution time is
-always measured in real time, so these behave as they would on a plant.
+always measured in real time. Tests of what an overrun does to the schedule use
+``VirtualClock(charge_execution=True)``, which adds that time to simulated time as a plant
+CPU would experience it.
 """
 
 import pytest
@@ -13,7 +15,7 @@ MS = 1_000_000
 
 
 def test_skip_policy_omits_the_releases_that_passed():
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(charge_execution=True))
     rt.add_task("main", [Busy(0.035, scans={0})], overrun="skip")
     rt.start()
     rt.step(10)
@@ -27,7 +29,7 @@ def test_skip_policy_omits_the_releases_that_passed():
 
 
 def test_skip_policy_with_slower_task():
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(charge_execution=True))
     rt.add_task("fast", [Probe(lambda ctx: None)], priority=0, overrun="catch_up")
     rt.add_task("slow", [Busy(0.045, scans={0})], interval=0.020, priority=1, overrun="skip")
     rt.start()
@@ -41,7 +43,7 @@ def test_skip_policy_with_slower_task():
 
 
 def test_catch_up_policy_runs_every_release():
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(charge_execution=True))
     rt.add_task("main", [Busy(0.035, scans={0})], overrun="catch_up")
     rt.start()
     rt.step(10)
@@ -98,6 +100,7 @@ def test_watchdog_interrupts_a_hung_block():
     rt.step()
     assert rt.state == "FAULT"
     assert "exceeded the maximum cycle time of 50 ms and was aborted" in rt.fault_reason
+    rt.stop()
 
 
 def test_block_exception_faults_and_names_the_block():
@@ -113,6 +116,7 @@ def test_block_exception_faults_and_names_the_block():
     assert "ZeroDivisionError" in rt.fault_traceback
     with pytest.raises(StateError):
         rt.run(cycles=5)
+    rt.stop()
 
 
 def test_startup_is_not_monitored():
@@ -142,7 +146,7 @@ def test_startup_failure_raises_and_faults():
 
 def test_minimum_cycle_time_spaces_catch_up_ticks():
     starts = []
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), min_cycle_time=0.008)
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(charge_execution=True), min_cycle_time=0.008)
     rt.add_task(
         "main",
         [Probe(lambda ctx: starts.append(rt.clock.now_ns())), Busy(0.035, scans={0})],
@@ -153,4 +157,106 @@ def test_minimum_cycle_time_spaces_catch_up_ticks():
     gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
     assert min(gaps[1:]) >= 8 * MS  # after the overrun, ticks are at least 8 ms apart
     assert rt.stats["main"].cycles == 20
+    rt.stop()
+
+
+def test_default_virtual_clock_stays_deterministic_through_an_overrun():
+    """Without charging, an overrun is counted but does not change the schedule."""
+    times = []
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Busy(0.035, scans={0}), Probe(lambda ctx: times.append(ctx.time_ns))])
+    rt.start()
+    rt.step(10)
+    stats = rt.stats["main"]
+    assert stats.overruns == 1 and stats.omitted == 0 and stats.cycles == 10
+    assert times == [k * 10 * MS for k in range(10)]
+    assert rt.clock.now_ns() == 9 * 10 * MS
+    rt.stop()
+
+
+def test_deadlines_are_absolute_no_drift():
+    """Scans that take time must not push later releases: the clock is asked for
+    exactly t0 + k * tick, whatever the execution time was."""
+
+    class RecordingClock(VirtualClock):
+        def __init__(self):
+            super().__init__(charge_execution=True)
+            self.deadlines = []
+
+        def wait_until(self, deadline_ns):
+            self.deadlines.append(deadline_ns)
+            super().wait_until(deadline_ns)
+
+    clock = RecordingClock()
+    rt = Runtime(cycle_time=0.010, clock=clock)
+    rt.add_task("main", [Busy(0.003)])
+    rt.start()
+    rt.step(20)
+    assert clock.deadlines == [k * 10 * MS for k in range(20)]
+    assert rt.stats["main"].overruns == 0
+    rt.stop()
+
+
+def test_retain_save_costs_lateness_not_scan_time(tmp_path, monkeypatch):
+    from plc_runtime.retain import RetainFile
+
+    real_save = RetainFile.save
+
+    def slow_save(self, layout, values):  # a disk whose fsync takes 60 ms
+        Busy(0.060).cycle(None)
+        real_save(self, layout, values)
+
+    monkeypatch.setattr(RetainFile, "save", slow_save)
+    rt = Runtime(
+        cycle_time=0.010,
+        clock=VirtualClock(),
+        watchdog=0.040,
+        retain_file=tmp_path / "r",
+        retain_interval=0.02,
+    )
+    rt.add_task("main", [Probe(lambda ctx: None)])
+    rt.start()
+    rt.step(6)
+    assert rt.state == "RUN", rt.fault_reason
+    rt.stop()
+
+
+def test_min_cycle_time_longer_than_the_cycle_is_rejected():
+    from plc_runtime import ConfigError
+
+    with pytest.raises(ConfigError, match="min_cycle_time"):
+        Runtime(cycle_time=0.010, min_cycle_time=0.020)
+
+
+def test_stop_from_another_thread_waits_for_the_scan():
+    import threading
+
+    in_scan = threading.Event()
+
+    def cycle(ctx):
+        ctx.image.write("%QX0.0", True)
+        in_scan.set()
+        Busy(0.050).cycle(ctx)
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=1.0)
+    rt.add_task("main", [Probe(cycle)])
+    rt.start()
+    stopper = threading.Thread(target=lambda: (in_scan.wait(), rt.stop()))
+    stopper.start()
+    try:
+        rt.step(100)  # the other thread stops it during the first scan
+    finally:
+        stopper.join()
+    assert rt.state == "STOP"
+    assert rt.image.read("%QX0.0") is False  # the safe state, not the scan's copy-out
+    with pytest.raises(StateError):
+        rt.step()
+
+
+def test_stop_from_inside_a_scan_is_refused():
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_task("main", [Probe(lambda ctx: rt.stop())])
+    rt.start()
+    rt.step()
+    assert rt.state == "FAULT" and "use request_stop()" in rt.fault_reason
     rt.stop()

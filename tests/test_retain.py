@@ -7,7 +7,6 @@ import pytest
 
 from blocks.standard import CTU
 from plc_runtime import FunctionBlock, RetainError, Runtime, Static, TagTable, VirtualClock
-from plc_runtime.retain import RetainFile, layout_hash
 
 
 class Machine(FunctionBlock):
@@ -147,26 +146,19 @@ def test_crash_during_write_keeps_the_previous_file(tmp_path, monkeypatch):
     rt2.stop()
 
 
-def test_periodic_save(tmp_path):
+def test_periodic_save_survives_a_crash(tmp_path):
     path = tmp_path / "plc.retain"
     rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path, retain_interval=0.05)
-    machine = Machine()
     rt.image.tags.add("kept", "%MW0", "INT", retain=True)
     rt.image.tags.add("lost", "%MW1", "INT")
-    rt.add_task("main", [machine])
+    rt.add_task("main", [Machine()])
     rt.start()
-    rt.step(12)  # saves at the quiet point before ticks 5 and 10: state after 10 scans
-    assert path.exists()  # written while running, before any stop()
-    layout = layout_hash(
-        [
-            ("tag:kept", "%MW0:INT"),
-            ("fb:main/0:Machine.total", "Machine"),
-            ("fb:main/0:Machine.parts.CV", "CTU"),
-        ]
-    )
-    stored = RetainFile(path).load(layout)
-    assert stored["fb:main/0:Machine.total"] == 10 and stored["tag:kept"] == 10
-    rt.stop()
+    rt.step(12)  # saved at the quiet point before ticks 5 and 10: the state after 10 scans
+    # the process dies here, without stop(); a new one starts from the file
+    rt2, m2 = build(path)
+    rt2.start()
+    assert values(rt2, m2) == (10, 0, 5, 10, 0)
+    rt2.stop()
 
 
 def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
@@ -188,3 +180,40 @@ def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
     with pytest.warns(RuntimeWarning, match="retain file not saved"):
         rt.stop()
     assert rt.state == "STOP" and not path.exists()
+
+
+def test_cold_start_clears_the_file(tmp_path):
+    path = _saved(tmp_path, steps=5)
+    rt, m = build(path)
+    rt.start(mode="cold")
+    rt.step(2)
+    del rt  # the process crashes: no stop()
+    rt2, m2 = build(path)
+    rt2.start()
+    assert m2.total == 0  # not the 5 from before the cold start
+    rt2.stop()
+
+
+def test_changed_variable_type_gives_a_cold_start(tmp_path):
+    path = tmp_path / "plc.retain"
+
+    def program(default):
+        cls = type(
+            "Keeper",
+            (FunctionBlock,),
+            {"value": Static(default, retain=True), "cycle": lambda self, ctx: None},
+        )
+        rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path)
+        block = cls()
+        rt.add_task("main", [block])
+        return rt, block
+
+    rt, block = program(0)
+    rt.start()
+    block.value = 41
+    rt.stop()
+    rt, block = program([])  # the new program version keeps a list there
+    with pytest.warns(RuntimeWarning, match="different program layout"):
+        rt.start()
+    assert block.value == []
+    rt.stop()

@@ -96,7 +96,9 @@ def test_deadline_helper_uses_the_task_budget():
         ({"interval": 0.020, "phase": 0.005}, "phase 0.005 s is not a multiple"),
         ({"overrun": "ignore"}, "overrun policy 'ignore'"),
         ({"priority": 1.5}, "priority must be an integer"),
-        ({"interval": -1}, "interval must be positive"),
+        ({"interval": -1}, "interval must be a number of seconds > 0"),
+        ({"interval": float("inf")}, "interval must be a number of seconds > 0"),
+        ({"budget": float("nan")}, "budget must be a number of seconds"),
     ],
 )
 def test_task_configuration_errors(kwargs, message):

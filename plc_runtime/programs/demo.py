@@ -29,7 +29,8 @@ class Flasher(FunctionBlock):
         lamp = img.read("lamp")
         if self.half_period(ctx, IN=running, PT=0.5):
             lamp = not lamp
-            self.half_period(ctx, IN=False)  # restart the half period next scan
+            self.half_period(ctx, IN=False)  # restart the timer in this same scan,
+            self.half_period(ctx, IN=True)  # so the period is exactly 2 x PT
         if not running:
             lamp = False
         img.write("lamp", lamp)

@@ -1,0 +1,87 @@
+"""The watchdog interrupt: abort a scan that runs past the maximum cycle time.
+
+A hardware PLC's watchdog stops a hung program; Python cannot preempt a loop, but a
+SIGALRM handler runs between two bytecodes and can raise there. The timer is one-shot and
+re-armed from its own handler, so there is no system call per tick (two ``setitimer``
+calls per tick cost about 10 us on a cold cache after a sleep), detection happens exactly
+at the limit (an alarm that comes early re-arms for the rest of the current scan), and the
+chain ends by itself once no scan began since the last alarm, so an idle or abandoned
+runtime leaves no timer running. Signals can only be handled in the main thread: a runtime
+started elsewhere keeps the after-the-fact check of the measured scan time only.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from time import perf_counter_ns
+from types import CodeType, FrameType
+
+from .errors import WatchdogTimeout
+
+_RETRY_NS = 1_000_000
+
+
+class WatchdogAlarm:
+    def __init__(self, limit_ns: int) -> None:
+        self.limit_ns = limit_ns
+        self.in_scan = False
+        self._scan_start_ns = 0
+        self._scans = 0
+        self._scans_at_alarm = 0
+        self._pending = False
+        self._installed = False
+        self._previous_handler: object = signal.SIG_DFL
+        self._unsafe_codes: frozenset[CodeType] = frozenset()
+
+    def install(self, unsafe_codes: frozenset[CodeType]) -> bool:
+        """Take over SIGALRM if this is the main thread. ``unsafe_codes``: functions in
+        which an exception would escape the caller's guard (its try/finally itself);
+        an alarm landing there looks again a millisecond later."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        self._unsafe_codes = unsafe_codes | {self.begin_scan.__code__, self.end_scan.__code__}
+        if not self._installed:  # (still installed if a non-main thread stopped the runtime)
+            self._previous_handler = signal.signal(signal.SIGALRM, self._on_alarm)
+        self._installed = True
+        self._pending = False
+        return True
+
+    def uninstall(self) -> None:
+        """Cancel the timer; restore the previous handler (only possible from the main thread)."""
+        self.in_scan = False
+        if self._installed:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGALRM, self._previous_handler)
+                self._installed = False
+        self._pending = False
+
+    def begin_scan(self, start_ns: int) -> None:
+        self._scan_start_ns = start_ns
+        self._scans += 1
+        self.in_scan = True
+        if self._installed and not self._pending:
+            self._arm(self.limit_ns)
+
+    def end_scan(self) -> None:
+        self.in_scan = False
+
+    def _arm(self, delay_ns: int) -> None:
+        self._pending = True
+        self._scans_at_alarm = self._scans
+        signal.setitimer(signal.ITIMER_REAL, max(delay_ns, 1000) / 1e9)
+
+    def _on_alarm(self, signum: int, frame: FrameType | None) -> None:
+        self._pending = False
+        if self.in_scan:
+            overdue = perf_counter_ns() - self._scan_start_ns - self.limit_ns
+            if frame is not None and frame.f_code in self._unsafe_codes:
+                self._arm(_RETRY_NS)
+            elif overdue >= 0:
+                self.in_scan = False
+                raise WatchdogTimeout()
+            else:
+                self._arm(-overdue)
+        elif self._scans != self._scans_at_alarm:
+            self._arm(self.limit_ns)
