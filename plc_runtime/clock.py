@@ -28,6 +28,7 @@ from .errors import ConfigError
 
 PR_SET_TIMERSLACK = 29
 PR_GET_TIMERSLACK = 30
+FORCE_FACTOR = 20  # rt mode: collect even without slack once generation 0 is this many thresholds full
 
 
 class VirtualClock:
@@ -85,7 +86,7 @@ class WallClock:
     is_virtual = False
 
     def __init__(
-        self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.002
+        self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.0005
     ) -> None:
         for name, value in (("spin", spin), ("gc_slack", gc_slack)):
             if not (isinstance(value, int | float) and math.isfinite(value) and 0 <= value <= 1):
@@ -110,8 +111,8 @@ class WallClock:
 
     def wait_until(self, deadline_ns: int) -> None:
         now = time.monotonic_ns()
-        if self._gc_in_slack and deadline_ns - now > self.gc_slack_ns:
-            self._collect_in_slack()
+        if self._gc_in_slack:
+            self._collect_in_slack(forced_only=deadline_ns - now < self.gc_slack_ns)
             now = time.monotonic_ns()
         sleep_until = deadline_ns - self.spin_ns
         if sleep_until > now:
@@ -120,9 +121,16 @@ class WallClock:
             pass
 
     @staticmethod
-    def _collect_in_slack() -> None:
-        """Run the youngest generation that is due, as the automatic collector would have."""
+    def _collect_in_slack(forced_only: bool = False) -> None:
+        """Run the oldest generation that is due, as the automatic collector would have.
+
+        With ``forced_only`` (not enough slack before the deadline) collect only once
+        generation 0 has grown to ``FORCE_FACTOR`` times its threshold, so a cycle that never
+        leaves enough slack still cannot accumulate garbage without bound.
+        """
         counts, thresholds = gc.get_count(), gc.get_threshold()
+        if forced_only and counts[0] < FORCE_FACTOR * thresholds[0]:
+            return
         generation = -1
         for gen in range(3):
             if thresholds[gen] and counts[gen] >= thresholds[gen]:

@@ -216,10 +216,10 @@ class Runtime:
             self._scan_stats.reset()
             self.ticks = 0
             self._run_startup()
+            self.clock.enter_run()  # before t0: rt mode's initial full collection must not make tick 0 late
             self._t0 = self.clock.now_ns()
             self._last_tick_start = None
             self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
-            self.clock.enter_run()
             if self.watchdog_interrupt:
                 self._alarm.install(frozenset({Runtime._run_tick.__code__}))
             self.state = RUN

@@ -72,3 +72,23 @@ def test_rt_mode_sets_and_restores_the_scheduler(monkeypatch):
     clock.exit_run()
     assert calls[-1][0] == os.sched_getscheduler(0)  # back to what it was
     assert gc.isenabled()
+
+
+def test_rt_mode_collects_garbage_only_in_slack(monkeypatch):
+    monkeypatch.setattr(os, "sched_setscheduler", lambda *args: None)
+    clock = WallClock(rt=True, gc_slack=0.001)
+    clock.enter_run()
+    try:
+        threshold = gc.get_threshold()[0]
+        junk = [[i] for i in range(threshold * 2)]  # tracked allocations: generation 0 is due
+        assert gc.get_count()[0] >= threshold
+        clock.wait_until(clock.now_ns())  # no slack left: not collected
+        assert gc.get_count()[0] >= threshold
+        clock.wait_until(clock.now_ns() + 3_000_000)  # 3 ms of slack: collected there
+        assert gc.get_count()[0] < threshold
+        junk += [[i] for i in range(threshold * 21)]  # far past due and never any slack
+        clock.wait_until(clock.now_ns())
+        assert gc.get_count()[0] < threshold  # forced, so garbage cannot pile up
+    finally:
+        clock.exit_run()
+    assert gc.isenabled()
