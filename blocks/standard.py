@@ -22,6 +22,16 @@ from plc_runtime import ConfigError, CycleContext, FunctionBlock, Input, Output,
 INT_MIN, INT_MAX = -32768, 32767
 
 
+def _invoke(block: FunctionBlock, ctx: CycleContext, **inputs: object) -> object:
+    """An FB call: inputs given (not None) are set, omitted ones keep their value, then one
+    cycle runs and the main output is returned."""
+    for name, value in inputs.items():
+        if value is not None:
+            setattr(block, name, value)
+    block.cycle(ctx)
+    return getattr(block, block.main_output)
+
+
 def _duration_ns(block: FunctionBlock, pt: object) -> int:
     if isinstance(pt, bool) or not isinstance(pt, int | float) or not math.isfinite(pt) or pt < 0:
         raise ConfigError(f"{type(block).__name__}: PT must be a time >= 0 in seconds, got {pt!r}")
@@ -38,12 +48,7 @@ class TON(FunctionBlock):
     start_ns = Static(None, doc="IEC time at which IN went TRUE")
 
     def __call__(self, ctx: CycleContext, IN: bool | None = None, PT: float | None = None) -> bool:
-        if IN is not None:
-            self.IN = IN
-        if PT is not None:
-            self.PT = PT
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, IN=IN, PT=PT)
 
     def cycle(self, ctx: CycleContext) -> None:
         pt_ns = _duration_ns(self, self.PT)
@@ -69,12 +74,7 @@ class TOF(FunctionBlock):
     start_ns = Static(None, doc="IEC time at which IN went FALSE while Q was TRUE")
 
     def __call__(self, ctx: CycleContext, IN: bool | None = None, PT: float | None = None) -> bool:
-        if IN is not None:
-            self.IN = IN
-        if PT is not None:
-            self.PT = PT
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, IN=IN, PT=PT)
 
     def cycle(self, ctx: CycleContext) -> None:
         pt_ns = _duration_ns(self, self.PT)
@@ -103,12 +103,7 @@ class TP(FunctionBlock):
     in_prev = Static(False)
 
     def __call__(self, ctx: CycleContext, IN: bool | None = None, PT: float | None = None) -> bool:
-        if IN is not None:
-            self.IN = IN
-        if PT is not None:
-            self.PT = PT
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, IN=IN, PT=PT)
 
     def cycle(self, ctx: CycleContext) -> None:
         pt_ns = _duration_ns(self, self.PT)
@@ -133,10 +128,7 @@ class R_TRIG(FunctionBlock):
     M = Static(False)
 
     def __call__(self, ctx: CycleContext, CLK: bool | None = None) -> bool:
-        if CLK is not None:
-            self.CLK = CLK
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, CLK=CLK)
 
     def cycle(self, ctx: CycleContext) -> None:
         self.Q = bool(self.CLK) and not self.M
@@ -155,10 +147,7 @@ class F_TRIG(FunctionBlock):
         self.first_scan_edge = first_scan_edge
 
     def __call__(self, ctx: CycleContext, CLK: bool | None = None) -> bool:
-        if CLK is not None:
-            self.CLK = CLK
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, CLK=CLK)
 
     def cycle(self, ctx: CycleContext) -> None:
         if self.M is None:
@@ -201,14 +190,7 @@ class CTU(_Counter):
         R: bool | None = None,
         PV: int | None = None,
     ) -> bool:
-        if CU is not None:
-            self.CU = CU
-        if R is not None:
-            self.R = R
-        if PV is not None:
-            self.PV = PV
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, CU=CU, R=R, PV=PV)
 
     def cycle(self, ctx: CycleContext) -> None:
         pv = self._pv()
@@ -238,14 +220,7 @@ class CTD(_Counter):
         LD: bool | None = None,
         PV: int | None = None,
     ) -> bool:
-        if CD is not None:
-            self.CD = CD
-        if LD is not None:
-            self.LD = LD
-        if PV is not None:
-            self.PV = PV
-        self.cycle(ctx)
-        return self.Q
+        return _invoke(self, ctx, CD=CD, LD=LD, PV=PV)
 
     def cycle(self, ctx: CycleContext) -> None:
         pv = self._pv()
@@ -281,11 +256,7 @@ class CTUD(_Counter):
         LD: bool | None = None,
         PV: int | None = None,
     ) -> bool:
-        for name, value in (("CU", CU), ("CD", CD), ("R", R), ("LD", LD), ("PV", PV)):
-            if value is not None:
-                setattr(self, name, value)
-        self.cycle(ctx)
-        return self.QU
+        return _invoke(self, ctx, CU=CU, CD=CD, R=R, LD=LD, PV=PV)
 
     def cycle(self, ctx: CycleContext) -> None:
         pv = self._pv()
@@ -313,12 +284,7 @@ class SR(FunctionBlock):
     Q1 = Output(False)
 
     def __call__(self, ctx: CycleContext, S1: bool | None = None, R: bool | None = None) -> bool:
-        if S1 is not None:
-            self.S1 = S1
-        if R is not None:
-            self.R = R
-        self.cycle(ctx)
-        return self.Q1
+        return _invoke(self, ctx, S1=S1, R=R)
 
     def cycle(self, ctx: CycleContext) -> None:
         self.Q1 = bool(self.S1) or (not self.R and self.Q1)
@@ -332,12 +298,7 @@ class RS(FunctionBlock):
     Q1 = Output(False)
 
     def __call__(self, ctx: CycleContext, S: bool | None = None, R1: bool | None = None) -> bool:
-        if S is not None:
-            self.S = S
-        if R1 is not None:
-            self.R1 = R1
-        self.cycle(ctx)
-        return self.Q1
+        return _invoke(self, ctx, S=S, R1=R1)
 
     def cycle(self, ctx: CycleContext) -> None:
         self.Q1 = not self.R1 and (bool(self.S) or self.Q1)

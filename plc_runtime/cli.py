@@ -29,6 +29,7 @@ from .runtime import Runtime
 EXIT_FAULT = 1
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
+REDRAW_INTERVAL = 0.25  # seconds of wall time between two redraws of the live screen
 
 
 class CliError(Exception):
@@ -183,7 +184,11 @@ def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> 
     knows the program is in its cyclic phase."""
     chunk = max(1, round(0.1 / rt.cycle_time)) if not rt.clock.is_virtual else 2000
     done = 0
-    display = Live(_status_table(rt, total), refresh_per_second=4, transient=True) if live else None
+    # No auto-refresh: rich would redraw from a background thread, and a second Python
+    # thread in the scan's process costs milliseconds of lateness (GIL hand-over). The
+    # screen is redrawn here, between chunks, in the idle time before the next release.
+    display = Live(_status_table(rt, total), auto_refresh=False, transient=True) if live else None
+    drawn = time.monotonic()
     if display:
         display.start()
     try:
@@ -194,8 +199,9 @@ def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> 
             if announce:
                 print(announce, file=sys.stderr, flush=True)
                 announce = None
-            if display:
-                display.update(_status_table(rt, total))
+            if display and time.monotonic() - drawn >= REDRAW_INTERVAL:
+                display.update(_status_table(rt, total), refresh=True)
+                drawn = time.monotonic()
             if ran < n:
                 break
     finally:
@@ -203,36 +209,56 @@ def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> 
             display.stop()
 
 
-def _status_table(rt: Runtime, total: int | None) -> Table:
-    table = Table(
-        title=f"plc-runtime  state {rt.state}  cycle {rt.ticks}"
-        + (f"/{total}" if total else "")
-        + f"  clock {rt.clock_time:.2f} s"
-    )
-    for column in (
-        "task",
-        "cycles",
-        "exec last us",
-        "exec max us",
-        "exec p99 us",
-        "late p99 us",
-        "overruns",
-        "omitted",
-    ):
-        table.add_column(column, justify="right" if column != "task" else "left")
-    for name, stats in rt.stats.tasks.items():
-        d = stats.to_dict()
-        table.add_row(
-            name,
-            str(d["cycles"]),
-            f"{d['exec_us']['last']:.1f}",
-            f"{d['exec_us']['max']:.1f}",
-            f"{d['exec_us']['p99']:.1f}",
-            f"{d['lateness_us']['p99']:.1f}",
-            str(d["overruns"]),
-            str(d["omitted"]),
-        )
+# Columns of the statistics tables: header -> how to show it from ScanStats.to_dict()
+_COLUMNS = {
+    "cycles": lambda d: str(d["cycles"]),
+    "exec last us": lambda d: f"{d['exec_us']['last']:.1f}",
+    "exec mean us": lambda d: f"{d['exec_us']['mean']:.1f}",
+    "exec p99 us": lambda d: f"{d['exec_us']['p99']:.1f}",
+    "exec max us": lambda d: f"{d['exec_us']['max']:.1f}",
+    "late p99 us": lambda d: f"{d['lateness_us']['p99']:.1f}",
+    "late max us": lambda d: f"{d['lateness_us']['max']:.1f}",
+    "overruns": lambda d: str(d["overruns"]),
+    "omitted": lambda d: str(d["omitted"]),
+}
+_LIVE_COLUMNS = [
+    "cycles",
+    "exec last us",
+    "exec max us",
+    "exec p99 us",
+    "late p99 us",
+    "overruns",
+    "omitted",
+]
+_SUMMARY_COLUMNS = [
+    "cycles",
+    "exec mean us",
+    "exec p99 us",
+    "exec max us",
+    "late p99 us",
+    "late max us",
+    "overruns",
+    "omitted",
+]
+
+
+def _stats_table(title: str, rows: dict[str, dict[str, Any]], columns: list[str]) -> Table:
+    table = Table(title=title)
+    table.add_column("task")
+    for header in columns:
+        table.add_column(header, justify="right")
+    for name, d in rows.items():
+        table.add_row(name, *(_COLUMNS[header](d) for header in columns))
     return table
+
+
+def _status_table(rt: Runtime, total: int | None) -> Table:
+    of_total = f"/{total}" if total else ""
+    title = (
+        f"plc-runtime  state {rt.state}  cycle {rt.ticks}{of_total}  clock {rt.clock_time:.2f} s"
+    )
+    rows = {name: stats.to_dict() for name, stats in rt.stats.tasks.items()}
+    return _stats_table(title, rows, _LIVE_COLUMNS)
 
 
 def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any]:
@@ -255,34 +281,11 @@ def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, An
 
 
 def _summary_table(summary: dict[str, Any]) -> Table:
-    table = Table(
-        title=f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
-        f"{summary['sim_time_s']:.2f} s {summary['clock']} time in {summary['wall_time_s']:.2f} s wall"
+    title = (
+        f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
+        f"{summary['sim_time_s']:.2f} s on the {summary['clock']} clock, {summary['wall_time_s']:.2f} s of wall time"
     )
-    table.add_column("task")
-    for column in (
-        "cycles",
-        "exec mean us",
-        "exec p99 us",
-        "exec max us",
-        "late p99 us",
-        "late max us",
-        "overruns",
-        "omitted",
-    ):
-        table.add_column(column, justify="right")
-    for name, d in {**summary["tasks"], "(scan)": summary["scan"]}.items():
-        table.add_row(
-            name,
-            str(d["cycles"]),
-            f"{d['exec_us']['mean']:.1f}",
-            f"{d['exec_us']['p99']:.1f}",
-            f"{d['exec_us']['max']:.1f}",
-            f"{d['lateness_us']['p99']:.1f}",
-            f"{d['lateness_us']['max']:.1f}",
-            str(d["overruns"]),
-            str(d["omitted"]),
-        )
+    table = _stats_table(title, {**summary["tasks"], "(scan)": summary["scan"]}, _SUMMARY_COLUMNS)
     if summary["fault_reason"]:
         table.caption = f"FAULT: {summary['fault_reason']}"
     else:

@@ -28,7 +28,9 @@ from .errors import ConfigError
 
 PR_SET_TIMERSLACK = 29
 PR_GET_TIMERSLACK = 30
-FORCE_FACTOR = 20  # rt mode: collect even without slack once generation 0 is this many thresholds full
+FORCE_FACTOR = (
+    20  # rt mode: collect even without slack once generation 0 is this many thresholds full
+)
 
 
 class VirtualClock:
