@@ -1,1 +1,24 @@
-"""Plant topology: the graph of nodes and lane segments, its file formats and the sample plants (issue 3)."""
+"""Plant topology: the graph of decision points and lane segments, its file formats, and the
+sample plants. Imports nothing else of this project."""
+
+from .errors import TopologyError
+from .formats import load, load_scenarios
+from .model import PORTS, ROLES, TARGET_ROLES, Edge, Node, Plant, route_cost
+from .samples import SAMPLES, grid, model_plant, warehouse
+
+__all__ = [
+    "PORTS",
+    "ROLES",
+    "SAMPLES",
+    "TARGET_ROLES",
+    "Edge",
+    "Node",
+    "Plant",
+    "TopologyError",
+    "grid",
+    "load",
+    "load_scenarios",
+    "model_plant",
+    "route_cost",
+    "warehouse",
+]

@@ -1,0 +1,48 @@
+"""Run-time routing constraints shared by the routing blocks: blockades and penalties per arc.
+
+A permanent blockade (a segment closed for longer, thesis level 3) removes arcs from routing;
+a penalty (a segment occupied by another vehicle, thesis 5.3.1) makes them expensive but not
+impossible, so a route still exists when the occupied segment is the only way. Both are
+numpy arrays indexed by arc id: checking one is O(1) inside an A* step, and changing them
+at run time needs no rebuild. Neither can make a precomputed distance table overestimate:
+they only ever make true costs larger.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from topology import Plant
+
+
+class RoutingConstraints:
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
+        self.blocked = np.zeros(plant.n_arcs, dtype=bool)
+        self.penalty = np.zeros(plant.n_arcs, dtype=np.float64)
+
+    def block(self, a: int, b: int, both_ways: bool = True) -> None:
+        """Close the segment a -> b (and b -> a); TopologyError if there is no such segment."""
+        self.blocked[self.plant.arcs_between(a, b, both_ways)] = True
+
+    def unblock(self, a: int, b: int, both_ways: bool = True) -> None:
+        self.blocked[self.plant.arcs_between(a, b, both_ways)] = False
+
+    def penalize(self, a: int, b: int, extra: float, both_ways: bool = False) -> None:
+        """Set the extra cost of a -> b (default one direction: the one an oncoming vehicle uses)."""
+        if not (math.isfinite(extra) and extra >= 0):
+            raise ValueError(
+                f"penalty must be a finite number >= 0 (a blockade is block()), got {extra!r}"
+            )
+        self.penalty[self.plant.arcs_between(a, b, both_ways)] = extra
+
+    def clear(self) -> None:
+        self.blocked[:] = False
+        self.penalty[:] = 0.0
+
+    def blocked_segments(self) -> list[tuple[int, int]]:
+        src, dst, _ = self.plant.arcs
+        ids = self.plant.ids
+        return [(int(ids[src[a]]), int(ids[dst[a]])) for a in np.flatnonzero(self.blocked)]

@@ -1,0 +1,252 @@
+"""HeuristicTable and IncrementalAStar against an independent oracle, cycle by cycle."""
+
+import math
+
+import networkx as nx
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from blocks.astar import IncrementalAStar
+from blocks.constraints import RoutingConstraints
+from blocks.heuristic import HeuristicTable, distances_to
+from plc_runtime import FunctionBlock, Runtime, VirtualClock
+from topology import Edge, Node, Plant, grid, model_plant, route_cost
+
+
+class Watch(FunctionBlock):
+    """Runs after the A* block in the same task and checks its outputs every cycle."""
+
+    def __init__(self, astar: IncrementalAStar, budget: int | None):
+        super().__init__()
+        self.astar, self.budget, self.log = astar, budget, []
+
+    def cycle(self, ctx):
+        a = self.astar
+        if self.budget is not None:
+            assert a.expansions_last_cycle <= self.budget
+        if a.busy:  # nothing partial is ever visible
+            assert a.route == () and not a.done and a.cost == 0.0
+        self.log.append((a.busy, a.done, a.route))
+
+
+def search(plant, start, goal, budget=1, heuristic="table", constraints=None, max_cycles=100_000):
+    table = HeuristicTable(plant, targets=[goal]) if heuristic == "table" else None
+    astar = IncrementalAStar(plant, table, heuristic=heuristic, constraints=constraints)
+    watch = Watch(astar, budget)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [b for b in (table, astar, watch) if b is not None])
+    rt.start()
+    astar.request, astar.start, astar.goal, astar.budget = True, start, goal, budget
+    assert rt.run_until(lambda: astar.done, max_cycles=max_cycles)
+    assert rt.state == "RUN", rt.fault_reason
+    rt.stop()
+    return astar
+
+
+def oracle_cost(plant, start, goal, constraints=None) -> float:
+    """networkx Dijkstra on the same graph with blocked arcs removed and penalties added."""
+    g = nx.DiGraph()
+    g.add_nodes_from(plant.ids.tolist())
+    src, dst, length = plant.arcs
+    for arc, (u, v, w) in enumerate(zip(src.tolist(), dst.tolist(), length.tolist(), strict=True)):
+        if constraints is not None and constraints.blocked[arc]:
+            continue
+        w += constraints.penalty[arc] if constraints is not None else 0.0
+        a, b = int(plant.ids[u]), int(plant.ids[v])
+        if not g.has_edge(a, b) or g[a][b]["weight"] > w:
+            g.add_edge(a, b, weight=w)
+    try:
+        return nx.dijkstra_path_length(g, start, goal)
+    except nx.NetworkXNoPath:
+        return math.inf
+
+
+@st.composite
+def plants(draw, integer_lengths=False, min_length=0):
+    n = draw(st.integers(2, 18))
+    ids = draw(st.lists(st.integers(0, 60), min_size=n, max_size=n, unique=True))
+    nodes = [
+        Node(i, x=float(draw(st.integers(0, 9))), y=float(draw(st.integers(0, 9)))) for i in ids
+    ]
+    pairs = draw(st.lists(st.tuples(st.sampled_from(ids), st.sampled_from(ids)), max_size=3 * n))
+    edges = []
+    for a, b in pairs:
+        if a == b:
+            continue
+        length = (
+            draw(st.integers(min_length, 20))
+            if integer_lengths
+            else draw(st.floats(min_length, 20, allow_nan=False, allow_infinity=False))
+        )
+        edges.append(
+            Edge(
+                a,
+                b,
+                float(length),
+                bidirectional=draw(st.booleans()),
+                routable=draw(st.booleans() | st.just(True)),
+            )
+        )
+    return Plant.build(nodes, edges)
+
+
+def random_constraints(draw, plant):
+    constraints = RoutingConstraints(plant)
+    if plant.n_arcs:
+        arcs = draw(st.lists(st.integers(0, plant.n_arcs - 1), max_size=plant.n_arcs))
+        constraints.blocked[arcs] = True
+        for arc in draw(st.lists(st.integers(0, plant.n_arcs - 1), max_size=4)):
+            constraints.penalty[arc] = draw(st.floats(0, 100))
+    return constraints
+
+
+SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(st.data())
+def test_route_cost_matches_the_oracle_under_blockades_and_penalties(data):
+    plant = data.draw(plants())
+    start, goal = (
+        data.draw(st.sampled_from(plant.ids.tolist())),
+        data.draw(st.sampled_from(plant.ids.tolist())),
+    )
+    constraints = random_constraints(data.draw, plant)
+    budget = data.draw(st.sampled_from([1, 2, 5, None]))
+    heuristic = data.draw(st.sampled_from(["table", "euclidean", "manhattan", "zero"]))
+    astar = search(plant, start, goal, budget, heuristic, constraints)
+    expected = oracle_cost(plant, start, goal, constraints)
+    if math.isinf(expected):
+        assert astar.no_route and astar.route == ()
+        return
+    assert not astar.no_route
+    assert astar.cost == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    route = astar.route
+    assert route[0] == start and route[-1] == goal
+    for a, b in zip(route, route[1:], strict=False):  # a valid route: routable, unblocked arcs
+        arcs = plant.arc_index.get((a, b), [])
+        assert any(not constraints.blocked[arc] for arc in arcs), (a, b)
+    assert route_cost(plant, route) <= astar.cost + 1e-9  # penalties only add
+
+
+@SETTINGS
+@given(st.data())
+def test_exact_table_expands_only_the_route(data):
+    plant = data.draw(plants(integer_lengths=True, min_length=1))
+    start, goal = (
+        data.draw(st.sampled_from(plant.ids.tolist())),
+        data.draw(st.sampled_from(plant.ids.tolist())),
+    )
+    astar = search(plant, start, goal, budget=1)
+    assume(not astar.no_route)
+    assert astar.expansions == len(
+        astar.route
+    )  # thesis 3.5.2: six nodes on the path, six expansions
+    assert astar.cycles == astar.expansions  # one expansion per cycle
+
+
+@SETTINGS
+@given(st.data())
+def test_table_is_exact_distance_to_each_target(data):
+    plant = data.draw(plants())
+    target = data.draw(st.sampled_from(plant.ids.tolist()))
+    row = distances_to(plant, [target])[0]
+    for node in plant.ids.tolist():
+        expected = oracle_cost(plant, node, target)
+        got = float(row[plant.idx(node)])
+        if math.isinf(expected):
+            assert math.isinf(got)
+        else:
+            assert got <= expected  # rounded down to float32: never overestimates
+            assert got == pytest.approx(expected, rel=1e-6, abs=1e-6)
+
+
+def test_model_plant_routes_and_one_way_lanes():
+    plant = model_plant()
+    astar = search(plant, 0, 24)
+    assert astar.route == (0, 6, 7, 8, 9, 24) and astar.cost == pytest.approx(5.0)
+    top = search(plant, 0, 15)  # the top lane is one-way left to right: up through station 23
+    assert top.route == (0, 23, 1, 15)
+    back = search(plant, 18, 15)  # from the end of the top lane back to its start
+    assert back.route[0] == 18 and 23 in back.route and not back.no_route
+
+
+def test_blockade_and_clearing_at_run_time():
+    plant = model_plant()
+    constraints = RoutingConstraints(plant)
+    constraints.block(7, 8)
+    detour = search(plant, 0, 24, constraints=constraints)
+    assert (7, 8) not in zip(detour.route, detour.route[1:], strict=False)
+    assert detour.cost > 5.0
+    constraints.unblock(7, 8)
+    assert search(plant, 0, 24, constraints=constraints).cost == pytest.approx(5.0)
+
+
+def test_penalty_is_not_a_wall():
+    plant = model_plant()
+    constraints = RoutingConstraints(plant)
+    for a, b in [(9, 24)]:  # the only way to the exit is occupied: still routed, at a price
+        constraints.penalize(a, b, 1000.0)
+    astar = search(plant, 0, 24, constraints=constraints)
+    assert astar.route[-2:] == (9, 24) and astar.cost == pytest.approx(1005.0)
+
+
+def test_new_request_aborts_a_running_search():
+    plant = grid(20, 20, obstacles=0.0, stations=0)
+    table = HeuristicTable(plant, targets=[399, 19])
+    astar = IncrementalAStar(plant, table)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [table, astar])
+    rt.start()
+    astar.request, astar.start, astar.goal = True, 0, 399
+    rt.step(5)
+    assert astar.busy and astar.route == ()
+    astar.request = False
+    rt.step()
+    astar.request, astar.goal = True, 19  # new goal: the old search is dropped
+    assert rt.run_until(lambda: astar.done, max_cycles=1000)
+    assert astar.route[-1] == 19 and astar.expansions == 20 and astar.cycles == 20
+    rt.stop()
+
+
+def test_time_budget_and_unknown_nodes():
+    plant = grid(30, 30, obstacles=0.0, stations=0)
+    astar = search(plant, 0, 899, budget=None, heuristic="zero")  # 1 s task budget: done at once
+    assert astar.cycles == 1 and astar.cost == pytest.approx(58.0)
+    bad = search(plant, 0, 5000, heuristic="zero")
+    assert bad.no_route and bad.error == "unknown goal node 5000"
+
+
+def test_first_use_row_and_topology_change():
+    plant = model_plant()
+    table = HeuristicTable(plant, targets=[24])
+    astar = IncrementalAStar(plant, table)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [table, astar])
+    rt.start()
+    astar.request, astar.start, astar.goal = True, 0, 17  # 17 is not in the table
+    assert rt.run_until(lambda: astar.done, max_cycles=100)
+    assert table.rows_computed_in_cycle == 1 and astar.cost == pytest.approx(
+        search(plant, 0, 17).cost
+    )
+    bigger = Plant.build(
+        plant.nodes, (*plant.edges, Edge(0, 24, 0.5)), name="shortcut", functions=plant.functions
+    )
+    table.plant = bigger
+    rt.step()
+    assert "topology change rejected" in table.error and table.served_plant is plant
+    rt.stop()
+    rt.start()  # the restart adopts the new topology
+    assert table.error is None and table.served_plant is bigger
+    rt.stop()
+
+
+def test_budget_bounds_every_cycle_on_a_large_grid():
+    plant = grid(60, 60, obstacles=0.2, seed=3, stations=0)
+    ids = plant.ids.tolist()
+    astar = search(plant, ids[0], ids[-1], budget=7, heuristic="manhattan")
+    expected = oracle_cost(plant, ids[0], ids[-1])
+    assert astar.no_route == math.isinf(expected)
+    if not astar.no_route:
+        assert astar.cost == pytest.approx(expected)

@@ -1,0 +1,271 @@
+"""Plant model, file formats and validation."""
+
+import math
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from topology import (
+    Edge,
+    Node,
+    Plant,
+    TopologyError,
+    grid,
+    load,
+    load_scenarios,
+    model_plant,
+    warehouse,
+)
+from topology.formats import dump_json, dump_toml
+
+MOVINGAI = Path(__file__).resolve().parents[2] / "shared" / "data" / "movingai"
+
+
+def test_model_plant_matches_the_thesis():
+    plant = model_plant()
+    assert plant.n == 25 and len(plant.targets) == 10 and plant.warnings == ()
+    assert plant.node(0).role == "entry" and plant.node(24).role == "exit"
+    assert sorted(plant.stations_for(2)) == [15, 22]  # a function cluster of two stations
+    return_lane = [e for e in plant.edges if not e.routable]
+    assert [(e.source, e.target) for e in return_lane] == [(24, 0)]
+    assert (24, 0) not in plant.arc_index  # routing ignores it
+    station_exits = [e for e in plant.edges if plant.node(e.source).role == "station"]
+    assert station_exits and all(not e.bidirectional for e in station_exits)
+
+
+@pytest.mark.parametrize("make", [model_plant, warehouse, lambda: grid(12, 9, 0.2, seed=5)])
+@pytest.mark.parametrize("suffix,dump", [(".toml", dump_toml), (".json", dump_json)])
+def test_round_trip_through_files(tmp_path, make, suffix, dump):
+    plant = make()
+    path = tmp_path / f"plant{suffix}"
+    path.write_text(dump(plant))
+    again = load(path)
+    assert again.fingerprint == plant.fingerprint
+    assert (
+        again.nodes == plant.nodes
+        and again.edges == plant.edges
+        and again.functions == plant.functions
+    )
+
+
+def test_warehouse_is_the_fulfilment_size():
+    plant = warehouse()
+    assert plant.name == "warehouse-33x46" and plant.n > 1000
+    assert len(plant.with_role("station")) == 22 and plant.warnings == ()
+
+
+def test_grid_is_seeded():
+    assert grid(20, 20, 0.3, seed=1).fingerprint == grid(20, 20, 0.3, seed=1).fingerprint
+    assert grid(20, 20, 0.3, seed=1).fingerprint != grid(20, 20, 0.3, seed=2).fingerprint
+
+
+def test_movingai_ids_follow_the_benchmark(tmp_path):
+    path = tmp_path / "tiny.map"
+    path.write_text("type octile\nheight 3\nwidth 4\nmap\n..@.\n.T..\nG...\n")
+    plant = load(path, cell_size=0.5)
+    assert sorted(plant.ids.tolist()) == [0, 1, 3, 4, 6, 7, 8, 9, 10, 11]
+    assert plant.node(6).x == 1.0 and plant.node(6).y == 0.5  # cell (2, 1)
+    assert (0, 1) in plant.arc_index and (1, 2) not in plant.arc_index and (3, 7) in plant.arc_index
+    assert plant.csr[0, 1] == 0.5
+
+
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("type octile\nheight 2\nwidth 3\nmap\n...\n", "truncated: 1 of 2 rows"),
+        ("type octile\nheight 1\nwidth 3\nmap\n..\n", "line 5: row has 2 cells, expected 3"),
+        ("type octile\nheight 1\nwidth 3\nmap\n.S.\n", "line 5: unknown cell 'S' at column 2"),
+        ("height x\nwidth 3\nmap\n", "integer 'height' and 'width'"),
+        ("hello\n", "line 1: expected 'type'"),
+    ],
+)
+def test_movingai_errors_name_the_line(tmp_path, text, message):
+    path = tmp_path / "bad.map"
+    path.write_text(text)
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    assert str(path) in str(err.value)
+
+
+@pytest.mark.skipif(not MOVINGAI.exists(), reason="shared MovingAI data not present")
+def test_shared_movingai_map_and_scenarios():
+    from scipy.sparse.csgraph import dijkstra
+
+    plant = load(MOVINGAI / "random-32-32-10.map")
+    rows = (MOVINGAI / "random-32-32-10.map").read_text().splitlines()[4:]
+    assert plant.n == sum(row.count(".") + row.count("G") for row in rows)
+    for scen in load_scenarios(MOVINGAI / "random-32-32-10-random-1.scen")[:50]:
+        x, y = scen.start % 32, scen.start // 32
+        assert rows[y][x] in ".G"  # ids match the scenario coordinates
+        four = dijkstra(plant.csr, indices=plant.idx(scen.start))[plant.idx(scen.goal)]
+        assert four >= scen.optimal_octile - 1e-6  # 4-connected is never shorter than octile
+
+
+def test_compass_node_list(tmp_path):
+    path = tmp_path / "thesis.nodes"
+    path.write_text(
+        "# id  N d   E d     S d     W d\n"
+        "0   -1 0   1 1.0   -1 0    -1 0   role=entry functions=0\n"
+        "1   -1 0   2 1.0    3 0.8   0 1.0\n"
+        "2   -1 0   -1 0    -1 0     1 1.0  role=station functions=2+3 name=drill\n"
+        "3    1 0.8  4 2.5  -1 0    -1 0\n"
+        "4   -1 0   -1 0    -1 0    -1 0    role=exit\n"
+    )
+    plant = load(path)
+    both = {(e.source, e.target): e for e in plant.edges}
+    assert (
+        both[(0, 1)].bidirectional
+        and both[(0, 1)].port_source == "E"
+        and both[(0, 1)].port_target == "W"
+    )
+    assert both[(1, 3)].bidirectional and both[(1, 3)].length == 0.8
+    assert not both[(3, 4)].bidirectional  # listed from one end only: one-way
+    assert plant.node(2).functions == (2, 3) and plant.node(2).name == "drill"
+    assert plant.node(1).x == 1.0 and plant.node(3).y == 0.8  # laid out from the ports
+
+
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        ("0 -1 0 1 1.0 -1 0\n", "line 1: expected id and 4 x"),
+        ("0 -1 0 7 1.0 -1 0 -1 0\n", "line 1: port E of node 0: unknown node 7"),
+        ("0 -1 0 -1 0 -1 0 -1 0\n0 -1 0 -1 0 -1 0 -1 0\n", "line 2: node 0 is listed twice"),
+        ("0 -1 x -1 0 -1 0 -1 0\n", "line 1: ids must be integers"),
+        ("0 -1 0 -1 0 -1 0 -1 0 colour=red\n", "unknown option"),
+    ],
+)
+def test_compass_errors_name_the_line(tmp_path, text, message):
+    path = tmp_path / "bad.nodes"
+    path.write_text(text)
+    with pytest.raises(TopologyError, match=message):
+        load(path)
+
+
+def plant_toml(nodes: str, edges: str, extra: str = "") -> str:
+    return extra + nodes + edges
+
+
+NODES = '[[nodes]]\nid = 0\nrole = "entry"\n[[nodes]]\nid = 1\n[[nodes]]\nid = 2\nrole = "station"\nfunctions = [2]\n'
+
+
+@pytest.mark.parametrize(
+    "text,message",
+    [
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 9\nlength = 1\n",
+            r"edges\[0\] \(0 -> 9\): unknown node 9",
+        ),
+        (
+            "edges = []\n" + NODES + "[[nodes]]\nid = 1\n",
+            r"nodes\[3\] \(id 1\): duplicate node id 1",
+        ),
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = -1\n",
+            "length must be a finite number >= 0, got -1",
+        ),
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = nan\n",
+            "length must be a finite number >= 0, got nan",
+        ),
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = inf\n",
+            "length must be a finite number >= 0, got inf",
+        ),
+        (NODES + "[[edges]]\nfrom = 1\nto = 1\nlength = 1\n", "self loop"),
+        (
+            NODES + '[[edges]]\nfrom = 0\nto = 1\nlength = 1\nports = ["E", "W"]\n'
+            '[[edges]]\nfrom = 0\nto = 2\nlength = 1\nports = ["E", "W"]\n',
+            r"edges\[1\] \(0 -> 2\): port E of node 0 is already used by edges\[0\]",
+        ),
+        (
+            '[functions]\n7 = "polish"\n' + NODES + "[[edges]]\nfrom = 0\nto = 2\nlength = 1\n",
+            "function 7 \\(polish\\) is provided by no station",
+        ),
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = 1\n",
+            "target 2 cannot be reached from entry 0",
+        ),
+        (
+            NODES + '[[edges]]\nfrom = 0\nto = "one"\nlength = 1\n',
+            "to must be an integer, got 'one'",
+        ),
+        (
+            "edges = []\n" + NODES.replace('role = "station"', 'role = "stacion"'),
+            "unknown role 'stacion'",
+        ),
+        (
+            "edges = []\n[[nodes]]\nid = 0\nfunctions = [3]\n",
+            "a transit node cannot provide functions",
+        ),
+        (
+            NODES + "[[edges]]\nfrom = 0\nto = 2\nlength = 1\nspeed = 3\n",
+            "unknown key\\(s\\): speed",
+        ),
+        ("nodes = 3\nedges = []\n", "'nodes' must be a list"),
+        ("[[nodes]\n", "invalid TOML"),
+    ],
+)
+def test_validation_errors_name_file_and_item(tmp_path, text, message):
+    path = tmp_path / "plant.toml"
+    path.write_text(text)
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    assert str(err.value).startswith(str(path))
+
+
+def test_unreachable_from_some_node_is_a_warning():
+    nodes = [Node(0, role="entry"), Node(1), Node(2, role="station", functions=(2,)), Node(3)]
+    edges = [
+        Edge(0, 2, 1.0, bidirectional=False),
+        Edge(2, 1, 1.0),
+        Edge(1, 3, 1.0, bidirectional=False),
+    ]
+    plant = Plant.build(nodes, edges)  # builds: the entry reaches the station
+    assert plant.warnings == ("target 2 cannot be reached from 1 node(s), e.g. 3",)
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"\x00\x01\x02\xff binary",
+        b"\xff\xfe\xfa",
+        b"",
+        b'{"nodes": [',
+        b"[1, 2, 3]",
+        b'{"nodes": [{"id": 0}], "edges": [1]}',
+    ],
+)
+def test_garbage_files_give_one_clear_error(tmp_path, content):
+    for suffix in (".toml", ".json", ".map", ".nodes"):
+        path = tmp_path / f"garbage{suffix}"
+        path.write_bytes(content)
+        try:
+            load(path)
+        except TopologyError as exc:
+            assert str(path) in str(exc) and "\n" not in str(exc)
+        else:
+            assert content == b"" and suffix == ".nodes"  # an empty node list is an empty plant
+
+
+def test_unknown_extension_and_missing_file(tmp_path):
+    with pytest.raises(TopologyError, match="unknown plant file type '.yaml'"):
+        load(tmp_path / "plant.yaml")
+    with pytest.raises(TopologyError, match="cannot read plant file"):
+        load(tmp_path / "missing.toml")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.integers(0, 12), st.integers(0, 12), st.floats(0, 50)), max_size=30),
+    st.booleans(),
+)
+def test_fingerprint_changes_with_routing_relevant_edits(pairs, directed):
+    nodes = [Node(i) for i in range(13)]
+    edges = [Edge(a, b, w, bidirectional=not directed) for a, b, w in pairs if a != b]
+    plant = Plant.build(nodes, edges)
+    extra = Plant.build(nodes, (*edges, Edge(0, 12, 1.0)))
+    assert plant.fingerprint != extra.fingerprint
+    assert Plant.build(nodes, edges).fingerprint == plant.fingerprint
+    assert all(math.isfinite(w) for w in plant.arcs[2])

@@ -1,0 +1,213 @@
+"""The human-editable plant formats: TOML (primary) and JSON, one schema (docs/plant-format.md).
+
+name = "model-plant"
+[functions]
+2 = "drill"
+[[nodes]]
+id = 16
+name = "drill-1"
+x = 1.5
+y = 0.0
+role = "station"
+functions = [2]
+[[edges]]
+from = 1
+to = 16
+length = 0.5
+directed = true          # default false: drivable both ways
+ports = ["E", "W"]       # optional: compass port at 'from', at 'to'
+max_speed = 0.4          # optional, m/s
+routable = true          # default true; false = a lane routing ignores (return lane)
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from ..errors import TopologyError
+from ..model import Edge, Node, Plant
+
+NODE_KEYS = {"id", "name", "x", "y", "role", "functions"}
+EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable"}
+TOP_KEYS = {"name", "functions", "nodes", "edges"}
+
+
+def read_text(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise TopologyError(f"cannot read plant file: {exc.strerror or exc}", str(path)) from None
+    if b"\0" in raw:
+        raise TopologyError("binary data, not a plant file", str(path))
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise TopologyError(f"not UTF-8 text (byte {exc.start})", str(path)) from None
+
+
+def load_toml(path: Path) -> Plant:
+    try:
+        data = tomllib.loads(read_text(path))
+    except tomllib.TOMLDecodeError as exc:
+        raise TopologyError(f"invalid TOML: {exc}", str(path)) from None
+    return from_dict(data, str(path))
+
+
+def load_json(path: Path) -> Plant:
+    try:
+        data = json.loads(read_text(path))
+    except json.JSONDecodeError as exc:
+        raise TopologyError(
+            f"invalid JSON: {exc.msg}", str(path), f"line {exc.lineno}, column {exc.colno}"
+        ) from None
+    return from_dict(data, str(path))
+
+
+def _typed(value: Any, kinds: type | tuple[type, ...], what: str, source: str, where: str) -> Any:
+    if isinstance(value, bool) and bool not in (kinds if isinstance(kinds, tuple) else (kinds,)):
+        raise TopologyError(f"{what} must be {_kind_name(kinds)}, got {value!r}", source, where)
+    if not isinstance(value, kinds):
+        raise TopologyError(f"{what} must be {_kind_name(kinds)}, got {value!r}", source, where)
+    return value
+
+
+def _kind_name(kinds: type | tuple[type, ...]) -> str:
+    names = {
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        bool: "true or false",
+        list: "a list",
+    }
+    kinds = kinds if isinstance(kinds, tuple) else (kinds,)
+    return " or ".join(dict.fromkeys(names.get(k, k.__name__) for k in kinds))
+
+
+def from_dict(data: Any, source: str) -> Plant:
+    """Build a plant from the parsed TOML/JSON document; errors name the key path."""
+    if not isinstance(data, dict):
+        raise TopologyError("expected a table/object with 'nodes' and 'edges'", source)
+    unknown = set(data) - TOP_KEYS
+    if unknown:
+        raise TopologyError(f"unknown top-level key(s): {', '.join(sorted(unknown))}", source)
+    for key in ("nodes", "edges"):
+        if not isinstance(data.get(key), list):
+            raise TopologyError(f"'{key}' must be a list of tables", source, key)
+    name = _typed(data.get("name", Path(source).stem), str, "name", source, "name")
+    functions: dict[int, str] = {}
+    for key, value in _typed(
+        data.get("functions", {}), dict, "functions", source, "functions"
+    ).items():
+        try:
+            function = int(key)
+        except ValueError:
+            raise TopologyError(
+                f"function id {key!r} is not an integer", source, "functions"
+            ) from None
+        functions[function] = _typed(value, str, f"name of function {key}", source, "functions")
+    nodes = [_node(item, i, source) for i, item in enumerate(data["nodes"])]
+    edges = [_edge(item, i, source) for i, item in enumerate(data["edges"])]
+    return Plant.build(nodes, edges, name=name, functions=functions, source=source)
+
+
+def _node(item: Any, i: int, source: str) -> Node:
+    where = f"nodes[{i}]"
+    if not isinstance(item, dict):
+        raise TopologyError("expected a table", source, where)
+    unknown = set(item) - NODE_KEYS
+    if unknown:
+        raise TopologyError(f"unknown key(s): {', '.join(sorted(unknown))}", source, where)
+    if "id" not in item:
+        raise TopologyError("missing 'id'", source, where)
+    functions = _typed(item.get("functions", []), list, "functions", source, where)
+    return Node(
+        id=_typed(item["id"], int, "id", source, where),
+        name=_typed(item.get("name", ""), str, "name", source, where),
+        x=_typed(item.get("x", 0.0), (int, float), "x", source, where),
+        y=_typed(item.get("y", 0.0), (int, float), "y", source, where),
+        role=_typed(item.get("role", "transit"), str, "role", source, where),
+        functions=tuple(_typed(f, int, "function id", source, where) for f in functions),
+    )
+
+
+def _edge(item: Any, i: int, source: str) -> Edge:
+    where = f"edges[{i}]"
+    if not isinstance(item, dict):
+        raise TopologyError("expected a table", source, where)
+    unknown = set(item) - EDGE_KEYS
+    if unknown:
+        raise TopologyError(f"unknown key(s): {', '.join(sorted(unknown))}", source, where)
+    for key in ("from", "to", "length"):
+        if key not in item:
+            raise TopologyError(f"missing '{key}'", source, where)
+    ports = _typed(item.get("ports", [None, None]), list, "ports", source, where)
+    if len(ports) != 2 or not all(p is None or isinstance(p, str) for p in ports):
+        raise TopologyError(
+            "ports must be a list of two compass letters: [at 'from', at 'to']", source, where
+        )
+    max_speed = item.get("max_speed")
+    return Edge(
+        source=_typed(item["from"], int, "from", source, where),
+        target=_typed(item["to"], int, "to", source, where),
+        length=_typed(item["length"], (int, float), "length", source, where),
+        max_speed=None
+        if max_speed is None
+        else _typed(max_speed, (int, float), "max_speed", source, where),
+        bidirectional=not _typed(item.get("directed", False), bool, "directed", source, where),
+        port_source=ports[0] or None,  # "" and null both mean "no port"
+        port_target=ports[1] or None,
+        routable=_typed(item.get("routable", True), bool, "routable", source, where),
+    )
+
+
+def to_dict(plant: Plant) -> dict[str, Any]:
+    """The document ``from_dict`` reads back (None-valued optional keys left out)."""
+    nodes = []
+    for n in plant.nodes:
+        node: dict[str, Any] = {"id": n.id, "x": n.x, "y": n.y, "role": n.role}
+        if n.name:
+            node["name"] = n.name
+        if n.functions:
+            node["functions"] = list(n.functions)
+        nodes.append(node)
+    edges = []
+    for e in plant.edges:
+        edge: dict[str, Any] = {"from": e.source, "to": e.target, "length": e.length}
+        if not e.bidirectional:
+            edge["directed"] = True
+        if e.port_source or e.port_target:
+            edge["ports"] = [e.port_source or "", e.port_target or ""]
+        if e.max_speed is not None:
+            edge["max_speed"] = e.max_speed
+        if not e.routable:
+            edge["routable"] = False
+        edges.append(edge)
+    return {
+        "name": plant.name,
+        "functions": {str(k): v for k, v in plant.functions.items()},
+        "nodes": nodes,
+        "edges": edges,
+    }
+
+
+def dump_json(plant: Plant) -> str:
+    return json.dumps(to_dict(plant), indent=1)
+
+
+def dump_toml(plant: Plant) -> str:
+    """TOML text for the schema above (a tiny writer: the schema has only flat tables)."""
+    doc = to_dict(plant)
+    lines = [f"name = {json.dumps(doc['name'])}", ""]
+    if doc["functions"]:
+        lines.append("[functions]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in doc["functions"].items()]
+        lines.append("")
+    for section in ("nodes", "edges"):
+        for item in doc[section]:
+            lines.append(f"[[{section}]]")
+            lines += [f"{key} = {json.dumps(value)}" for key, value in item.items()]
+            lines.append("")
+    return "\n".join(lines)

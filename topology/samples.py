@@ -1,0 +1,179 @@
+"""Sample plants shipped with the package: ``model-plant``, ``warehouse`` and ``grid``.
+
+``model_plant()`` reconstructs the thesis' 25-node plant (Hochschule Muenchen, 2016): a 3 x 5
+matrix of crossings (a 2 x 4 matrix of lanes), the entry (node 0) as the middle crossing of
+the left edge and the exit (node 24) behind the right edge, nine stations on the outer lanes
+grouped into function clusters. The outer lanes are one-way (top left to right, bottom right
+to left, the left edge upwards through station 23), so every station exit is directed; the
+middle row and the vertical lanes are two-way overtaking lanes. A return lane from the exit
+back to the entry exists for driving but routing ignores it. Final targets: the nine
+stations and the exit (10). Lengths in metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .grid import grid_plant
+from .model import Edge, Node, Plant
+
+FUNCTIONS = {0: "entry", 1: "exit", 2: "drill", 3: "mill", 4: "paint", 5: "inspect", 6: "wash"}
+LANE = 1.0  # horizontal distance between crossings
+RUNG = 0.8  # vertical distance between crossings
+
+
+def model_plant() -> Plant:
+    crossing: dict[tuple[int, int], int] = {}
+    nodes = [Node(0, "entry", 0.0, RUNG, "entry", (0,))]
+    crossing[(0, 1)] = 0
+    next_id = 1
+    for r in range(3):
+        for c in range(5):
+            if (c, r) == (0, 1):
+                continue
+            crossing[(c, r)] = next_id
+            nodes.append(Node(next_id, f"x{c}{r}", c * LANE, r * RUNG))
+            next_id += 1
+    edges: list[Edge] = []
+    clusters = {15: 2, 16: 3, 17: 4, 18: 5, 19: 5, 20: 4, 21: 3, 22: 2, 23: 6}
+    # top lane, one-way left to right, a station in every segment
+    for c in range(4):
+        s = 15 + c
+        nodes.append(
+            Node(
+                s, f"{FUNCTIONS[clusters[s]]}-top", (c + 0.5) * LANE, 0.0, "station", (clusters[s],)
+            )
+        )
+        edges.append(
+            Edge(
+                crossing[(c, 0)], s, LANE / 2, bidirectional=False, port_source="E", port_target="W"
+            )
+        )
+        edges.append(
+            Edge(
+                s,
+                crossing[(c + 1, 0)],
+                LANE / 2,
+                bidirectional=False,
+                port_source="E",
+                port_target="W",
+            )
+        )
+    # bottom lane, one-way right to left
+    for c in range(4):
+        s = 22 - c
+        nodes.append(
+            Node(
+                s,
+                f"{FUNCTIONS[clusters[s]]}-bottom",
+                (c + 0.5) * LANE,
+                2 * RUNG,
+                "station",
+                (clusters[s],),
+            )
+        )
+        edges.append(
+            Edge(
+                crossing[(c + 1, 2)],
+                s,
+                LANE / 2,
+                bidirectional=False,
+                port_source="W",
+                port_target="E",
+            )
+        )
+        edges.append(
+            Edge(
+                s, crossing[(c, 2)], LANE / 2, bidirectional=False, port_source="W", port_target="E"
+            )
+        )
+    # left edge: upwards through station 23; down to the bottom-left crossing two-way
+    nodes.append(Node(23, "wash", 0.0, RUNG / 2, "station", (6,)))
+    edges.append(Edge(0, 23, RUNG / 2, bidirectional=False, port_source="N", port_target="S"))
+    edges.append(
+        Edge(23, crossing[(0, 0)], RUNG / 2, bidirectional=False, port_source="N", port_target="S")
+    )
+    edges.append(Edge(0, crossing[(0, 2)], RUNG, port_source="S", port_target="N"))
+    # middle row and the other vertical lanes: two-way overtaking lanes
+    for c in range(4):
+        edges.append(
+            Edge(crossing[(c, 1)], crossing[(c + 1, 1)], LANE, port_source="E", port_target="W")
+        )
+    for c in range(1, 5):
+        for r in range(2):
+            edges.append(
+                Edge(crossing[(c, r)], crossing[(c, r + 1)], RUNG, port_source="S", port_target="N")
+            )
+    # exit and the return lane routing ignores
+    nodes.append(Node(24, "exit", 5 * LANE, RUNG, "exit", (1,)))
+    edges.append(
+        Edge(crossing[(4, 1)], 24, LANE, bidirectional=False, port_source="E", port_target="W")
+    )
+    edges.append(
+        Edge(24, 0, 7 * LANE, bidirectional=False, port_source="S", port_target="W", routable=False)
+    )
+    return Plant.build(
+        sorted(nodes, key=lambda n: n.id), edges, name="model-plant", functions=FUNCTIONS
+    )
+
+
+def warehouse(
+    width: int = 46,
+    height: int = 33,
+    shelf_length: int = 10,
+    border: int = 4,
+    cell_size: float = 1.0,
+) -> Plant:
+    """A fulfilment-centre layout: rows of shelf blocks (``shelf_length`` x 1 cells) with
+    one-cell aisles between them, an open border of ``border`` cells on the left and right
+    with picking stations (function 2) on the outermost columns every third row, chargers in
+    the four corners. The default 33 x 46 instance matches the size of the fulfilment map used
+    in lifelong multi-agent path-finding papers."""
+    if width < 2 * border + shelf_length or height < 5:
+        raise ValueError(
+            f"warehouse {width}x{height} too small for shelves of {shelf_length} and border {border}"
+        )
+    passable = np.ones((height, width), dtype=bool)
+    for y in range(2, height - 2, 2):  # shelf rows, every other row, aisles between
+        x = border + 1
+        while x + shelf_length <= width - border - 1:
+            passable[y, x : x + shelf_length] = False
+            x += shelf_length + 1
+    roles: dict[int, tuple[str, tuple[int, ...]]] = {}
+    for y in range(1, height - 1, 3):
+        roles[y * width] = ("station", (2,))
+        roles[y * width + width - 1] = ("station", (2,))
+    for corner in (0, width - 1, (height - 1) * width, height * width - 1):
+        roles[corner] = ("charger", ())
+    return grid_plant(
+        passable, cell_size, roles, name=f"warehouse-{height}x{width}", functions={2: "pick"}
+    )
+
+
+def grid(
+    width: int = 32,
+    height: int = 32,
+    obstacles: float = 0.1,
+    seed: int = 0,
+    stations: int = 8,
+    cell_size: float = 1.0,
+) -> Plant:
+    """A W x H grid with a seeded random fraction of blocked cells and ``stations`` random
+    station cells (function 2). Obstacles may cut cells off: validation then warns."""
+    if not 0 <= obstacles < 1:
+        raise ValueError(f"obstacles must be a fraction in [0, 1), got {obstacles!r}")
+    rng = np.random.default_rng(seed)
+    passable = rng.random((height, width)) >= obstacles
+    free = np.flatnonzero(passable.ravel())
+    chosen = rng.choice(free, size=min(stations, len(free)), replace=False) if len(free) else []
+    roles = {int(i): ("station", (2,)) for i in chosen}
+    return grid_plant(
+        passable,
+        cell_size,
+        roles,
+        name=f"grid-{width}x{height}-{seed}",
+        functions={2: "pick"} if roles else {},
+    )
+
+
+SAMPLES = {"model-plant": model_plant, "warehouse": warehouse, "grid": grid}
