@@ -167,6 +167,8 @@ class IncrementalAStar(FunctionBlock):
                     self.counter += 1
                     heapq.heappush(heap, (g_v + h_v, -g_v, -self.counter, v))
         self.expansions_last_cycle = n
+        if not heap:
+            self._finish_without_route(None)  # nothing left to expand: known now, not next cycle
 
     def _heuristic(self, plant: Plant):
         if self.heuristic == "table":

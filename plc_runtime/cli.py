@@ -21,6 +21,9 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from topology import TopologyError
+
+from . import cli_topology
 from .clock import VirtualClock, WallClock
 from .errors import PlcError
 from .programs import PROGRAMS
@@ -103,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--json", action="store_true", help="print the summary as one JSON object on stdout"
     )
+    cli_topology.add_parsers(sub, _positive)
     return parser
 
 
@@ -110,11 +114,16 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     show_warning = warnings.showwarning
     warnings.showwarning = _one_line_warning
+    commands = {
+        "run": _run,
+        "plant": cli_topology.plant_command,
+        "route": cli_topology.route_command,
+    }
     try:
-        return _run(args)
+        return commands[args.command](args)
     except BrokenPipeError:  # stdout closed early (e.g. piped into head): nothing left to report
         return EXIT_ERROR
-    except (PlcError, CliError, OSError) as exc:
+    except (PlcError, CliError, TopologyError, OSError) as exc:
         print(f"plc-runtime: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
     finally:

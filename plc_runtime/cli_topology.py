@@ -1,0 +1,129 @@
+"""The topology commands of ``plc-runtime``: ``plant validate``, ``plant show`` and ``route``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from topology import Plant, load
+
+from .programs.route import find_route, load_plant, parse_segment
+
+EXIT_NO_ROUTE = 1
+
+
+def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
+    plant = sub.add_parser(
+        "plant", help="check or show a plant (.toml, .json, .map, .nodes file or a sample name)"
+    )
+    plant_sub = plant.add_subparsers(dest="plant_command", required=True)
+    validate = plant_sub.add_parser(
+        "validate", help="validate a plant; errors exit 2, warnings are listed"
+    )
+    show = plant_sub.add_parser("show", help="summarise a plant, optionally draw it")
+    for parser in (validate, show):
+        parser.add_argument("file", help="plant file or sample name (model-plant, warehouse, grid)")
+        parser.add_argument(
+            "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
+        )
+    show.add_argument(
+        "--png", metavar="OUT", help="draw the plant (ids, roles, edge directions) into a PNG"
+    )
+    show.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    route = sub.add_parser(
+        "route", help="find a route with the heuristic-table and A* blocks inside a runtime"
+    )
+    route.add_argument("file", help="plant file or sample name (model-plant, warehouse, grid)")
+    route.add_argument("--from", dest="start", type=int, required=True, help="start node id")
+    route.add_argument("--to", dest="goal", type=int, required=True, help="goal node id")
+    route.add_argument(
+        "--budget", type=positive(int), default=1, help="node expansions per cycle (default 1)"
+    )
+    route.add_argument(
+        "--block", action="append", default=[], metavar="A-B", help="close segment A-B (repeatable)"
+    )
+    route.add_argument(
+        "--heuristic", choices=["table", "euclidean", "manhattan", "zero"], default="table"
+    )
+    route.add_argument(
+        "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
+    )
+    route.add_argument("--png", metavar="OUT", help="draw the plant with the route into a PNG")
+    route.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
+
+def _load(args: argparse.Namespace) -> Plant:
+    if Path(args.file).suffix.lower() == ".map" and Path(args.file).exists():
+        return load(args.file, cell_size=args.cell_size)
+    return load_plant(args.file)
+
+
+def plant_command(args: argparse.Namespace) -> int:
+    plant = _load(args)
+    if args.plant_command == "validate":
+        print(
+            f"{args.file}: valid plant {plant.name!r}: {plant.n} nodes, {len(plant.edges)} edges, "
+            f"{len(plant.targets)} targets, fingerprint {plant.fingerprint}"
+        )
+        for warning in plant.warnings:
+            print(f"{args.file}: warning: {warning}")
+        return 0
+    summary = plant.summary()
+    if args.png:
+        from topology.draw import draw  # matplotlib only when a drawing is asked for
+
+        summary["png"] = str(draw(plant, args.png))
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    table = Table(title=f"{plant.name}  ({args.file})", show_header=False)
+    table.add_column("what")
+    table.add_column("value")
+    table.add_row(
+        "nodes", f"{plant.n}  (" + ", ".join(f"{r} {c}" for r, c in summary["roles"].items()) + ")"
+    )
+    table.add_row("edges", f"{len(plant.edges)}  ({plant.n_arcs} routable arcs)")
+    table.add_row("targets", str(len(plant.targets)))
+    for function, info in summary["functions"].items():
+        table.add_row(f"function {function}", f"{info['name'] or '-'}: stations {info['stations']}")
+    table.add_row("fingerprint", plant.fingerprint)
+    for warning in plant.warnings:
+        table.add_row("warning", warning)
+    if args.png:
+        table.add_row("drawing", summary["png"])
+    Console().print(table)
+    return 0
+
+
+def route_command(args: argparse.Namespace) -> int:
+    plant = _load(args)
+    blocked = [parse_segment(text) for text in args.block]
+    result = find_route(
+        plant, args.start, args.goal, budget=args.budget, blocked=blocked, heuristic=args.heuristic
+    )
+    if args.png:
+        from topology.draw import draw
+
+        routes = [result["route"]] if result["route"] else []
+        title = f"{plant.name}: route {args.start} -> {args.goal}"
+        draw(plant, args.png, routes=routes, title=title, blocked=blocked)
+    if args.json:
+        print(json.dumps(result))
+    elif result["no_route"]:
+        print(
+            f"no route from {args.start} to {args.goal} ({result['expansions']} expansions in {result['cycles']} cycles)"
+        )
+    else:
+        print(" -> ".join(map(str, result["route"])))
+        print(
+            f"cost {result['cost']:g}, {result['expansions']} expansions in {result['cycles']} cycles "
+            f"(budget {args.budget}/cycle)"
+        )
+    return EXIT_NO_ROUTE if result["no_route"] else 0

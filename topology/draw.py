@@ -1,0 +1,125 @@
+"""Drawing a plant with matplotlib: node ids, roles, edge directions, optional routes.
+
+One-way segments get an arrow, two-way segments a plain line, non-routable ones (a return
+lane) a dashed grey line. Routes are drawn on top in colour. Large plants (hundreds of
+nodes) are drawn without labels so the picture stays readable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display needed, no GUI thread
+import matplotlib.pyplot as plt  # noqa: E402
+
+from .model import Plant  # noqa: E402
+
+ROLE_STYLE = {
+    "transit": ("#9e9e9e", "o", 30),
+    "station": ("#1f77b4", "s", 90),
+    "entry": ("#2ca02c", ">", 110),
+    "exit": ("#d62728", ">", 110),
+    "charger": ("#ff7f0e", "P", 100),
+    "parking": ("#8c564b", "h", 80),
+}
+LABEL_LIMIT = 400
+
+
+def draw(
+    plant: Plant,
+    out: str | Path,
+    routes: Sequence[Sequence[int]] = (),
+    title: str | None = None,
+    blocked: Sequence[tuple[int, int]] = (),
+) -> Path:
+    """Write a PNG of the plant; ``routes`` (node-id lists) on top, ``blocked`` segments in red."""
+    out = Path(out)
+    pos = {n.id: (n.x, -n.y) for n in plant.nodes}  # y grows downwards in plant files (grid rows)
+    span = max(1.0, max((abs(x) + abs(y) for x, y in pos.values()), default=1.0))
+    size = 6 if plant.n <= LABEL_LIMIT else 10
+    fig, ax = plt.subplots(figsize=(size * 1.4, size))
+    for e in plant.edges:
+        (x0, y0), (x1, y1) = pos[e.source], pos[e.target]
+        if not e.routable:  # curved, so a return lane does not hide the lanes it runs along
+            ax.annotate(
+                "",
+                xy=(x1, y1),
+                xytext=(x0, y0),
+                zorder=1,
+                arrowprops={
+                    "arrowstyle": "-|>",
+                    "color": "#aaaaaa",
+                    "lw": 1,
+                    "linestyle": "--",
+                    "connectionstyle": "arc3,rad=-0.35",
+                    "shrinkA": 4,
+                    "shrinkB": 6,
+                },
+            )
+        elif e.bidirectional:
+            ax.plot([x0, x1], [y0, y1], "-", color="#555555", lw=1, zorder=1)
+        else:
+            ax.annotate(
+                "",
+                xy=(x1, y1),
+                xytext=(x0, y0),
+                zorder=1,
+                arrowprops={
+                    "arrowstyle": "-|>",
+                    "color": "#555555",
+                    "lw": 1,
+                    "shrinkA": 4,
+                    "shrinkB": 6,
+                },
+            )
+    for role, (colour, marker, area) in ROLE_STYLE.items():
+        members = [n for n in plant.nodes if n.role == role]
+        if members:
+            ax.scatter(
+                [pos[n.id][0] for n in members],
+                [pos[n.id][1] for n in members],
+                c=colour,
+                marker=marker,
+                s=area if plant.n <= LABEL_LIMIT else area / 6,
+                label=f"{role} ({len(members)})",
+                zorder=3,
+            )
+    if plant.n <= LABEL_LIMIT:
+        for n in plant.nodes:
+            ax.annotate(
+                str(n.id),
+                pos[n.id],
+                textcoords="offset points",
+                xytext=(4, 4),
+                fontsize=7,
+                zorder=4,
+            )
+    for a, b in blocked:
+        (x0, y0), (x1, y1) = pos[a], pos[b]
+        ax.plot([x0, x1], [y0, y1], ":", color="#d62728", lw=3, zorder=2)
+        ax.plot([(x0 + x1) / 2], [(y0 + y1) / 2], "x", color="#d62728", ms=10, mew=2.5, zorder=4)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, route in enumerate(routes):
+        xs, ys = zip(*(pos[i] for i in route), strict=True) if route else ((), ())
+        ax.plot(
+            xs,
+            ys,
+            "-",
+            color=colours[k % len(colours)],
+            lw=3,
+            alpha=0.6,
+            zorder=2,
+            label=f"route {k + 1}",
+        )
+    ax.set_title(title or f"{plant.name}: {plant.n} nodes, {len(plant.edges)} edges")
+    ax.set_aspect("equal")
+    ax.margins(0.05 * span / max(span, 1.0))
+    ax.axis("off")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
