@@ -161,8 +161,8 @@ class _Counter(FunctionBlock):
 
     def __init__(self, retain: bool = False) -> None:
         super().__init__()
-        if retain:
-            self.mark_retain("CV")
+        if retain:  # with the edge memory, or a held input counts again after each restart
+            self.mark_retain("CV", *(n for n in ("cu_prev", "cd_prev") if n in self._vars))
 
     def _pv(self) -> int:
         pv = self.PV

@@ -21,6 +21,7 @@ import ctypes
 import gc
 import math
 import os
+import threading
 import time
 import warnings
 
@@ -101,6 +102,7 @@ class WallClock:
         self._saved_sched: tuple[int, int] | None = None
         self._saved_slack: int | None = None
         self._gc_in_slack = False
+        self._rt_thread = 0
 
     def now_ns(self) -> int:
         return time.monotonic_ns()
@@ -159,10 +161,11 @@ class WallClock:
             gc.unfreeze()
             gc.enable()
             self._gc_in_slack = False
+        self._rt_thread = 0
         if self._saved_sched is not None:
             policy, priority = self._saved_sched
             try:
-                os.sched_setscheduler(0, policy, os.sched_param(priority))
+                os.sched_setscheduler(self._rt_thread, policy, os.sched_param(priority))
             except OSError:
                 pass
             self._saved_sched = None
@@ -174,9 +177,14 @@ class WallClock:
         if not hasattr(os, "sched_setscheduler"):
             self._degrade("sched_fifo", "SCHED_FIFO is not available on this platform")
             return
+        # The scan thread's own id, so stop() from another thread restores the right thread.
+        self._rt_thread = threading.get_native_id()
         try:
-            saved = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            saved = (
+                os.sched_getscheduler(self._rt_thread),
+                os.sched_getparam(self._rt_thread).sched_priority,
+            )
+            os.sched_setscheduler(self._rt_thread, os.SCHED_FIFO, os.sched_param(self.rt_priority))
         except (PermissionError, OSError) as exc:
             self._degrade(
                 "sched_fifo",

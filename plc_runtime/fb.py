@@ -164,8 +164,13 @@ class FunctionBlock:
                     if isinstance(item, FunctionBlock):
                         yield f"{name}[{i}]", item
 
-    def walk(self, path: str) -> Iterator[tuple[str, FunctionBlock]]:
-        """This block and every nested block, depth first, with dotted instance paths."""
+    def walk(self, path: str, _seen: set[int] | None = None) -> Iterator[tuple[str, FunctionBlock]]:
+        """This block and every nested block, depth first, with dotted instance paths; each
+        block once (a child may hold a reference back to its parent)."""
+        seen = set() if _seen is None else _seen
+        if id(self) in seen:
+            return
+        seen.add(id(self))
         yield path, self
         for name, child in self.children():
-            yield from child.walk(f"{path}.{name}")
+            yield from child.walk(f"{path}.{name}", seen)

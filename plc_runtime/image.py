@@ -64,6 +64,12 @@ class Location:
     def area(self) -> str:
         return self.address.area
 
+    @property
+    def key(self) -> tuple[str, str, int, int]:
+        """The storage location, whatever name it was reached by."""
+        a = self.address
+        return (a.area, a.size, a.index, a.bit)
+
     def reader(self, mem: Memory) -> Callable[[], bool | int | float]:
         if self.address.is_bit:
             u8, offset, bit = mem.bytes, self.address.byte_offset, self.address.bit
@@ -113,7 +119,7 @@ class ProcessImage:
         self.markers = Memory(self.sizes["M"])
         self._locations: dict[str, Location] = {}
         self._pending: deque[tuple[str, Location, object]] = deque()
-        self._forces: dict[str, tuple[Location, object]] = {}
+        self._forces: dict[tuple[str, str, int, int], tuple[Location, object]] = {}
         self._force_writers: list[tuple[str, Callable, object]] = []
         self._lock = threading.Lock()
         self._readers: dict[str, Callable[[], object]] = {}
@@ -200,7 +206,7 @@ class ProcessImage:
     def forces(self) -> dict[str, object]:
         """The active force table: reference -> forced value."""
         with self._lock:
-            return {ref: value for ref, (_loc, value) in self._forces.items()}
+            return {loc.ref: value for loc, value in self._forces.values()}
 
     @property
     def pending_writes(self) -> int:
@@ -221,12 +227,12 @@ class ProcessImage:
                 elif op == "batch":
                     for batch_loc, batch_value in value:  # type: ignore[attr-defined]
                         self._write_external(batch_loc, batch_value)
-                elif op == "force":
-                    self._forces.pop(loc.ref, None)
-                    self._forces[loc.ref] = (loc, value)
+                elif op == "force":  # keyed by location: a tag and its address are one force
+                    self._forces.pop(loc.key, None)
+                    self._forces[loc.key] = (loc, value)
                     changed = True
                 elif op == "unforce":
-                    changed |= self._forces.pop(loc.ref, None) is not None
+                    changed |= self._forces.pop(loc.key, None) is not None
                 else:
                     changed |= bool(self._forces)
                     self._forces.clear()

@@ -23,6 +23,21 @@ MAGIC = "PLCRETAIN"
 VERSION = 1
 
 
+def _unstorable(value: object) -> str | None:
+    """Why a value would not come back from the file as it went in, None if it would."""
+    if value is None or isinstance(value, bool | int | float | str):
+        return None
+    if isinstance(value, list | tuple):
+        return next((p for p in map(_unstorable, value) if p), None)
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            return "dict keys must be strings (JSON would turn them into strings)"
+        return next((p for p in map(_unstorable, value.values()) if p), None)
+    return (
+        f"type {type(value).__name__} (retain numbers, strings, booleans and lists/dicts of them)"
+    )
+
+
 def layout_hash(entries: list[tuple[str, str]]) -> str:
     """Hash of the sorted (key, type) pairs that make up the retain layout."""
     digest = hashlib.sha256()
@@ -38,21 +53,14 @@ class RetainFile:
         self.path = Path(path)
 
     def save(self, layout: str, values: dict[str, object]) -> None:
-        try:
-            body = json.dumps(values, sort_keys=True, allow_nan=True).encode()
-        except (TypeError, ValueError):
-            for key, value in values.items():
-                try:
-                    json.dumps(value, allow_nan=True)
-                except (TypeError, ValueError):
-                    raise RetainError(
-                        f"retain value {key} of type {type(value).__name__} cannot be stored "
-                        "(retain numbers, strings, booleans and lists/dicts of them)"
-                    ) from None
-            raise
+        for key, value in values.items():
+            problem = _unstorable(value)
+            if problem:
+                raise RetainError(f"retain value {key} cannot be stored: {problem}")
+        body = json.dumps(values, sort_keys=True, allow_nan=True).encode()
         header = f"{MAGIC} {VERSION} {layout} {zlib.crc32(body):08x} {len(body)}\n".encode()
-        tmp = self.path.with_name(self.path.name + ".tmp")
         try:
+            tmp = self.path.with_name(self.path.name + ".tmp")
             self.path.parent.mkdir(parents=True, exist_ok=True)
             with open(tmp, "wb") as fh:
                 fh.write(header + body)
@@ -64,10 +72,9 @@ class RetainFile:
                 os.fsync(dir_fd)
             finally:
                 os.close(dir_fd)
-        except OSError as exc:
-            raise RetainError(
-                f"{self.path}: cannot write retain file: {exc.strerror or exc}"
-            ) from None
+        except (OSError, ValueError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise RetainError(f"{self.path}: cannot write retain file: {reason}") from None
 
     def load(self, layout: str) -> dict[str, object] | None:
         """The stored values, None if there is no file; RetainError if it cannot be trusted."""

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import threading
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from time import perf_counter_ns
@@ -27,7 +28,7 @@ from .context import CycleContext
 from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
 from .image import ProcessImage, ProgramImage
-from .retain import RetainStore
+from .retain import RetainStore, layout_hash
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
@@ -109,6 +110,8 @@ class Runtime:
         self.fault_traceback: str | None = None
         self.ticks = 0
         self.stats = RuntimeStats(self)
+        if retain_file is not None and Path(retain_file).is_dir():
+            raise ConfigError(f"retain file {retain_file} is a directory; give a file path")
         self._retain = RetainStore(retain_file)
         self._tick_ns = round(self.cycle_time * 1e9)
         self._watchdog_ns = round(self.watchdog * 1e9)
@@ -123,7 +126,10 @@ class Runtime:
         # Held while a tick runs and by start/stop/save_retain, so another thread (an HMI,
         # a supervisor) can stop the runtime or save retain data safely between two scans.
         self._lock = threading.RLock()
+        self._stopping = threading.Event()  # set while stop() waits for the lock
         self._scan_thread: int | None = None  # thread id while a scan runs
+        self._scan_ran = False  # whether any task ran in the last tick
+        self._retain_layout_before: list[tuple[str, str]] = []
 
     # ----- configuration ------------------------------------------------------------------
     def add_task(
@@ -205,7 +211,8 @@ class Runtime:
             self.fault_reason = self.fault_traceback = None
             self._stop_requested.clear()
             self.image.reset()
-            self._init_block_data(self._retain.load(mode, self._retain_layout()))
+            self._retain_layout_before = self._retain_layout()
+            self._init_block_data(self._retain.load(mode, self._retain_layout_before))
             if mode == "cold" and self._retain.file is not None:
                 self._retain.save_or_warn(
                     self._collect_retain(), "cleared"
@@ -216,6 +223,7 @@ class Runtime:
             self._scan_stats.reset()
             self.ticks = 0
             self._run_startup()
+            self._check_layout_after_startup()
             self.clock.enter_run()  # before t0: rt mode's initial full collection must not make tick 0 late
             self._t0 = self.clock.now_ns()
             self._last_tick_start = None
@@ -246,6 +254,13 @@ class Runtime:
         inside a block, use ``request_stop()``.
         """
         self._refuse_inside_scan("stop()")
+        self._stopping.set()
+        try:
+            self._stop()
+        finally:
+            self._stopping.clear()
+
+    def _stop(self) -> None:
         with self._lock:
             if self.state == STOP:
                 return
@@ -300,14 +315,12 @@ class Runtime:
         if cycles is not None and (not isinstance(cycles, int) or cycles < 0):
             raise ConfigError(f"cycles must be a non-negative integer, got {cycles!r}")
         done = 0
-        while (
-            (cycles is None or done < cycles)
-            and self.state == RUN
-            and not self._stop_requested.is_set()
-        ):
+        while (cycles is None or done < cycles) and self.state == RUN:
+            if self._stop_requested.is_set():
+                self._stop_requested.clear()  # consumed here; one arriving later waits for the next run()
+                break
             self._tick()
             done += 1
-        self._stop_requested.clear()
         return done
 
     def run_until(self, predicate: Callable[[], object], max_cycles: int) -> bool:
@@ -332,6 +345,8 @@ class Runtime:
             self.clock.wait_until(max(release, self._last_tick_start + self._min_cycle_ns))
         else:
             self.clock.wait_until(release)
+        if self._stopping.is_set():
+            return  # another thread is stopping the runtime: let it have the lock
         with self._lock:
             if self.state != RUN:  # stopped by another thread while this one waited
                 return
@@ -347,7 +362,7 @@ class Runtime:
     def _run_tick(self, k: int, release: int) -> None:
         """One scan under the watchdog, then its statistics."""
         tick_real_start = perf_counter_ns()
-        self._last_tick_start = self.clock.now_ns()
+        tick_start = self.clock.now_ns()
         self.ticks = k + 1
         try:
             self._alarm.begin_scan(tick_real_start)
@@ -361,8 +376,10 @@ class Runtime:
             self._alarm.end_scan()
         if not completed:
             return
+        if self._scan_ran:
+            self._last_tick_start = tick_start  # min_cycle_time spaces scans, not skipped ticks
         tick_exec = perf_counter_ns() - tick_real_start
-        self._scan_stats.record(tick_exec, self._last_tick_start - release)
+        self._scan_stats.record(tick_exec, tick_start - release)
         if tick_exec > self._watchdog_ns:
             self._fault(
                 f"watchdog: scan {k} took {tick_exec / 1e6:.1f} ms, maximum cycle time is {self.watchdog * 1e3:g} ms"
@@ -388,6 +405,7 @@ class Runtime:
                 return False
         if copied_in:
             image.copy_out()
+        self._scan_ran = copied_in
         return True
 
     def _scan_task(self, task: Task, release: int, now: int) -> bool:
@@ -455,13 +473,30 @@ class Runtime:
             for name in block.retain_names():
                 key = f"fb:{path}.{name}"
                 if key in retained:
-                    setattr(block, name, retained[key])
+                    value = retained[key]
+                    if isinstance(block._vars[name].default, tuple) and isinstance(value, list):
+                        value = tuple(value)  # JSON has no tuples
+                    setattr(block, name, value)
                     keep.add(name)
             block.reset_vars(keep)
         for tag in self.image.tags:
             key = f"tag:{tag.name}"
             if tag.retain and key in retained:
                 self.image.resolve(tag.name).writer(self.image.markers)(retained[key])
+
+    def _check_layout_after_startup(self) -> None:
+        """Blocks created in startup() cannot be restored (restoring happens before it):
+        say so instead of saving values that would be dropped at the next start."""
+        after = self._retain_layout()
+        added = sorted({key for key, _ in after} - {key for key, _ in self._retain_layout_before})
+        if added:
+            warnings.warn(
+                f"retentive variables of blocks created in startup() are not kept: {', '.join(added[:5])}; "
+                "create retentive blocks in __init__",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            self._retain.layout = layout_hash(after)
 
     def _collect_retain(self) -> dict[str, object]:
         values: dict[str, object] = {}

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import signal
 import threading
+import warnings
 from time import perf_counter_ns
 from types import CodeType, FrameType
 
 from .errors import WatchdogTimeout
 
-_RETRY_NS = 1_000_000
+_RETRY_NS = 1_000_000  # an alarm that landed in unsafe code looks again this much later
+_REPEAT_NS = 10_000_000  # a swallowed interrupt is raised again this much later
 
 
 class WatchdogAlarm:
@@ -30,38 +32,53 @@ class WatchdogAlarm:
         self._scans = 0
         self._scans_at_alarm = 0
         self._pending = False
-        self._installed = False
+        self._thread: int | None = None  # the main thread, once installed
         self._previous_handler: object = signal.SIG_DFL
         self._unsafe_codes: frozenset[CodeType] = frozenset()
 
     def install(self, unsafe_codes: frozenset[CodeType]) -> bool:
-        """Take over SIGALRM if this is the main thread. ``unsafe_codes``: functions in
-        which an exception would escape the caller's guard (its try/finally itself);
-        an alarm landing there looks again a millisecond later."""
+        """Take over SIGALRM if this is the main thread and nobody else uses it.
+
+        ``unsafe_codes``: functions in which an exception would escape the caller's guard
+        (its try/finally itself); an alarm landing there looks again a millisecond later.
+        Another SIGALRM handler (the application's, or another runtime's watchdog) is left
+        alone: this runtime then keeps only the after-the-fact check, with a warning.
+        """
         if threading.current_thread() is not threading.main_thread():
             return False
-        self._unsafe_codes = unsafe_codes | {self.begin_scan.__code__, self.end_scan.__code__}
-        if not self._installed:  # (still installed if a non-main thread stopped the runtime)
+        if self._thread is None:
+            current = signal.getsignal(signal.SIGALRM)
+            if current not in (signal.SIG_DFL, signal.SIG_IGN, None):
+                warnings.warn(
+                    "watchdog interrupt not available: SIGALRM is already handled in this process "
+                    "(another runtime, or the application); overruns are detected after the scan",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+                return False
             self._previous_handler = signal.signal(signal.SIGALRM, self._on_alarm)
-        self._installed = True
+        self._unsafe_codes = unsafe_codes | {self.begin_scan.__code__, self.end_scan.__code__}
+        self._thread = threading.get_ident()
         self._pending = False
         return True
 
     def uninstall(self) -> None:
         """Cancel the timer; restore the previous handler (only possible from the main thread)."""
         self.in_scan = False
-        if self._installed:
+        if self._thread is not None:
             signal.setitimer(signal.ITIMER_REAL, 0)
             if threading.current_thread() is threading.main_thread():
                 signal.signal(signal.SIGALRM, self._previous_handler)
-                self._installed = False
+                self._thread = None
         self._pending = False
 
     def begin_scan(self, start_ns: int) -> None:
         self._scan_start_ns = start_ns
         self._scans += 1
-        self.in_scan = True
-        if self._installed and not self._pending:
+        # Only a scan in the thread that owns the handler can be interrupted: the signal
+        # is delivered to the main thread, whatever thread armed the timer.
+        self.in_scan = self._thread is not None and threading.get_ident() == self._thread
+        if self.in_scan and not self._pending:
             self._arm(self.limit_ns)
 
     def end_scan(self) -> None:
@@ -79,7 +96,9 @@ class WatchdogAlarm:
             if frame is not None and frame.f_code in self._unsafe_codes:
                 self._arm(_RETRY_NS)
             elif overdue >= 0:
-                self.in_scan = False
+                # Armed again first: a block that swallows the exception (a bare except,
+                # a __del__) is interrupted again 10 ms later, and again, until it gives up.
+                self._arm(_REPEAT_NS)
                 raise WatchdogTimeout()
             else:
                 self._arm(-overdue)

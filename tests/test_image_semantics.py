@@ -224,3 +224,19 @@ def test_writes_from_another_thread_never_change_inputs_mid_scan():
     assert rt.state == "RUN", rt.fault_reason
     assert seen == sorted(seen)  # applied in order, never going back
     assert seen[-1] > 0
+
+
+def test_a_force_is_one_per_location_whatever_its_name():
+    from plc_runtime import TagTable
+
+    tags = TagTable()
+    tags.add("lamp", "%QX0.0")
+    rt = started(Probe(lambda ctx: ctx.image.write("lamp", False)), tags=tags)
+    rt.image.force("lamp", True)
+    rt.step()
+    assert rt.image.read("%QX0.0") is True and rt.image.forces == {"lamp": True}
+    rt.image.force("%QX0.0", False)  # the same output: replaces, does not add
+    rt.image.unforce("lamp")  # and released by either name
+    rt.step()
+    assert rt.image.forces == {}
+    rt.stop()

@@ -24,7 +24,9 @@ def sources(package: str, exclude: tuple[str, ...] = ()) -> list[Path]:
     return [
         p
         for p in (ROOT / package).rglob("*.py")
-        if not any(part.startswith(prefix) for prefix in exclude for part in p.relative_to(ROOT).parts)
+        if not any(
+            part.startswith(prefix) for prefix in exclude for part in p.relative_to(ROOT).parts
+        )
     ]
 
 

@@ -27,13 +27,13 @@ class Machine(FunctionBlock):
         ctx.image.write("lost", self.since_start)
 
 
-def build(path=None, extra_retain=False) -> tuple[Runtime, Machine]:
+def build(path=None, extra_retain=False, **kwargs) -> tuple[Runtime, Machine]:
     tags = TagTable()
     tags.add("kept", "%MW0", "INT", retain=True)
     tags.add("lost", "%MW1", "INT")
     if extra_retain:
         tags.add("extra", "%MW2", "INT", retain=True)
-    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), tags=tags, retain_file=path)
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), tags=tags, retain_file=path, **kwargs)
     machine = Machine()
     rt.add_task("main", [machine])
     return rt, machine
@@ -148,7 +148,14 @@ def test_crash_during_write_keeps_the_previous_file(tmp_path, monkeypatch):
 
 def test_periodic_save_survives_a_crash(tmp_path):
     path = tmp_path / "plc.retain"
-    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path, retain_interval=0.05)
+    # this runtime "crashes" (is never stopped): it must not keep the process's SIGALRM
+    rt = Runtime(
+        cycle_time=0.01,
+        clock=VirtualClock(),
+        retain_file=path,
+        retain_interval=0.05,
+        watchdog_interrupt=False,
+    )
     rt.image.tags.add("kept", "%MW0", "INT", retain=True)
     rt.image.tags.add("lost", "%MW1", "INT")
     rt.add_task("main", [Machine()])
@@ -174,7 +181,7 @@ def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
     rt.start()
     rt.step()
     with pytest.raises(
-        RetainError, match="retain value fb:main/0:Bad.thing of type object cannot be stored"
+        RetainError, match="retain value fb:main/0:Bad.thing cannot be stored: type object"
     ):
         rt.save_retain()
     with pytest.warns(RuntimeWarning, match="retain file not saved"):
@@ -184,7 +191,7 @@ def test_unserialisable_retain_value_is_a_clear_error(tmp_path):
 
 def test_cold_start_clears_the_file(tmp_path):
     path = _saved(tmp_path, steps=5)
-    rt, m = build(path)
+    rt, m = build(path, watchdog_interrupt=False)  # crashes below: never stopped
     rt.start(mode="cold")
     rt.step(2)
     del rt  # the process crashes: no stop()
@@ -216,4 +223,85 @@ def test_changed_variable_type_gives_a_cold_start(tmp_path):
     with pytest.warns(RuntimeWarning, match="different program layout"):
         rt.start()
     assert block.value == []
+    rt.stop()
+
+
+def test_values_that_would_change_in_the_file_are_refused(tmp_path):
+    class Table(FunctionBlock):
+        by_id = Static({}, retain=True)
+        pair = Static((0, 0), retain=True)
+
+    path = tmp_path / "t.retain"
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path)
+    block = Table()
+    rt.add_task("main", [block])
+    rt.start()
+    block.pair = (3, 4)
+    block.by_id = {7: "x"}  # int keys would come back as strings
+    with pytest.raises(RetainError, match="dict keys must be strings"):
+        rt.save_retain()
+    with pytest.warns(RuntimeWarning, match="retain file not saved"):
+        rt.stop()
+    assert rt.state == "STOP"
+    block.by_id = {"7": "x"}
+    rt.start()  # warm, from memory
+    block.pair, block.by_id = (3, 4), {"7": "x"}
+    rt.stop()
+    rt2 = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path)
+    again = Table()
+    rt2.add_task("main", [again])
+    rt2.start()
+    assert again.pair == (3, 4) and isinstance(again.pair, tuple)  # tuples come back as tuples
+    rt2.stop()
+
+
+def test_retain_file_that_is_a_directory_is_a_config_error(tmp_path):
+    from plc_runtime import ConfigError
+
+    with pytest.raises(ConfigError, match="is a directory"):
+        Runtime(retain_file=tmp_path)
+
+
+def test_block_referring_back_to_its_parent(tmp_path):
+    class Child(FunctionBlock):
+        n = Static(0, retain=True)
+
+    class Parent(FunctionBlock):
+        def __init__(self):
+            super().__init__()
+            self.child = Child()
+            self.child.parent = self  # a back reference must not recurse forever
+
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock())
+    rt.add_task("main", [Parent()])
+    rt.start()
+    assert rt.state == "RUN"
+    rt.stop()
+
+
+def test_counter_held_input_does_not_count_again_after_restart():
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock())
+    ctu = CTU(retain=True)
+
+    class Press(FunctionBlock):
+        def cycle(self, ctx):
+            ctu(ctx, CU=True, PV=100)  # the part sensor stays TRUE
+
+    rt.add_task("main", [Press()])
+    for _ in range(3):
+        rt.start()
+        rt.step(3)
+        rt.stop()
+    assert ctu.CV == 1
+
+
+def test_blocks_created_in_startup_are_reported_not_silently_dropped():
+    class Late(FunctionBlock):
+        def startup(self, ctx):
+            self.counter = CTU(retain=True)
+
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock())
+    rt.add_task("main", [Late()])
+    with pytest.warns(RuntimeWarning, match="blocks created in startup\\(\\) are not kept"):
+        rt.start()
     rt.stop()
