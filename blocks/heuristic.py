@@ -78,6 +78,7 @@ class HeuristicTable(FunctionBlock):
         for t in targets:
             plant.idx(t)  # unknown target: a clear error in startup, not a silent gap
         begin = perf_counter()
+        _ = plant.index, plant.ids, plant.neighbors  # adjacency for the blocks that route on it
         self._matrix = distances_to(plant, list(targets))
         self.build_time_s = perf_counter() - begin
         self._rows = {t: i for i, t in enumerate(targets)}
