@@ -21,6 +21,8 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
+	$(BIN)/python bench/heuristic_table.py
+	$(BIN)/python bench/astar_step.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -249,3 +249,25 @@ def test_budget_bounds_every_cycle_on_a_large_grid():
     assert astar.no_route == math.isinf(expected)
     if not astar.no_route:
         assert astar.cost == pytest.approx(expected)
+
+
+def test_microsecond_budget_always_progresses_and_stops_in_time():
+    plant = grid(15, 15, obstacles=0.0, stations=0)
+    table = HeuristicTable(plant, targets=[224])
+    astar = IncrementalAStar(plant, table)
+    per_cycle = []
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [table, astar, Watch(astar, None)])
+    rt.start()
+    astar.request, astar.start, astar.goal, astar.budget, astar.budget_us = True, 0, 224, None, 0
+    while not astar.done:
+        rt.step()
+        per_cycle.append(astar.expansions_last_cycle)
+    # no time at all: exactly the one expansion every cycle is guaranteed, never more
+    assert per_cycle == [1] * len(per_cycle) and astar.cycles == len(astar.route) == 29
+    astar.request = False
+    rt.step()
+    astar.request, astar.budget_us = True, 1_000_000  # a whole second: done in one cycle
+    rt.step()
+    assert astar.done and astar.cycles == 1 and astar.cost == 28.0
+    rt.stop()

@@ -44,37 +44,13 @@ def draw(
     for e in plant.edges:
         (x0, y0), (x1, y1) = pos[e.source], pos[e.target]
         if not e.routable:  # curved, so a return lane does not hide the lanes it runs along
-            ax.annotate(
-                "",
-                xy=(x1, y1),
-                xytext=(x0, y0),
-                zorder=1,
-                arrowprops={
-                    "arrowstyle": "-|>",
-                    "color": "#aaaaaa",
-                    "lw": 1,
-                    "linestyle": "--",
-                    "connectionstyle": "arc3,rad=-0.35",
-                    "shrinkA": 4,
-                    "shrinkB": 6,
-                },
+            _arrow(
+                ax, (x0, y0), (x1, y1), "#aaaaaa", linestyle="--", connectionstyle="arc3,rad=-0.35"
             )
         elif e.bidirectional:
             ax.plot([x0, x1], [y0, y1], "-", color="#555555", lw=1, zorder=1)
         else:
-            ax.annotate(
-                "",
-                xy=(x1, y1),
-                xytext=(x0, y0),
-                zorder=1,
-                arrowprops={
-                    "arrowstyle": "-|>",
-                    "color": "#555555",
-                    "lw": 1,
-                    "shrinkA": 4,
-                    "shrinkB": 6,
-                },
-            )
+            _arrow(ax, (x0, y0), (x1, y1), "#555555")
     for role, (colour, marker, area) in ROLE_STYLE.items():
         members = [n for n in plant.nodes if n.role == role]
         if members:
@@ -123,3 +99,10 @@ def draw(
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def _arrow(
+    ax, start: tuple[float, float], end: tuple[float, float], colour: str, **style: str
+) -> None:
+    props = {"arrowstyle": "-|>", "color": colour, "lw": 1, "shrinkA": 4, "shrinkB": 6, **style}
+    ax.annotate("", xy=end, xytext=start, zorder=1, arrowprops=props)

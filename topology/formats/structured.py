@@ -113,15 +113,23 @@ def from_dict(data: Any, source: str) -> Plant:
     return Plant.build(nodes, edges, name=name, functions=functions, source=source)
 
 
-def _node(item: Any, i: int, source: str) -> Node:
-    where = f"nodes[{i}]"
+def _check_table(
+    item: Any, keys: set[str], required: tuple[str, ...], source: str, where: str
+) -> None:
+    """A node or edge entry: a table with known keys and the required ones present."""
     if not isinstance(item, dict):
         raise TopologyError("expected a table", source, where)
-    unknown = set(item) - NODE_KEYS
+    unknown = set(item) - keys
     if unknown:
         raise TopologyError(f"unknown key(s): {', '.join(sorted(unknown))}", source, where)
-    if "id" not in item:
-        raise TopologyError("missing 'id'", source, where)
+    for key in required:
+        if key not in item:
+            raise TopologyError(f"missing '{key}'", source, where)
+
+
+def _node(item: Any, i: int, source: str) -> Node:
+    where = f"nodes[{i}]"
+    _check_table(item, NODE_KEYS, ("id",), source, where)
     functions = _typed(item.get("functions", []), list, "functions", source, where)
     return Node(
         id=_typed(item["id"], int, "id", source, where),
@@ -135,14 +143,7 @@ def _node(item: Any, i: int, source: str) -> Node:
 
 def _edge(item: Any, i: int, source: str) -> Edge:
     where = f"edges[{i}]"
-    if not isinstance(item, dict):
-        raise TopologyError("expected a table", source, where)
-    unknown = set(item) - EDGE_KEYS
-    if unknown:
-        raise TopologyError(f"unknown key(s): {', '.join(sorted(unknown))}", source, where)
-    for key in ("from", "to", "length"):
-        if key not in item:
-            raise TopologyError(f"missing '{key}'", source, where)
+    _check_table(item, EDGE_KEYS, ("from", "to", "length"), source, where)
     ports = _typed(item.get("ports", [None, None]), list, "ports", source, where)
     if len(ports) != 2 or not all(p is None or isinstance(p, str) for p in ports):
         raise TopologyError(
