@@ -12,10 +12,11 @@ least one expansion per cycle, so a search always progresses); it never runs pas
 task's deadline. Open list: a binary heap with lazy deletion, ties broken towards the
 deeper node and then the newest entry, so with the exact heuristic table and no
 constraints the search expands exactly the nodes of the route it returns (thesis 3.5.2).
-A closed set is enough (no re-opening) because every heuristic offered is consistent:
-the exact table stays consistent under blockades and penalties, which only make arcs
-dearer, and the Euclidean and Manhattan fallbacks are scaled to the plant's shortest
-segment-to-distance ratio.
+Every heuristic offered is admissible: the exact table under blockades and penalties
+(which only make arcs dearer), and the Euclidean and Manhattan fallbacks scaled to the
+plant's shortest segment-to-distance ratio. They are also consistent, except for the
+table's float32 rounding; so a closed node is re-opened if a cheaper path to it turns up,
+which keeps routes optimal and, with consistent values, never happens.
 """
 
 from __future__ import annotations
@@ -100,7 +101,8 @@ class IncrementalAStar(FunctionBlock):
             return
         self.search_cycles += 1
         if self.heuristic == "table" and self._h_row is None:
-            self._h_row = self.table.row(self.goal)
+            # the goal the search started with: the input may have changed since the edge
+            self._h_row = self.table.row(int(self._plant().ids[self.search_goal]))
             if self._h_row is None:
                 return  # the table computes this goal's row first (one cycle)
         self._expand(ctx)
@@ -151,9 +153,9 @@ class IncrementalAStar(FunctionBlock):
                 self.expansions_last_cycle = n
                 self._finish_without_route(None)
                 return
-            _f, _neg_g, _tie, u = heapq.heappop(heap)
-            if u in closed:
-                continue  # lazy deletion: a stale entry of an already expanded node
+            _f, neg_g, _tie, u = heapq.heappop(heap)
+            if u in closed or -neg_g > g_best[u]:
+                continue  # lazy deletion: a stale entry (expanded already, or a cheaper one is queued)
             closed.add(u)
             n += 1
             self.search_expansions += 1
@@ -163,13 +165,16 @@ class IncrementalAStar(FunctionBlock):
                 return
             g_u = g_best[u]
             for v, arc, length in neighbors[u]:
-                if v in closed or (blocked is not None and blocked[arc]):
+                if blocked is not None and blocked[arc]:
                     continue
                 g_v = g_u + length + (penalty[arc] if penalty is not None else 0.0)
                 if g_v < g_best.get(v, math.inf):
                     h_v = h(v)
                     if h_v == math.inf:
                         continue  # the goal cannot be reached from v at all
+                    # A cheaper path to an expanded node re-opens it: the float32 table is
+                    # admissible but, rounded, not exactly consistent, and optimality must hold.
+                    closed.discard(v)
                     g_best[v] = g_v
                     parent[v] = u
                     self.counter += 1

@@ -111,7 +111,7 @@ def test_validate_reports_warnings_and_errors(tmp_path, capsys):
     path.write_text(path.read_text().replace("length = 1.0, directed = true}]", "length = -1.0}]"))
     assert main(["plant", "validate", str(path)]) == 2
     assert (
-        "edges[1] (1 -> 2): length must be a finite number >= 0, got -1.0"
+        "edges[1] (1 -> 2): length must be a finite number >= 0 (at most 1e+12), got -1.0"
         in capsys.readouterr().err
     )
 

@@ -271,3 +271,73 @@ def test_microsecond_budget_always_progresses_and_stops_in_time():
     rt.step()
     assert astar.done and astar.cycles == 1 and astar.cost == 28.0
     rt.stop()
+
+
+@SETTINGS
+@given(st.data())
+def test_optimal_where_float32_rounding_of_the_table_matters(data):
+    """Long segments plus fractions: the float32 table is then not exactly consistent; the
+    search must still return the optimal cost (it re-opens nodes instead of trusting h)."""
+    n = data.draw(st.integers(3, 8))
+    pairs = data.draw(
+        st.lists(
+            st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), min_size=2, max_size=3 * n
+        )
+    )
+    edges = [
+        Edge(
+            a,
+            b,
+            data.draw(st.sampled_from([0.0, 0.25, 0.5, 1.0, 1.3]))
+            + data.draw(st.sampled_from([0.0, 1.6e7, 3e7])),
+            bidirectional=data.draw(st.booleans()),
+        )
+        for a, b in pairs
+        if a != b
+    ]
+    plant = Plant.build([Node(i) for i in range(n)], edges)
+    astar = search(plant, 0, n - 1, budget=100)
+    expected = oracle_cost(plant, 0, n - 1)
+    assert astar.no_route == math.isinf(expected)
+    if not astar.no_route:
+        assert astar.cost == expected
+
+
+def test_first_use_row_is_for_the_goal_the_search_started_with():
+    plant = Plant.build(
+        [Node(i) for i in range(4)],
+        [Edge(0, 1, 1.0), Edge(1, 2, 1.0), Edge(3, 2, 1.0, bidirectional=False)],
+    )
+    table = HeuristicTable(plant, targets=[])  # every row on first use
+    astar = IncrementalAStar(plant, table)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [table, astar])
+    rt.start()
+    astar.start, astar.goal, astar.request = 0, 2, True
+    rt.step()
+    astar.goal = 3  # the input changes, but without a new rising edge
+    assert rt.run_until(lambda: astar.done, max_cycles=50)
+    assert astar.route == (0, 1, 2) and not astar.no_route
+    rt.stop()
+
+
+def test_reordered_plant_is_another_topology_for_the_table():
+    plant = model_plant()
+    same = Plant.build(plant.nodes, plant.edges, name="reloaded", functions=plant.functions)
+    reordered = Plant.build(tuple(reversed(plant.nodes)), plant.edges, functions=plant.functions)
+    assert same.fingerprint == plant.fingerprint
+    assert (
+        reordered.fingerprint != plant.fingerprint
+    )  # indices differ: tables and constraints would not fit
+    table = HeuristicTable(plant)
+    astar = IncrementalAStar(plant, table)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock())
+    rt.add_task("main", [table, astar])
+    rt.start()
+    table.plant = same
+    rt.step()
+    assert table.error is None and table.served_plant is same  # the same topology: adopted
+    table.plant = reordered
+    rt.step()
+    assert "topology change rejected" in table.error and table.served_plant is same
+    rt.stop()

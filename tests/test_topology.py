@@ -163,15 +163,15 @@ NODES = '[[nodes]]\nid = 0\nrole = "entry"\n[[nodes]]\nid = 1\n[[nodes]]\nid = 2
         ),
         (
             NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = -1\n",
-            "length must be a finite number >= 0, got -1",
+            r"length must be a finite number >= 0 \(at most 1e\+12\), got -1",
         ),
         (
             NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = nan\n",
-            "length must be a finite number >= 0, got nan",
+            r"length must be a finite number >= 0 \(at most 1e\+12\), got nan",
         ),
         (
             NODES + "[[edges]]\nfrom = 0\nto = 1\nlength = inf\n",
-            "length must be a finite number >= 0, got inf",
+            r"length must be a finite number >= 0 \(at most 1e\+12\), got inf",
         ),
         (NODES + "[[edges]]\nfrom = 1\nto = 1\nlength = 1\n", "self loop"),
         (
@@ -269,3 +269,51 @@ def test_fingerprint_changes_with_routing_relevant_edits(pairs, directed):
     assert plant.fingerprint != extra.fingerprint
     assert Plant.build(nodes, edges).fingerprint == plant.fingerprint
     assert all(math.isfinite(w) for w in plant.arcs[2])
+
+
+@pytest.mark.parametrize(
+    "name,content,message",
+    [
+        (
+            "big.json",
+            '{"nodes": [{"id": 0, "x": 1' + "0" * 400 + '}], "edges": []}',
+            "x must be a finite number, got 1000",
+        ),
+        ("digits.json", '{"nodes": [{"id": 1' + "0" * 5000 + '}], "edges": []}', "unreadable JSON"),
+        ("deep.json", "[" * 100_000, "unreadable JSON"),
+        ("deep.toml", "x = " + "[" * 100_000, "unreadable TOML"),
+        (
+            "id.toml",
+            "edges = []\n[[nodes]]\nid = 9223372036854775807\n",
+            "node id must be an integer 0..2147483647",
+        ),
+        (
+            "long.toml",
+            "[[nodes]]\nid = 0\n[[nodes]]\nid = 1\n[[edges]]\nfrom = 0\nto = 1\nlength = 1e308\n",
+            r"at most 1e\+12",
+        ),
+        ("empty.toml", "nodes = []\nedges = []\n", "the plant has no nodes"),
+        ("zero.map", "type octile\nheight 0\nwidth 4\nmap\n", "height and width must be >= 1"),
+    ],
+)
+def test_hostile_files_give_one_clear_error(tmp_path, name, content, message):
+    path = tmp_path / name
+    path.write_text(content)
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    assert len(str(err.value)) < 300 and str(path) in str(err.value)
+
+
+def test_fingerprint_ignores_int_versus_float_lengths():
+    nodes = [Node(0), Node(1)]
+    assert (
+        Plant.build(nodes, [Edge(0, 1, 1)]).fingerprint
+        == Plant.build(nodes, [Edge(0, 1, 1.0)]).fingerprint
+    )
+
+
+def test_drawing_must_be_png(tmp_path):
+    from topology.draw import draw
+
+    with pytest.raises(TopologyError, match="give a file name ending in .png"):
+        draw(model_plant(), tmp_path / "plant.svg")

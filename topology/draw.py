@@ -15,6 +15,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only: no display needed, no GUI thread
 import matplotlib.pyplot as plt  # noqa: E402
 
+from .errors import TopologyError  # noqa: E402
 from .model import Plant  # noqa: E402
 
 ROLE_STYLE = {
@@ -37,6 +38,8 @@ def draw(
 ) -> Path:
     """Write a PNG of the plant; ``routes`` (node-id lists) on top, ``blocked`` segments in red."""
     out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise TopologyError("the drawing is a PNG: give a file name ending in .png", str(out))
     pos = {n.id: (n.x, -n.y) for n in plant.nodes}  # y grows downwards in plant files (grid rows)
     span = max(1.0, max((abs(x) + abs(y) for x, y in pos.values()), default=1.0))
     size = 6 if plant.n <= LABEL_LIMIT else 10

@@ -13,7 +13,6 @@ something for one plant can tell when it is handed another.
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -213,13 +212,16 @@ class Plant:
 
     @cached_property
     def fingerprint(self) -> str:
-        """Hash of everything routing depends on (nodes, routable arcs, lengths)."""
+        """Hash of everything routing depends on: nodes and edges in their order (which
+        fixes the node and arc indices that tables and constraints are built on), roles,
+        functions, lengths as floats (so 1 and 1.0 are the same plant)."""
         digest = hashlib.sha256()
-        for n in sorted(self.nodes, key=lambda n: n.id):
+        for n in self.nodes:
             digest.update(f"n{n.id}|{n.role}|{n.functions}\n".encode())
-        for e in sorted(self.edges, key=lambda e: (e.source, e.target, e.length)):
+        for e in self.edges:
+            length = float(e.length).hex()
             digest.update(
-                f"e{e.source}|{e.target}|{e.length!r}|{e.bidirectional}|{e.routable}\n".encode()
+                f"e{e.source}|{e.target}|{length}|{e.bidirectional}|{e.routable}\n".encode()
             )
         return digest.hexdigest()[:16]
 
@@ -254,10 +256,15 @@ def route_cost(plant: Plant, route: Sequence[int]) -> float:
     return total
 
 
+MAX_LENGTH = 1e12  # far beyond any plant, small enough that sums of lengths stay finite
+MAX_NODE_ID = 2**31 - 1
+
+
 def is_finite_length(value: object) -> bool:
-    return (
-        isinstance(value, int | float)
-        and not isinstance(value, bool)
-        and math.isfinite(value)
-        and value >= 0
-    )
+    """A length (or speed) the routing can add up: a number in 0..MAX_LENGTH."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return 0 <= float(value) <= MAX_LENGTH
+    except OverflowError:  # an int too large for a float
+        return False

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from .errors import TopologyError
-from .model import PORTS, ROLES, is_finite_length
+from .model import MAX_LENGTH, MAX_NODE_ID, PORTS, ROLES, is_finite_length
 
 if TYPE_CHECKING:
     from .model import Plant
@@ -32,14 +32,37 @@ def validate(plant: Plant, source: str | None = None) -> list[str]:
     return _check_reachability(plant, source)
 
 
+def _finite(value: object) -> bool:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+def _short(value: object) -> str:
+    """repr() for messages, shortened: a 5000-digit number must not flood the terminal."""
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
+
+
 def _check_nodes(plant: Plant, source: str | None) -> None:
+    if not plant.nodes:
+        raise TopologyError("the plant has no nodes", source)
     seen: set[int] = set()
     for i, node in enumerate(plant.nodes):
-        where = f"nodes[{i}] (id {node.id})"
-        if isinstance(node.id, bool) or not isinstance(node.id, int) or node.id < 0:
+        if (
+            isinstance(node.id, bool)
+            or not isinstance(node.id, int)
+            or not 0 <= node.id <= MAX_NODE_ID
+        ):
             raise TopologyError(
-                f"node id must be an integer >= 0, got {node.id!r}", source, f"nodes[{i}]"
+                f"node id must be an integer 0..{MAX_NODE_ID}, got {_short(node.id)}",
+                source,
+                f"nodes[{i}]",
             )
+        where = f"nodes[{i}] (id {node.id})"
         if node.id in seen:
             raise TopologyError(f"duplicate node id {node.id}", source, where)
         seen.add(node.id)
@@ -48,15 +71,17 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
                 f"unknown role {node.role!r} (one of {', '.join(ROLES)})", source, where
             )
         for name, value in (("x", node.x), ("y", node.y)):
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int | float)
-                or not math.isfinite(value)
-            ):
-                raise TopologyError(f"{name} must be a finite number, got {value!r}", source, where)
+            if not _finite(value):
+                raise TopologyError(
+                    f"{name} must be a finite number, got {_short(value)}", source, where
+                )
         for f in node.functions:
-            if isinstance(f, bool) or not isinstance(f, int) or f < 0:
-                raise TopologyError(f"function ids must be integers >= 0, got {f!r}", source, where)
+            if isinstance(f, bool) or not isinstance(f, int) or not 0 <= f <= MAX_NODE_ID:
+                raise TopologyError(
+                    f"function ids must be integers 0..{MAX_NODE_ID}, got {_short(f)}",
+                    source,
+                    where,
+                )
         if node.functions and node.role not in FUNCTION_ROLES:
             raise TopologyError(
                 f"a {node.role} node cannot provide functions (only {', '.join(FUNCTION_ROLES)})",
@@ -69,21 +94,25 @@ def _check_edges(plant: Plant, source: str | None) -> None:
     ids = plant.index
     ports_used: dict[tuple[int, str], int] = {}
     for i, edge in enumerate(plant.edges):
-        where = f"edges[{i}] ({edge.source} -> {edge.target})"
+        where = f"edges[{i}] ({_short(edge.source)} -> {_short(edge.target)})"
         for end in (edge.source, edge.target):
             if end not in ids:
-                raise TopologyError(f"unknown node {end!r}", source, where)
+                raise TopologyError(f"unknown node {_short(end)}", source, where)
         if edge.source == edge.target:
             raise TopologyError("self loop: an edge must join two different nodes", source, where)
         if not is_finite_length(edge.length):
             raise TopologyError(
-                f"length must be a finite number >= 0, got {edge.length!r}", source, where
+                f"length must be a finite number >= 0 (at most {MAX_LENGTH:g}), got {_short(edge.length)}",
+                source,
+                where,
             )
         if edge.max_speed is not None and not (
             is_finite_length(edge.max_speed) and edge.max_speed > 0
         ):
             raise TopologyError(
-                f"max_speed must be a finite number > 0, got {edge.max_speed!r}", source, where
+                f"max_speed must be a finite number > 0, got {_short(edge.max_speed)}",
+                source,
+                where,
             )
         for node, port in ((edge.source, edge.port_source), (edge.target, edge.port_target)):
             if port is None:

@@ -47,6 +47,10 @@ def load_map(path: Path, cell_size: float = 1.0) -> Plant:
         height, width = int(header["height"]), int(header["width"])
     except (KeyError, ValueError):
         raise TopologyError("header needs integer 'height' and 'width'", source, "line 1") from None
+    if height < 1 or width < 1:
+        raise TopologyError(
+            f"height and width must be >= 1, got {height} x {width}", source, "line 1"
+        )
     grid = lines[row + 1 : row + 1 + height]
     if len(grid) != height:
         raise TopologyError(

@@ -49,20 +49,26 @@ def read_text(path: Path) -> str:
 
 
 def load_toml(path: Path) -> Plant:
+    text = read_text(path)  # its own errors are already TopologyErrors
     try:
-        data = tomllib.loads(read_text(path))
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise TopologyError(f"invalid TOML: {exc}", str(path)) from None
+    except (ValueError, RecursionError) as exc:  # a 5000-digit integer, nesting thousands deep
+        raise TopologyError(f"unreadable TOML: {str(exc)[:80]}", str(path)) from None
     return from_dict(data, str(path))
 
 
 def load_json(path: Path) -> Plant:
+    text = read_text(path)
     try:
-        data = json.loads(read_text(path))
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise TopologyError(
             f"invalid JSON: {exc.msg}", str(path), f"line {exc.lineno}, column {exc.colno}"
         ) from None
+    except (ValueError, RecursionError) as exc:  # a 5000-digit integer, nesting thousands deep
+        raise TopologyError(f"unreadable JSON: {str(exc)[:80]}", str(path)) from None
     return from_dict(data, str(path))
 
 
