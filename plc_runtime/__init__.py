@@ -20,6 +20,7 @@ from .errors import (
 )
 from .fb import FunctionBlock, Input, Output, Static
 from .image import ProcessImage, ProgramImage
+from .io import IoDriver
 from .runtime import FAULT, RUN, STARTUP, STOP, Runtime
 from .tags import Tag, TagTable
 
@@ -33,6 +34,7 @@ __all__ = [
     "ConfigError",
     "CycleContext",
     "FunctionBlock",
+    "IoDriver",
     "Input",
     "Output",
     "PlcError",

@@ -157,6 +157,21 @@ class ProcessImage:
                 + ")"
             )
 
+    def field_writer(self, ref: str) -> Callable[[object], None]:
+        """For drivers, in the scan thread at the quiet point: a checked writer of a field input."""
+        loc = self.resolve(ref)
+        if loc.area != "I":
+            raise AddressError(f"{ref}: drivers write field inputs (%I), not area {loc.area}")
+        store, check = loc.writer(self.field_inputs), loc.type.check
+        return lambda value: store(check(value, ref))
+
+    def output_reader(self, ref: str) -> Callable[[], bool | int | float]:
+        """For drivers, in the scan thread after copy-out: a reader of a published output."""
+        loc = self.resolve(ref)
+        if loc.area != "Q":
+            raise AddressError(f"{ref}: drivers read outputs (%Q), not area {loc.area}")
+        return loc.reader(self.published_outputs)
+
     def memory_for_program(self, area: str) -> Memory:
         return {"I": self.inputs, "Q": self.outputs, "M": self.markers}[area]
 

@@ -28,6 +28,7 @@ from .context import CycleContext
 from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
 from .image import ProcessImage, ProgramImage
+from .io import IoDriver
 from .retain import RetainStore, layout_hash
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
@@ -105,6 +106,7 @@ class Runtime:
         self.retain_interval = retain_interval
         self.watchdog_interrupt = watchdog_interrupt
         self.tasks: list[Task] = []
+        self.drivers: list[IoDriver] = []
         self.state = STOP
         self.fault_reason: str | None = None
         self.fault_traceback: str | None = None
@@ -198,6 +200,17 @@ class Runtime:
         self._retain.forget()  # a new program layout: retain data kept in memory no longer fits
         return task
 
+    def add_driver(self, driver: IoDriver) -> None:
+        """Add a bus driver; it is opened in startup, called every tick, closed on stop."""
+        self._require(STOP, "add a driver")
+        if not isinstance(driver, IoDriver):
+            raise ConfigError(
+                f"{type(driver).__name__} is not an IoDriver (open/read_inputs/write_outputs/close/stats)"
+            )
+        if any(d.name == driver.name for d in self.drivers):
+            raise ConfigError(f"driver {driver.name!r} already added")
+        self.drivers.append(driver)
+
     # ----- operating state ----------------------------------------------------------------
     def start(self, mode: str = "warm") -> None:
         """STOP -> STARTUP -> RUN. ``warm`` keeps retentive data, ``cold`` clears it."""
@@ -222,6 +235,7 @@ class Runtime:
                 task.ctx = CycleContext(self._program_image, task.name, task.interval_ns)
             self._scan_stats.reset()
             self.ticks = 0
+            self._open_drivers()
             self._run_startup()
             self._check_layout_after_startup()
             self.clock.enter_run()  # before t0: rt mode's initial full collection must not make tick 0 late
@@ -231,6 +245,18 @@ class Runtime:
             if self.watchdog_interrupt:
                 self._alarm.install(frozenset({Runtime._run_tick.__code__}))
             self.state = RUN
+
+    def _open_drivers(self) -> None:
+        opened = []
+        for driver in self.drivers:
+            try:
+                driver.open(self.image)
+            except Exception as exc:
+                for other in opened:
+                    other.close()
+                self._fault(f"driver {driver.name}: cannot open: {exc}")
+                raise StartupError(self.fault_reason) from exc
+            opened.append(driver)
 
     def _run_startup(self) -> None:
         """Every block's startup, in task priority order, without cycle monitoring."""
@@ -267,6 +293,8 @@ class Runtime:
             was_running = self.state in (RUN, FAULT)
             self.clock.exit_run()
             self._alarm.uninstall()
+            for driver in self.drivers:
+                driver.close()
             if was_running:
                 self._retain.save_or_warn(self._collect_retain())
             self.image.publish_safe_state(self.safe_outputs)
@@ -389,6 +417,10 @@ class Runtime:
         """Quiet point, copy-in, due tasks, copy-out; False if the runtime faulted."""
         image = self.image
         image.apply_quiet_point()
+        now = release - self._t0
+        for driver in self.drivers:
+            if not self._run_driver(driver.read_inputs, driver, now):
+                return False
         copied_in = False
         for task in self.tasks:
             if task.next_release != k:
@@ -405,7 +437,23 @@ class Runtime:
                 return False
         if copied_in:
             image.copy_out()
+        for driver in self.drivers:
+            if not self._run_driver(driver.write_outputs, driver, now):
+                return False
         self._scan_ran = copied_in
+        return True
+
+    def _run_driver(
+        self, method: Callable[[ProcessImage, int], None], driver: IoDriver, now: int
+    ) -> bool:
+        try:
+            method(self.image, now)
+        except Exception as exc:
+            self.fault_traceback = traceback.format_exc()
+            self._fault(
+                f"driver {driver.name}: {method.__name__} raised {type(exc).__name__}: {exc}"
+            )
+            return False
         return True
 
     def _scan_task(self, task: Task, release: int, now: int) -> bool:

@@ -143,4 +143,5 @@ class RuntimeStats:
             "clock": rt.clock.status(),
             "scan": self.scan.to_dict(),
             "tasks": {name: s.to_dict() for name, s in self.tasks.items()},
+            "drivers": {d.name: d.stats() for d in rt.drivers},
         }

@@ -102,7 +102,9 @@ class AGV:
     def state(self) -> str:
         if self.fault or self.battery.failed or self.stalled:
             return "FAULT"
-        if self.target is not None or self.turn_left > 0:
+        if self.turn_left > 0:
+            return "DRIVING"  # turning on the spot before setting off
+        if self.target is not None:
             return "STOPPING_AT_NODE" if self._must_stop_at_end() and self.speed > 0 else "DRIVING"
         role = self.plant.node(self.node).role
         if role == "charger" and self.battery.percent < 100.0:

@@ -107,7 +107,10 @@ class Fleet:
             agv.blocked_ahead = False
             if agv.target is None:
                 continue
-            reach = agv.progress + agv.params.length + agv.params.sensor_range
+            # a speed-dependent protective field, like a safety laser scanner's: the free
+            # space it wants ahead grows with the braking distance
+            p = agv.params
+            reach = agv.progress + p.length + p.sensor_range + agv.speed**2 / (2 * p.decel)
             for other in self.vehicles.values():
                 if other is agv:
                     continue
