@@ -137,7 +137,10 @@ def test_front_sensor_stops_the_follower_until_the_lane_is_clear():
     assert follower.target == 8 and follower.speed == 0.0 and follower.blocked_ahead
     # stopped short of the leader by its own length plus the sensor's free space
     assert (
-        follower.length - follower.progress >= follower.params.length + follower.params.sensor_range
+        follower.length - follower.progress
+        >= follower.params.length
+        + follower.params.sensor_range
+        - 0.005  # one 10 ms step: the sensor is sampled
     )
     leader.command((9, 24))  # the lane clears: the follower resumes
     for _ in range(3000):
