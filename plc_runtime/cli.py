@@ -23,7 +23,7 @@ from rich.table import Table
 
 from topology import TopologyError
 
-from . import cli_topology
+from . import cli_topology, cli_vehicles
 from .clock import VirtualClock, WallClock
 from .errors import PlcError
 from .programs import PROGRAMS
@@ -107,6 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--json", action="store_true", help="print the summary as one JSON object on stdout"
     )
     cli_topology.add_parsers(sub, _positive)
+    cli_vehicles.add_parsers(sub, _positive)
     return parser
 
 
@@ -118,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         "run": _run,
         "plant": cli_topology.plant_command,
         "route": cli_topology.route_command,
+        "vehicles": cli_vehicles.vehicles_command,
     }
     try:
         return commands[args.command](args)

@@ -1,0 +1,79 @@
+"""``plc-runtime vehicles``: simulated AGVs in their own process, on a bus, on the wall clock."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from typing import Any
+
+from .errors import ConfigError
+from .programs.route import load_plant
+
+
+def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
+    p = sub.add_parser(
+        "vehicles", help="run simulated AGVs in this process, talking over a CAN bus"
+    )
+    p.add_argument("--plant", required=True, help="plant file or sample name")
+    p.add_argument("--count", type=positive(int), default=4, help="number of vehicles (ids 1..N)")
+    p.add_argument(
+        "--bus",
+        default="virtual:agv",
+        help="INTERFACE:CHANNEL, e.g. socketcan:vcan0 or udp_multicast:239.74.163.2",
+    )
+    p.add_argument(
+        "--period",
+        type=positive(float),
+        default=0.01,
+        help="simulation step in seconds (default 0.01)",
+    )
+    p.add_argument(
+        "--duration", type=positive(float), help="wall-clock seconds to run (default: until Ctrl-C)"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--json", action="store_true", help="print the final state of every vehicle as JSON"
+    )
+
+
+def vehicles_command(args: argparse.Namespace) -> int:
+    from vehicles.runner import default_starts, parse_bus, run_fleet
+
+    plant = load_plant(args.plant)
+    try:
+        interface, channel = parse_bus(args.bus)
+        starts = default_starts(plant, args.count)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    print(
+        f"plc-runtime: {args.count} vehicles on {interface}:{channel}, starts {starts}",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        fleet = run_fleet(plant, starts, interface, channel, args.period, args.duration, args.seed)
+    except (OSError, ValueError, ImportError) as exc:
+        raise ConfigError(f"bus {args.bus}: {exc}") from None
+    final = {
+        v: {
+            "node": a.node,
+            "state": a.state,
+            "battery": round(a.battery.percent, 2),
+            "driven": a.driven,
+        }
+        for v, a in fleet.vehicles.items()
+    }
+    if args.json:
+        print(
+            json.dumps(
+                {"time_s": round(fleet.time, 3), "vehicles": final, "counters": fleet.counters}
+            )
+        )
+    else:
+        for v, info in final.items():
+            print(
+                f"vehicle {v}: at node {info['node']}, {info['state']}, battery {info['battery']} %, drove {info['driven']}"
+            )
+    return 0

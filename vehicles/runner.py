@@ -1,0 +1,74 @@
+"""Vehicles in their own process on the wall clock (``plc-runtime vehicles``).
+
+Real-time runs keep CPU-heavy simulation out of the runtime's process (a second Python
+thread there would cost the scan milliseconds of lateness), so the fleet runs here, on its
+own bus endpoint, stepped against absolute monotonic deadlines. SIGINT/SIGTERM end it
+cleanly: the bus is shut down, nothing is left behind.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Mapping
+
+import can
+
+from plc_runtime.clock import WallClock
+from topology import Plant
+
+from .fleet import Faults, Fleet
+
+
+def parse_bus(spec: str) -> tuple[str, str]:
+    """'interface:channel' (e.g. socketcan:vcan0, udp_multicast:239.74.163.2, virtual:agv)."""
+    interface, sep, channel = spec.partition(":")
+    if not sep or not interface or not channel:
+        raise ValueError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
+    return interface, channel
+
+
+def default_starts(plant: Plant, count: int) -> dict[int, int]:
+    """Vehicles 1..count on distinct nodes: entries first, then parking, chargers, transit."""
+    order = ("entry", "parking", "charger", "transit", "station", "exit")
+    nodes = [n.id for role in order for n in plant.nodes if n.role == role]
+    if count > len(nodes) or not 1 <= count <= 126:
+        raise ValueError(
+            f"--count {count}: the plant has {len(nodes)} nodes, and a bus carries 1..126 vehicles"
+        )
+    return {v + 1: nodes[v] for v in range(count)}
+
+
+def run_fleet(
+    plant: Plant,
+    starts: Mapping[int, int],
+    interface: str,
+    channel: str,
+    period: float = 0.01,
+    duration: float | None = None,
+    seed: int = 0,
+    faults: Mapping[int, Faults] | None = None,
+) -> Fleet:
+    """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal."""
+    stop = False
+
+    def request_stop(*_: object) -> None:
+        nonlocal stop
+        stop = True
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+    try:
+        fleet = Fleet(plant, starts, bus, faults=faults, seed=seed)
+        clock = WallClock(spin=0.0)
+        t0, k = clock.now_ns(), 0
+        period_ns = round(period * 1e9)
+        end = None if duration is None else t0 + round(duration * 1e9)
+        while not stop and (end is None or clock.now_ns() < end):
+            k += 1
+            clock.wait_until(t0 + k * period_ns)
+            fleet.step(period)
+        return fleet
+    finally:
+        bus.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
