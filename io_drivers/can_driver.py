@@ -27,6 +27,7 @@ from collections.abc import Iterable
 from typing import Any
 
 import can
+import numpy as np
 
 from plc_runtime import ConfigError, ProcessImage
 
@@ -121,6 +122,22 @@ class CanDriver:
         self._sent_go: dict[int, bool] = {}
         self._next_heartbeat = 0
         self._now_ns = 0
+        self._flags: dict[int, int] = {}
+        first, last = (
+            self.output_base + RECORD * self.vehicles[0],
+            self.output_base + RECORD * (self.vehicles[-1] + 1),
+        )
+        self._out_view = image.published_outputs.bytes[first:last]
+        self._out_vehicle = {
+            (self.output_base + RECORD * v - first) // RECORD: v for v in self.vehicles
+        }
+        rows = len(self._out_view) // RECORD
+        self._out_vehicle = [
+            self._out_vehicle.get(r) for r in range(rows)
+        ]  # None: an id we do not manage
+        self._out_last = np.full(
+            (rows, RECORD), -1, dtype=np.int16
+        )  # differs from any byte: first tick sends
         self._alive = 0
         self.status = {}
 
@@ -207,30 +224,37 @@ class CanDriver:
             return
         stale = self._is_stale(v)
         flags = (0 if stale else ONLINE) | (STALE if stale else 0) | (FAULT if status.fault else 0)
-        self._inputs[v]["flags"](flags)
+        if self._flags.get(v) != flags:
+            self._flags[v] = flags
+            self._inputs[v]["flags"](flags)
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
-        for v in self.vehicles:
-            r = self._outputs[v]
-            control, sequence = r["control"](), r["sequence"]()
-            go = bool(control & GO_BIT)
-            if self._sent_go.get(v) != go:
-                if self._send(StopGo(v, go)):
-                    self._sent_go[v] = go
-            if sequence != self._sent_sequence.get(
-                v, 0
-            ):  # outputs start at 0: 0 is "no command yet"
-                count = control & COUNT_MASK
-                nodes = tuple(reader() for reader in r["nodes"][:count])
-                if not count or NO_NODE in nodes:
-                    self.counters["bad_commands"] += 1
-                    self._sent_sequence[v] = sequence  # not sendable; wait for the next sequence
-                elif self._send(RouteCommand(v, sequence % 16, nodes)):
-                    self._sent_sequence[v] = sequence
+        # The whole output block at once: only vehicles whose record changed need work.
+        block = self._out_view.reshape(-1, RECORD)
+        changed = np.flatnonzero((block != self._out_last).any(axis=1))
+        for row in changed.tolist():
+            if self._out_vehicle[row] is not None:
+                self._command(self._out_vehicle[row])
+        self._out_last[...] = block
         if now_ns >= self._next_heartbeat:
             self._next_heartbeat = now_ns + self.heartbeat_ns
             self._alive = (self._alive + 1) % 256
             self._send(Heartbeat(CONTROLLER, self._alive))
+
+    def _command(self, v: int) -> None:
+        r = self._outputs[v]
+        control, sequence = r["control"](), r["sequence"]()
+        go = bool(control & GO_BIT)
+        if self._sent_go.get(v) != go and self._send(StopGo(v, go)):
+            self._sent_go[v] = go
+        if sequence != self._sent_sequence.get(v, 0):  # outputs start at 0: 0 is "no command yet"
+            count = control & COUNT_MASK
+            nodes = tuple(reader() for reader in r["nodes"][:count])
+            if not count or NO_NODE in nodes:
+                self.counters["bad_commands"] += 1
+                self._sent_sequence[v] = sequence  # not sendable; wait for the next sequence
+            elif self._send(RouteCommand(v, sequence % 16, nodes)):
+                self._sent_sequence[v] = sequence
 
     def _send(self, message: Any) -> bool:
         frame_id, data = self.codec.encode(message)

@@ -67,7 +67,9 @@ class Fleet:
         self.faults = dict(faults or {})
         self.rng = np.random.default_rng(seed)
         self.time = 0.0
-        self._next_status = 0.0
+        # Each vehicle reports on its own phase within the period, as independent vehicles
+        # do: the bus and the controller see a steady stream, not a burst every period.
+        self._next_status = {v: status_period * (v % 10) / 10 for v in self.vehicles}
         self._alive = dict.fromkeys(self.vehicles, 0)
         self._last_sequence: dict[int, int] = {}
         self.counters = {
@@ -86,10 +88,10 @@ class Fleet:
         self._front_sensors()
         reached = [v for v, agv in self.vehicles.items() if agv.step(dt)]
         self.time += dt
-        periodic = self.time + 1e-12 >= self._next_status
-        if periodic:
-            self._next_status += self.status_period
         for vehicle in self.vehicles:
+            periodic = self.time + 1e-12 >= self._next_status[vehicle]
+            if periodic:
+                self._next_status[vehicle] += self.status_period
             if periodic or vehicle in reached:
                 self._send_status(vehicle)
 

@@ -1,0 +1,207 @@
+"""Bus I/O throughput of the runtime's drivers.
+
+1. CAN frames per second through ``CanDriver.read_inputs`` (decode, validate, write the
+   image), on the virtual bus and, where a private network namespace can be made (root),
+   on udp_multicast over loopback. Baseline, same process: a bare python-can ``recv`` loop
+   draining the same number of frames without decoding.
+2. Scan execution time with 10, 100 and 1000 vehicles on the virtual bus (126 vehicles per
+   bus, so 1000 vehicles are 8 buses and 8 drivers), every vehicle reporting every 100 ms;
+   the fleet is simulated between scans, outside the measured time. Baseline: the same
+   runtime and program without drivers.
+
+    .venv/bin/python bench/io_throughput.py [--frames 20000] [--scans 500]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from io_drivers.can_driver import CanDriver  # noqa: E402
+from io_drivers.protocol import NO_NODE, Codec, Status  # noqa: E402
+from plc_runtime import FunctionBlock, ProcessImage, Runtime, VirtualClock  # noqa: E402
+from topology import grid  # noqa: E402
+from vehicles.fleet import Fleet  # noqa: E402
+
+_channels = itertools.count()
+
+
+def status_frames(n: int, vehicles: int) -> list[can.Message]:
+    codec = Codec()
+    frames = []
+    for k in range(n):
+        v = k % vehicles + 1
+        frame_id, data = codec.encode(Status(v, k % 1000, NO_NODE, "DRIVING", 80, 0.5, k % 16))
+        frames.append(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+    return frames
+
+
+def frame_rates(interface: str, channel: str, n: int) -> tuple[float, float]:
+    """(driver frames/s, bare recv frames/s) for n status frames from 100 vehicles."""
+    frames = status_frames(n, 100)
+    results = []
+    for use_driver in (True, False):
+        sender = can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+        image = ProcessImage({"I": 4096, "Q": 4096})
+        driver = CanDriver(range(1, 101), interface=interface, channel=channel, max_frames=n + 10)
+        driver.open(image)
+        try:
+            time.sleep(0.2) if interface != "virtual" else None
+            for msg in frames:
+                sender.send(msg)
+            time.sleep(0.5) if interface != "virtual" else None  # let the socket buffer fill
+            begin = time.perf_counter()
+            if use_driver:
+                driver.read_inputs(image, 0)
+                got = driver.counters["frames_in"]
+            else:
+                got = 0
+                while driver.bus.recv(timeout=0) is not None:
+                    got += 1
+            elapsed = time.perf_counter() - begin
+            results.append(got / elapsed if got else 0.0)
+        finally:
+            driver.close()
+            sender.shutdown()
+    return results[0], results[1]
+
+
+class Touch(FunctionBlock):
+    """A program that reads every vehicle record (what a fleet program does at least)."""
+
+    def __init__(self, refs):
+        super().__init__()
+        self.refs = refs
+
+    def cycle(self, ctx):
+        read = ctx.image.read
+        for ref in self.refs:
+            read(ref)
+
+
+def scan_times(vehicles: int, scans: int) -> tuple[float, float, float, float]:
+    """p50 and p99 scan exec time (us) with and without the drivers."""
+    out = []
+    for with_drivers in (True, False):
+        plant = grid(40, 40, obstacles=0.0, stations=0)
+        per_bus = 125
+        groups = [
+            list(range(1, min(per_bus, vehicles - b * per_bus) + 1))
+            for b in range((vehicles + per_bus - 1) // per_bus)
+        ]
+        rt = Runtime(
+            cycle_time=0.010,
+            clock=VirtualClock(),
+            image_sizes={"I": 8192 * 2, "Q": 8192 * 2},
+            watchdog=5.0,
+        )
+        fleets, buses, refs = [], [], []
+        for b, ids in enumerate(groups):
+            channel = f"io-bench-{next(_channels)}"
+            base = 1024 * (b + 1)
+            if with_drivers:
+                rt.add_driver(
+                    CanDriver(
+                        ids,
+                        interface="virtual",
+                        channel=channel,
+                        input_base=base,
+                        output_base=base,
+                        name=f"can{b}",
+                    )
+                )
+            bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+            starts = {v: int(plant.ids[(b * per_bus + v) % plant.n]) for v in ids}
+            fleets.append(Fleet(plant, starts, bus))
+            buses.append(bus)
+            refs += [f"%IW{(base + 8 * v) // 2}" for v in ids]
+        rt.add_task("program", [Touch(refs)])
+        rt.start()
+        for _ in range(scans):
+            for fleet in fleets:
+                fleet.step(0.01)
+            rt.step()
+        stats = rt.stats.scan
+        out += [stats.exec_percentile_ns(50) / 1e3, stats.exec_percentile_ns(99) / 1e3]
+        rt.stop()
+        for bus in buses:
+            bus.shutdown()
+    return out[0], out[1], out[2], out[3]
+
+
+def udp_rows(frames: int) -> list[str]:
+    """Run the udp_multicast measurement in a private network namespace (loopback only)."""
+    if os.geteuid() != 0 or not shutil.which("unshare"):
+        return [
+            "| udp_multicast | - | - | - | not measured: needs root for a private network namespace |"
+        ]
+    inside = (
+        "ip link set lo up && ip route add 224.0.0.0/4 dev lo && "
+        f"exec {sys.executable} {Path(__file__).resolve()} --udp-only --frames {frames}"
+    )
+    result = subprocess.run(
+        ["unshare", "-n", "sh", "-c", inside],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    if result.returncode:
+        return [
+            f"| udp_multicast | - | - | - | failed: {result.stderr.strip().splitlines()[-1][:80]} |"
+        ]
+    driver, bare = json.loads(result.stdout.strip().splitlines()[-1])
+    return [
+        f"| udp_multicast (loopback, netns) | {driver:,.0f} | {bare:,.0f} | {driver / bare:.2f} | |"
+    ]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20_000)
+    parser.add_argument("--scans", type=int, default=500)
+    parser.add_argument("--udp-only", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.udp_only:
+        print(json.dumps(frame_rates("udp_multicast", "239.74.163.9", min(args.frames, 5000))))
+        return
+    print(f"Bus I/O, Python {sys.version.split()[0]}")
+    print()
+    print("### CAN frames per second through the driver")
+    print()
+    print(
+        "| bus | driver frames/s (decode + validate + image) | bare recv frames/s | driver / bare | note |"
+    )
+    print("|---|---:|---:|---:|---|")
+    driver, bare = frame_rates("virtual", f"io-rate-{next(_channels)}", args.frames)
+    print(f"| virtual | {driver:,.0f} | {bare:,.0f} | {driver / bare:.2f} | |")
+    for row in udp_rows(args.frames):
+        print(row)
+    print()
+    print("### Scan execution time with vehicles on the virtual bus")
+    print()
+    print(
+        "| vehicles | buses | scan p50 us | p99 us | without drivers p50 us | p99 us | p50 ratio |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for n in (10, 100, 1000):
+        p50, p99, b50, b99 = scan_times(n, args.scans)
+        print(
+            f"| {n} | {(n + 124) // 125} | {p50:,.1f} | {p99:,.1f} | {b50:,.1f} | {b99:,.1f} | {p50 / b50:.1f} |"
+        )
+    print()
+
+
+if __name__ == "__main__":
+    main()
