@@ -106,6 +106,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--json", action="store_true", help="print the summary as one JSON object on stdout"
     )
+    run.add_argument(
+        "--modbus",
+        metavar="HOST:PORT",
+        help="serve the process image over Modbus TCP (e.g. 127.0.0.1:5020)",
+    )
     cli_topology.add_parsers(sub, _positive)
     cli_vehicles.add_parsers(sub, _positive)
     return parser
@@ -149,6 +154,8 @@ def _run(args: argparse.Namespace) -> int:
         watchdog=args.watchdog / 1e3,
         retain_file=args.retain,
     )
+    if args.modbus:
+        rt.add_driver(_modbus_server(args.modbus))
     rt.start()
     total = (
         args.cycles
@@ -180,6 +187,15 @@ def _run(args: argparse.Namespace) -> int:
     else:
         Console().print(_summary_table(summary))
     return EXIT_FAULT if final_state == "FAULT" else 0
+
+
+def _modbus_server(spec: str):
+    from io_drivers.modbus_server import ModbusServer
+
+    host, sep, port = spec.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
+    return ModbusServer(host=host, port=int(port))
 
 
 def _interrupt(rt: Runtime) -> None:
