@@ -23,6 +23,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
 	$(BIN)/python bench/astar_step.py
+	$(BIN)/python bench/io_throughput.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

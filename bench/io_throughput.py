@@ -4,12 +4,15 @@
    image), on the virtual bus and, where a private network namespace can be made (root),
    on udp_multicast over loopback. Baseline, same process: a bare python-can ``recv`` loop
    draining the same number of frames without decoding.
-2. Scan execution time with 10, 100 and 1000 vehicles on the virtual bus (126 vehicles per
+2. Modbus TCP requests per second against the runtime's server (read 10 holding
+   registers, one synchronous pymodbus client on loopback). Baseline: the same pymodbus
+   server serving its own plain simulator datastore, no process image behind it.
+3. Scan execution time with 10, 100 and 1000 vehicles on the virtual bus (126 vehicles per
    bus, so 1000 vehicles are 8 buses and 8 drivers), every vehicle reporting every 100 ms;
    the fleet is simulated between scans, outside the measured time. Baseline: the same
    runtime and program without drivers.
 
-    .venv/bin/python bench/io_throughput.py [--frames 20000] [--scans 500]
+    .venv/bin/python bench/io_throughput.py [--frames 20000] [--scans 500] [--requests 3000]
 """
 
 from __future__ import annotations
@@ -140,6 +143,71 @@ def scan_times(vehicles: int, scans: int) -> tuple[float, float, float, float]:
     return out[0], out[1], out[2], out[3]
 
 
+def modbus_rates(requests: int) -> tuple[float, float, float]:
+    """(ours req/s, baseline req/s, ours median latency us)."""
+    import asyncio
+    import threading
+
+    from pymodbus.client import ModbusTcpClient
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    from io_drivers.modbus_server import ModbusServer
+
+    def hammer(port: int) -> tuple[float, float]:
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=2.0, retries=0)
+        client.connect()
+        lat = []
+        begin = time.perf_counter()
+        for _ in range(requests):
+            t = time.perf_counter()
+            assert not client.read_holding_registers(0, count=10).isError()
+            lat.append(time.perf_counter() - t)
+        rate = requests / (time.perf_counter() - begin)
+        client.close()
+        return rate, sorted(lat)[len(lat) // 2] * 1e6
+
+    image = ProcessImage()
+    ours = ModbusServer(port=0)
+    ours.open(image)
+    try:
+        rate, median = hammer(ours.port)
+    finally:
+        ours.close()
+
+    ready, port_box, stop_box = threading.Event(), [], []
+
+    async def serve() -> None:
+        device = SimDevice(
+            id=0,
+            simdata=(
+                [SimData(0, values=[False] * 16, datatype=DataType.BITS)],
+                [SimData(0, values=[False] * 16, datatype=DataType.BITS)],
+                [SimData(0, count=64, values=0, datatype=DataType.REGISTERS)],
+                [SimData(0, count=64, values=0, datatype=DataType.REGISTERS)],
+            ),
+        )
+        server = ModbusTcpServer(device, address=("127.0.0.1", 0))
+        await server.serve_forever(background=True)
+        port_box.append(server.transport.sockets[0].getsockname()[1])
+        stop = asyncio.Event()
+        stop_box.append((asyncio.get_running_loop(), stop))
+        ready.set()
+        await stop.wait()
+        await server.shutdown()
+
+    thread = threading.Thread(target=lambda: asyncio.run(serve()))
+    thread.start()
+    ready.wait(10)
+    try:
+        base_rate, _ = hammer(port_box[0])
+    finally:
+        loop, stop = stop_box[0]
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(10)
+    return rate, base_rate, median
+
+
 def udp_rows(frames: int) -> list[str]:
     """Run the udp_multicast measurement in a private network namespace (loopback only)."""
     if os.geteuid() != 0 or not shutil.which("unshare"):
@@ -171,6 +239,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20_000)
     parser.add_argument("--scans", type=int, default=500)
+    parser.add_argument("--requests", type=int, default=3000)
     parser.add_argument("--udp-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.udp_only:
@@ -188,6 +257,16 @@ def main() -> None:
     print(f"| virtual | {driver:,.0f} | {bare:,.0f} | {driver / bare:.2f} | |")
     for row in udp_rows(args.frames):
         print(row)
+    print()
+    print("### Modbus TCP requests per second (read 10 holding registers, loopback)")
+    print()
+    print("| server | requests/s | median latency us | ours / baseline |")
+    print("|---|---:|---:|---:|")
+    ours, base, median = modbus_rates(args.requests)
+    print(
+        f"| runtime's ModbusServer (process image) | {ours:,.0f} | {median:,.0f} | {ours / base:.2f} |"
+    )
+    print(f"| baseline: pymodbus simulator datastore | {base:,.0f} | - | 1 |")
     print()
     print("### Scan execution time with vehicles on the virtual bus")
     print()
