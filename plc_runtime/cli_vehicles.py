@@ -1,4 +1,5 @@
-"""``plc-runtime vehicles``: simulated AGVs in their own process, on a bus, on the wall clock."""
+"""``plc-runtime vehicles``: simulated AGVs in their own process, on the wall clock, talking to
+the runtime over a CAN bus or each through its own Modbus TCP server."""
 
 from __future__ import annotations
 
@@ -13,15 +14,20 @@ from .programs.route import load_plant
 
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
-    p = sub.add_parser(
-        "vehicles", help="run simulated AGVs in this process, talking over a CAN bus"
-    )
+    p = sub.add_parser("vehicles", help="run simulated AGVs in this process, talking over a bus")
     p.add_argument("--plant", required=True, help="plant file or sample name")
     p.add_argument("--count", type=positive(int), default=4, help="number of vehicles (ids 1..N)")
-    p.add_argument(
+    link = p.add_mutually_exclusive_group()
+    link.add_argument(
         "--bus",
         default="virtual:agv",
         help="INTERFACE:CHANNEL, e.g. socketcan:vcan0 or udp_multicast:239.74.163.2",
+    )
+    link.add_argument(
+        "--modbus-base-port",
+        type=positive(int),
+        metavar="PORT",
+        help="instead of a bus: vehicle v serves Modbus TCP on 127.0.0.1:PORT+v",
     )
     p.add_argument(
         "--period",
@@ -43,19 +49,32 @@ def vehicles_command(args: argparse.Namespace) -> int:
 
     plant = load_plant(args.plant)
     try:
-        interface, channel = parse_bus(args.bus)
+        interface, channel = (None, None) if args.modbus_base_port else parse_bus(args.bus)
         starts = default_starts(plant, args.count)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    print(
-        f"plc-runtime: {args.count} vehicles on {interface}:{channel}, starts {starts}",
-        file=sys.stderr,
-        flush=True,
-    )
+
+    def ready(link: str) -> None:
+        print(
+            f"plc-runtime: {args.count} vehicles ready, {link}, starts {starts}",
+            file=sys.stderr,
+            flush=True,
+        )
+
     try:
-        fleet = run_fleet(plant, starts, interface, channel, args.period, args.duration, args.seed)
-    except (OSError, ValueError, ImportError) as exc:
-        raise ConfigError(f"bus {args.bus}: {exc}") from None
+        fleet = run_fleet(
+            plant,
+            starts,
+            interface,
+            channel,
+            args.period,
+            args.duration,
+            args.seed,
+            modbus_base_port=args.modbus_base_port,
+            on_ready=ready,
+        )
+    except (OSError, ValueError, ImportError, RuntimeError, TimeoutError) as exc:
+        raise ConfigError(f"vehicle link: {exc}") from None
     final = {
         v: {
             "node": a.node,
@@ -74,6 +93,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
     else:
         for v, info in final.items():
             print(
-                f"vehicle {v}: at node {info['node']}, {info['state']}, battery {info['battery']} %, drove {info['driven']}"
+                f"vehicle {v}: at node {info['node']}, {info['state']}, battery {info['battery']} %, "
+                f"drove {info['driven']}"
             )
     return 0

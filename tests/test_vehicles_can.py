@@ -233,3 +233,11 @@ def test_bad_interface_is_a_clear_startup_error():
 
 def test_state_codes_match_the_dbc():
     assert STATE_CODE["FAULT"] == 6 and STATE_CODE["IDLE"] == 0
+
+
+def test_battery_failure_is_a_reported_fault():
+    faults = {1: Faults(battery_failure_after=0.5)}
+    fleet, _trace, _stats, image = cosim({1: 0}, {1: [0, 6, 7, 8]}, faults=faults, cycles=300)
+    agv = fleet.vehicles[1]
+    assert agv.state == "FAULT" and agv.battery.percent == 0.0 and agv.speed == 0.0
+    assert image[1][1] == ONLINE | FAULT

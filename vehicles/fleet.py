@@ -185,13 +185,17 @@ class Fleet:
                 self.counters["ignored"] += 1
                 continue
             self.counters["received"] += 1
-            if isinstance(decoded, RouteCommand) and decoded.vehicle in self.vehicles:
-                if self._last_sequence.get(decoded.vehicle) == decoded.sequence:
-                    continue  # a repeated frame, not a new route
-                self._last_sequence[decoded.vehicle] = decoded.sequence
-                if not self.vehicles[decoded.vehicle].command(decoded.nodes):
-                    self.counters["rejected"] += 1
-            elif isinstance(decoded, StopGo):
-                for vehicle, agv in self.vehicles.items():
-                    if decoded.vehicle in (vehicle, ALL_VEHICLES):
-                        agv.go = decoded.go
+            self.apply(decoded)
+
+    def apply(self, message: object) -> None:
+        """A command from the controller, whatever link carried it (CAN frame, Modbus write)."""
+        if isinstance(message, RouteCommand) and message.vehicle in self.vehicles:
+            if self._last_sequence.get(message.vehicle) == message.sequence:
+                return  # a repetition, not a new route
+            self._last_sequence[message.vehicle] = message.sequence
+            if not self.vehicles[message.vehicle].command(message.nodes):
+                self.counters["rejected"] += 1
+        elif isinstance(message, StopGo):
+            for vehicle, agv in self.vehicles.items():
+                if message.vehicle in (vehicle, ALL_VEHICLES):
+                    agv.go = message.go

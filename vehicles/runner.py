@@ -9,7 +9,7 @@ cleanly: the bus is shut down, nothing is left behind.
 from __future__ import annotations
 
 import signal
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import can
 
@@ -17,6 +17,7 @@ from plc_runtime.clock import WallClock
 from topology import Plant
 
 from .fleet import Faults, Fleet
+from .modbus_endpoint import VehicleModbusEndpoints
 
 
 def parse_bus(spec: str) -> tuple[str, str]:
@@ -41,14 +42,20 @@ def default_starts(plant: Plant, count: int) -> dict[int, int]:
 def run_fleet(
     plant: Plant,
     starts: Mapping[int, int],
-    interface: str,
-    channel: str,
+    interface: str | None,
+    channel: str | None,
     period: float = 0.01,
     duration: float | None = None,
     seed: int = 0,
     faults: Mapping[int, Faults] | None = None,
+    modbus_base_port: int | None = None,
+    on_ready: Callable[[str], None] | None = None,
 ) -> Fleet:
-    """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal."""
+    """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal.
+
+    The vehicles talk over the CAN bus ``interface:channel``, or, with ``modbus_base_port``,
+    each through its own Modbus TCP server on 127.0.0.1:(base port + vehicle id).
+    """
     stop = False
 
     def request_stop(*_: object) -> None:
@@ -56,9 +63,22 @@ def run_fleet(
         stop = True
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+    bus = (
+        None
+        if modbus_base_port
+        else can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+    )
+    fleet = Fleet(plant, starts, bus, faults=faults, seed=seed)
+    endpoints = (
+        VehicleModbusEndpoints(fleet, base_port=modbus_base_port) if modbus_base_port else None
+    )
     try:
-        fleet = Fleet(plant, starts, bus, faults=faults, seed=seed)
+        if endpoints:
+            ports = endpoints.start()
+            if on_ready:
+                on_ready(f"modbus servers on 127.0.0.1 ports {ports}")
+        elif on_ready:
+            on_ready(f"bus {interface}:{channel}")
         clock = WallClock(spin=0.0)
         t0, k = clock.now_ns(), 0
         period_ns = round(period * 1e9)
@@ -66,9 +86,16 @@ def run_fleet(
         while not stop and (end is None or clock.now_ns() < end):
             k += 1
             clock.wait_until(t0 + k * period_ns)
+            if endpoints:
+                endpoints.apply()
             fleet.step(period)
+            if endpoints:
+                endpoints.publish()
         return fleet
     finally:
-        bus.shutdown()
+        if endpoints:
+            endpoints.stop()
+        if bus is not None:
+            bus.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
