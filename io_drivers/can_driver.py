@@ -105,6 +105,8 @@ class CanDriver:
         self._sent_go: dict[int, bool] = {}
         self._next_heartbeat = 0
         self._now_ns = 0
+        self._first_ns: int | None = None
+        self._retry: set[int] = set()  # vehicles whose last send failed: look again next tick
         self._alive = 0
         self.status = {}
 
@@ -116,8 +118,8 @@ class CanDriver:
         self.bus = None
 
     def stats(self) -> dict[str, object]:
-        stale = [v for v in self.status if self._is_stale(v)] if self.bus else []
-        return {**self.counters, "online": len(self.status) - len(stale), "stale": stale}
+        stale = [v for v in self.records.vehicles if self._is_stale(v)] if self.bus else []
+        return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
 
     # ----- the scan -------------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
@@ -129,8 +131,14 @@ class CanDriver:
             self._handle(msg, now_ns)
         else:
             self.counters["deferred"] += 1  # more frames waiting: read next tick
-        for v, status in self.status.items():
-            self.records.write_flags(v, self._is_stale(v), status.fault)
+        if self._first_ns is None:
+            self._first_ns = now_ns
+        for v in self.records.vehicles:
+            status = self.status.get(v)
+            if status is not None or self._is_stale(
+                v
+            ):  # a vehicle that never reported goes stale too
+                self.records.write_flags(v, self._is_stale(v), bool(status and status.fault))
 
     def _handle(self, msg: can.Message, now_ns: int) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
@@ -155,13 +163,20 @@ class CanDriver:
         self.records.write_status(decoded)
 
     def _is_stale(self, v: int) -> bool:
-        return self._now_ns - self._last_seen.get(v, -(2**62)) > self.stale_after_ns
+        last = self._last_seen.get(
+            v, self._first_ns if self._first_ns is not None else self._now_ns
+        )
+        return self._now_ns - last > self.stale_after_ns
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
-        for v in self.records.changed():
+        todo, self._retry = set(self.records.changed()) | self._retry, set()
+        for v in sorted(todo):
             go, sequence, nodes = self.records.command(v)
-            if self._sent_go.get(v) != go and self._send(StopGo(v, go)):
-                self._sent_go[v] = go
+            if self._sent_go.get(v) != go:
+                if self._send(StopGo(v, go)):
+                    self._sent_go[v] = go
+                else:
+                    self._retry.add(v)
             if sequence != self._sent_sequence.get(
                 v, 0
             ):  # outputs start at 0: 0 is "no command yet"
@@ -170,6 +185,8 @@ class CanDriver:
                     self._sent_sequence[v] = sequence  # not sendable; wait for the next sequence
                 elif self._send(RouteCommand(v, sequence % 16, nodes)):
                     self._sent_sequence[v] = sequence
+                else:
+                    self._retry.add(v)
         if now_ns >= self._next_heartbeat:
             self._next_heartbeat = now_ns + self.heartbeat_ns
             self._alive = (self._alive + 1) % 256

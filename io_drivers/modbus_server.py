@@ -93,6 +93,7 @@ class _ModbusThread:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._last_rx_fc = 0
+        self._bad_coil_value = False
 
     # ---------------------------------------------------------------- callbacks
     def _read_bits(self, area: str, address: int, count: int) -> list[bool]:
@@ -149,6 +150,8 @@ class _ModbusThread:
         """
         try:
             if set_values is not None:  # FC5/FC15/FC6/FC16 write
+                if fc == 5 and self._bad_coil_value:
+                    return ExcCodes.ILLEGAL_VALUE
                 vals = list(set_values)
                 if fc in (5, 15):
                     return self._write("coil", address, [bool(v) for v in vals])
@@ -183,6 +186,11 @@ class _ModbusThread:
         if not sending:
             if len(data) >= 8:
                 self._last_rx_fc = data[7]  # MBAP(7 bytes) + function code
+            # FC5 allows only 0xFF00 (on) and 0x0000 (off); pymodbus takes any other value as
+            # "on": remember it so the action can refuse the write with exception 3.
+            self._bad_coil_value = (
+                len(data) >= 12 and data[7] == 5 and data[10:12] not in (b"\xff\x00", b"\x00\x00")
+            )
         elif len(data) == 9 and data[7] == 0x80 and 0 < self._last_rx_fc < 0x80:
             fc = self._last_rx_fc
             code = ExcCodes.ILLEGAL_VALUE if fc in SUPPORTED_FCS else ExcCodes.ILLEGAL_FUNCTION

@@ -60,6 +60,7 @@ class ModbusVehicleLink:
         self._last_seen: dict[int, int] = {}
         self._status: dict[int, Status] = {}
         self._now_ns = 0
+        self._first_ns: int | None = None
         self._sent_go: dict[int, bool] = {}
         self._sent_sequence: dict[int, int] = {}
         self._ready = threading.Event()
@@ -78,8 +79,8 @@ class ModbusVehicleLink:
         self._thread = None
 
     def stats(self) -> dict[str, object]:
-        stale = [v for v in self._status if self._is_stale(v)] if self._thread else []
-        return {**self.counters, "online": len(self._status) - len(stale), "stale": stale}
+        stale = [v for v in self.records.vehicles if self._is_stale(v)] if self._thread else []
+        return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
 
     # ----- the scan ---------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
@@ -90,23 +91,38 @@ class ModbusVehicleLink:
             self._status[v] = status
             self._last_seen[v] = now_ns
             self.records.write_status(status)
-        for v, status in self._status.items():
-            self.records.write_flags(v, self._is_stale(v), status.fault)
+        if self._first_ns is None:
+            self._first_ns = now_ns
+        for v in self.records.vehicles:
+            status = self._status.get(v)
+            if status is not None or self._is_stale(
+                v
+            ):  # a vehicle that never answered goes stale too
+                self.records.write_flags(v, self._is_stale(v), bool(status and status.fault))
 
     def _is_stale(self, v: int) -> bool:
-        return self._now_ns - self._last_seen.get(v, -(2**62)) > self.stale_after_ns
+        last = self._last_seen.get(
+            v, self._first_ns if self._first_ns is not None else self._now_ns
+        )
+        return self._now_ns - last > self.stale_after_ns
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         for v in self.records.changed():
             go, sequence, nodes = self.records.command(v)
             new_route = sequence != self._sent_sequence.get(v, 0) and nodes is not None
-            if new_route or self._sent_go.get(v) != go:
-                block = [*(nodes or ()), 0, 0, 0][:3] + [len(nodes or ()), int(go), sequence % 16]
-                if not new_route:
-                    block[3] = 0  # go only: count 0 leaves the released route alone
-                with self._lock:
-                    self._commands[v] = block
-                self._sent_go[v], self._sent_sequence[v] = go, sequence
+            if not new_route and self._sent_go.get(v) == go:
+                continue
+            with self._lock:
+                pending = self._commands.get(v)
+                if not new_route and pending is not None and pending[3] > 0:
+                    pending[4] = int(
+                        go
+                    )  # go changed while a route waits: keep the route, update go
+                else:
+                    nodes = nodes if new_route else ()
+                    # count 0 (go only) leaves the vehicle's released route alone
+                    self._commands[v] = [*nodes, 0, 0, 0][:3] + [len(nodes), int(go), sequence % 16]
+            self._sent_go[v], self._sent_sequence[v] = go, sequence
 
     # ----- the worker thread --------------------------------------------------------------
     async def _worker(self) -> None:
@@ -115,26 +131,29 @@ class ModbusVehicleLink:
         logging.getLogger("pymodbus.logging").setLevel(
             logging.CRITICAL
         )  # failures are counted instead
-        clients = {
-            v: AsyncModbusTcpClient(host, port=port, timeout=self.timeout, retries=0)
-            for v, (host, port) in self.addresses.items()
-        }
         self._ready.set()
+        # One polling loop per vehicle: a vehicle that does not answer delays only itself.
+        await asyncio.gather(
+            *(self._poll(v, host, port) for v, (host, port) in self.addresses.items())
+        )
+
+    async def _poll(self, v: int, host: str, port: int) -> None:
+        client = AsyncModbusTcpClient(host, port=port, timeout=self.timeout, retries=0)
         try:
             while not self._stop.is_set():
                 begin = time.monotonic()
                 self.counters["polls"] += 1
-                await asyncio.gather(*(self._exchange(v, c) for v, c in clients.items()))
+                await self._exchange(v, client)
                 delay = self.poll_period - (time.monotonic() - begin)
                 try:
                     await asyncio.wait_for(self._stop.wait(), timeout=max(delay, 0.0))
                 except TimeoutError:
                     pass
         finally:
-            for client in clients.values():
-                client.close()
+            client.close()
 
     async def _exchange(self, v: int, client: AsyncModbusTcpClient) -> None:
+        block, sent = None, False
         try:
             if not client.connected and not await client.connect():
                 self.counters["failures"] += 1
@@ -148,6 +167,7 @@ class ModbusVehicleLink:
                     with self._lock:
                         self._commands.setdefault(v, block)  # retry at the next poll
                 else:
+                    sent = True
                     self.counters["writes"] += 1
             reply = await client.read_input_registers(0, count=STATUS_REGISTERS, device_id=1)
             if reply.isError():
@@ -165,4 +185,7 @@ class ModbusVehicleLink:
                 self._fresh[v] = status
         except Exception:  # connection lost, timeout: counted; the next poll tries again
             self.counters["failures"] += 1
+            if block is not None and not sent:
+                with self._lock:
+                    self._commands.setdefault(v, block)  # not delivered: send it again next poll
             client.close()

@@ -156,3 +156,17 @@ def test_cli_serves_the_image_while_running(tmp_path):
     assert json.loads(out)["state"] == "RUN"
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", port), timeout=1).close()  # the server is gone
+
+
+def test_invalid_single_coil_value_is_refused(served):
+    import socket
+
+    rt, server, _client = served
+    request = bytes(
+        [0, 1, 0, 0, 0, 6, 1, 5, 0, 32, 0x12, 0x34]
+    )  # FC5 coil 32 := 0x1234 (only FF00/0000 allowed)
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as sock:
+        sock.sendall(request)
+        reply = sock.recv(64)
+    assert reply[7:9] == bytes([0x85, 3])  # exception 3: illegal data value
+    assert rt.image.pending_writes == 0

@@ -77,3 +77,26 @@ def test_runtime_drives_vehicles_over_their_modbus_servers():
     report = json.loads(out)
     assert report["vehicles"]["1"]["driven"] == [0, 6, 7, 8, 9, 24]
     assert report["vehicles"]["2"]["driven"] == [1, 15, 2]
+
+
+def test_go_change_does_not_overwrite_a_waiting_route():
+    from io_drivers.vehicle_records import GO_BIT
+    from plc_runtime import ProcessImage
+
+    image = ProcessImage()
+    link = ModbusVehicleLink({1: ("127.0.0.1", 1)}, poll_period=60.0, timeout=0.01)  # nobody there
+    link.open(image)
+    try:
+        base = record(1)
+        q = image.published_outputs.view("<u2")
+        q[base // 2], q[base // 2 + 1] = 6, 7
+        image.published_outputs.bytes[base + 6] = 2  # count 2, go 0
+        image.published_outputs.bytes[base + 7] = 1  # sequence 1: a new route
+        link.write_outputs(image, 0)
+        image.published_outputs.bytes[base + 6] = 2 | GO_BIT  # next scan: go
+        link.write_outputs(image, 10_000_000)
+        with link._lock:
+            block = list(link._commands[1])
+        assert block == [6, 7, 0, 2, 1, 1]  # the route is still there, now with go
+    finally:
+        link.close()

@@ -241,3 +241,71 @@ def test_battery_failure_is_a_reported_fault():
     agv = fleet.vehicles[1]
     assert agv.state == "FAULT" and agv.battery.percent == 0.0 and agv.speed == 0.0
     assert image[1][1] == ONLINE | FAULT
+
+
+def test_oncoming_vehicles_stop_instead_of_passing_through_each_other():
+    fleet = Fleet(model_plant(), {1: 6, 2: 7})
+    fleet.vehicles[1].command((7,))
+    fleet.vehicles[2].command((6,))
+    for _ in range(1000):
+        fleet.step(0.01)
+    a, b = fleet.vehicles[1], fleet.vehicles[2]
+    assert a.driven == [6] and b.driven == [7]  # nobody got through: a head-on standoff
+    assert a.speed == b.speed == 0.0 and a.blocked_ahead and b.blocked_ahead
+    assert a.progress + b.progress + a.params.length + b.params.length <= a.length + 1e-9
+
+
+def test_a_new_direction_during_a_turn_costs_its_own_turn_time():
+    agv = AGV(1, model_plant(), 0)
+    agv.command((6, 7))
+    while agv.node != 7:
+        agv.step(0.01)
+    agv.command((3,))  # at 7, heading east: north is a 90 degree turn
+    agv.step(0.01)
+    assert agv.turn_left == pytest.approx(1.0)  # the turn began in this step
+    agv.command((6,))  # changed before setting off: back west is a 180 degree turn
+    assert agv.turn_left == pytest.approx(2.0)
+
+
+def test_failed_sends_are_retried_next_tick():
+    channel = f"retry-{next(_channels)}"
+    listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    driver = CanDriver([3], interface="virtual", channel=channel)
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_driver(driver)
+    rt.add_task("program", [Dispatcher({})])
+    rt.start()
+    real_send, failures = driver.bus.send, [1]
+
+    def flaky(msg, timeout=None):
+        if failures:
+            failures.pop()
+            raise can.CanOperationError("transmit buffer full")
+        return real_send(msg, timeout)
+
+    driver.bus.send = flaky
+    base = record(3)
+    rt.image.write_many({f"%QB{base + 6}": GO_BIT})
+    rt.step(3)
+    codec = Codec()
+    got = []
+    while (msg := listener.recv(timeout=0)) is not None:
+        got.append(codec.decode(msg.arbitration_id, msg.data))
+    assert any(type(m).__name__ == "StopGo" and m.vehicle == 3 and m.go for m in got)
+    assert driver.counters["send_errors"] == 1
+    rt.stop()
+    listener.shutdown()
+
+
+def test_a_vehicle_that_never_reports_becomes_stale():
+    channel = f"silent-{next(_channels)}"
+    driver = CanDriver([1, 2], interface="virtual", channel=channel)
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt.add_driver(driver)
+    rt.add_task("program", [Dispatcher({})])
+    rt.start()
+    rt.step(10)
+    assert rt.image.read(f"%IB{record(2) + 7}") == 0 and driver.stats()["stale"] == []  # not yet
+    rt.step(60)
+    assert rt.image.read(f"%IB{record(2) + 7}") == STALE and driver.stats()["stale"] == [1, 2]
+    rt.stop()

@@ -89,6 +89,10 @@ class AGV:
             previous = node
         self.route = deque(rest)
         self.commanded = True
+        if self.target is None and self.turn_left > 0 and rest:
+            self.turn_left = self._turn_time(
+                self.node, rest[0]
+            )  # turning towards a new direction now
         return True
 
     @property

@@ -122,13 +122,17 @@ class Fleet:
                     and other.progress > agv.progress
                 )
                 at_target = other.target is None and other.node == agv.target
-                ahead = (
-                    other.progress - other.params.length
-                    if same_lane
-                    else agv.length
-                    if at_target
-                    else None
-                )
+                # an oncoming vehicle on the same segment: both stop and block each other (the
+                # head-on case the reservation must prevent; here at least no pass-through)
+                oncoming = other.node == agv.target and other.target == agv.node
+                if same_lane:
+                    ahead = other.progress - other.params.length
+                elif at_target:
+                    ahead = agv.length
+                elif oncoming:
+                    ahead = agv.length - other.progress - other.params.length
+                else:
+                    ahead = None
                 if ahead is not None and ahead < reach:
                     agv.blocked_ahead = True
                     break
