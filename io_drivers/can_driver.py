@@ -96,7 +96,12 @@ class CanDriver:
                 receive_own_messages=False,
                 **self.bus_kwargs,
             )
-        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
+        except (
+            can.CanError,
+            OSError,
+            ValueError,
+            ImportError,
+        ) as exc:  # CanError covers an unavailable interface
             raise ConfigError(
                 f"CAN interface {self.interface!r} channel {self.channel!r}: {exc}"
             ) from None
