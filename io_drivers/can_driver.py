@@ -84,11 +84,12 @@ class CanDriver:
             ),
             0,
         )
-        self.status: dict[int, Status] = {}
 
     # ----- lifecycle ------------------------------------------------------------------------
     def open(self, image: ProcessImage) -> None:
-        self.records = VehicleRecords(image, self.vehicles, self.input_base, self.output_base)
+        self.records = VehicleRecords(
+            image, self.vehicles, self.input_base, self.output_base, self.stale_after_ns
+        )
         try:
             self.bus = can.Bus(
                 interface=self.interface,
@@ -105,15 +106,11 @@ class CanDriver:
             raise ConfigError(
                 f"CAN interface {self.interface!r} channel {self.channel!r}: {exc}"
             ) from None
-        self._last_seen: dict[int, int] = {}
         self._sent_sequence: dict[int, int] = {}
         self._sent_go: dict[int, bool] = {}
         self._next_heartbeat = 0
-        self._now_ns = 0
-        self._first_ns: int | None = None
         self._retry: set[int] = set()  # vehicles whose last send failed: look again next tick
         self._alive = 0
-        self.status = {}
 
     def close(self) -> None:
         if self.bus is None:
@@ -123,12 +120,11 @@ class CanDriver:
         self.bus = None
 
     def stats(self) -> dict[str, object]:
-        stale = [v for v in self.records.vehicles if self._is_stale(v)] if self.bus else []
+        stale = self.records.stale() if self.bus else []
         return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
 
     # ----- the scan -------------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
-        self._now_ns = now_ns
         for _ in range(self.max_frames):
             msg = self.bus.recv(timeout=0)
             if msg is None:
@@ -136,14 +132,7 @@ class CanDriver:
             self._handle(msg, now_ns)
         else:
             self.counters["deferred"] += 1  # more frames waiting: read next tick
-        if self._first_ns is None:
-            self._first_ns = now_ns
-        for v in self.records.vehicles:
-            status = self.status.get(v)
-            if status is not None or self._is_stale(
-                v
-            ):  # a vehicle that never reported goes stale too
-                self.records.write_flags(v, self._is_stale(v), bool(status and status.fault))
+        self.records.refresh_flags(now_ns)
 
     def _handle(self, msg: can.Message, now_ns: int) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
@@ -163,15 +152,7 @@ class CanDriver:
         if decoded.vehicle not in self.records:
             self.counters["unknown_vehicle"] += 1
             return
-        self.status[decoded.vehicle] = decoded
-        self._last_seen[decoded.vehicle] = now_ns
-        self.records.write_status(decoded)
-
-    def _is_stale(self, v: int) -> bool:
-        last = self._last_seen.get(
-            v, self._first_ns if self._first_ns is not None else self._now_ns
-        )
-        return self._now_ns - last > self.stale_after_ns
+        self.records.received(decoded, now_ns)
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         todo, self._retry = set(self.records.changed()) | self._retry, set()

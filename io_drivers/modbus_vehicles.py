@@ -53,14 +53,12 @@ class ModbusVehicleLink:
 
     # ----- lifecycle (scan thread) ----------------------------------------------------
     def open(self, image: ProcessImage) -> None:
-        self.records = VehicleRecords(image, self.addresses, self.input_base, self.output_base)
+        self.records = VehicleRecords(
+            image, self.addresses, self.input_base, self.output_base, self.stale_after_ns
+        )
         self._lock = threading.Lock()
         self._fresh: dict[int, Status] = {}  # written by the worker, taken by read_inputs
         self._commands: dict[int, list[int]] = {}  # written by write_outputs, taken by the worker
-        self._last_seen: dict[int, int] = {}
-        self._status: dict[int, Status] = {}
-        self._now_ns = 0
-        self._first_ns: int | None = None
         self._sent_go: dict[int, bool] = {}
         self._sent_sequence: dict[int, int] = {}
         self._ready = threading.Event()
@@ -79,32 +77,16 @@ class ModbusVehicleLink:
         self._thread = None
 
     def stats(self) -> dict[str, object]:
-        stale = [v for v in self.records.vehicles if self._is_stale(v)] if self._thread else []
+        stale = self.records.stale() if self._thread else []
         return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
 
     # ----- the scan ---------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
-        self._now_ns = now_ns
         with self._lock:
             fresh, self._fresh = self._fresh, {}
-        for v, status in fresh.items():
-            self._status[v] = status
-            self._last_seen[v] = now_ns
-            self.records.write_status(status)
-        if self._first_ns is None:
-            self._first_ns = now_ns
-        for v in self.records.vehicles:
-            status = self._status.get(v)
-            if status is not None or self._is_stale(
-                v
-            ):  # a vehicle that never answered goes stale too
-                self.records.write_flags(v, self._is_stale(v), bool(status and status.fault))
-
-    def _is_stale(self, v: int) -> bool:
-        last = self._last_seen.get(
-            v, self._first_ns if self._first_ns is not None else self._now_ns
-        )
-        return self._now_ns - last > self.stale_after_ns
+        for status in fresh.values():
+            self.records.received(status, now_ns)
+        self.records.refresh_flags(now_ns)
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         for v in self.records.changed():

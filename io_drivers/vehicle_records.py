@@ -25,7 +25,12 @@ GO_BIT, COUNT_MASK = 0x80, 0x03
 
 class VehicleRecords:
     def __init__(
-        self, image: ProcessImage, vehicles: Iterable[int], input_base: int, output_base: int
+        self,
+        image: ProcessImage,
+        vehicles: Iterable[int],
+        input_base: int,
+        output_base: int,
+        stale_after_ns: int,
     ) -> None:
         self.vehicles = sorted(set(vehicles))
         if not self.vehicles or not all(1 <= v <= MAX_VEHICLE_ID for v in self.vehicles):
@@ -49,6 +54,11 @@ class VehicleRecords:
             self._block.shape, -1, dtype=np.int16
         )  # differs from every byte: first tick sees all
         self._flags: dict[int, int] = {}
+        self.stale_after_ns = stale_after_ns
+        self.status: dict[int, Status] = {}  # the last status of each vehicle that reported
+        self._last_seen: dict[int, int] = {}
+        self._first_ns: int | None = None
+        self._now_ns = 0
 
     @staticmethod
     def _input_writers(image: ProcessImage, base: int) -> dict:
@@ -72,6 +82,35 @@ class VehicleRecords:
     def __contains__(self, vehicle: int) -> bool:
         return vehicle in self._in
 
+    # ----- liveness -------------------------------------------------------------------------
+    def received(self, status: Status, now_ns: int) -> None:
+        """A fresh status arrived (in the tick at ``now_ns``): write it into the record."""
+        self.status[status.vehicle] = status
+        self._last_seen[status.vehicle] = now_ns
+        self.write_status(status)
+
+    def refresh_flags(self, now_ns: int) -> None:
+        """Once per tick, after the statuses: online/stale/fault flags of every vehicle. A vehicle
+        that never reported goes stale ``stale_after`` after the first tick."""
+        self._now_ns = now_ns
+        if self._first_ns is None:
+            self._first_ns = now_ns
+        for v in self.vehicles:
+            status = self.status.get(v)
+            stale = self.is_stale(v)
+            if status is not None or stale:
+                self.write_flags(v, stale, bool(status and status.fault))
+
+    def is_stale(self, vehicle: int) -> bool:
+        last = self._last_seen.get(
+            vehicle, self._first_ns if self._first_ns is not None else self._now_ns
+        )
+        return self._now_ns - last > self.stale_after_ns
+
+    def stale(self) -> list[int]:
+        return [v for v in self.vehicles if self.is_stale(v)]
+
+    # ----- the records ------------------------------------------------------------------------
     def write_status(self, status: Status) -> None:
         w = self._in[status.vehicle]
         w["current"](min(status.current_node, NO_NODE))
