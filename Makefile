@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/plc-runtime run --duration 600
+	$(BIN)/plc-runtime run --duration 600 --out out
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -22,13 +22,16 @@ class RoutingConstraints:
         self.plant = plant
         self.blocked = np.zeros(plant.n_arcs, dtype=bool)
         self.penalty = np.zeros(plant.n_arcs, dtype=np.float64)
+        self.epoch = 0  # counts blockade changes: routes planned before a change are stale
 
     def block(self, a: int, b: int, both_ways: bool = True) -> None:
         """Close the segment a -> b (and b -> a); TopologyError if there is no such segment."""
         self.blocked[self.plant.arcs_between(a, b, both_ways)] = True
+        self.epoch += 1
 
     def unblock(self, a: int, b: int, both_ways: bool = True) -> None:
         self.blocked[self.plant.arcs_between(a, b, both_ways)] = False
+        self.epoch += 1
 
     def penalize(self, a: int, b: int, extra: float, both_ways: bool = False) -> None:
         """Set the extra cost of a -> b (default one direction: the one an oncoming vehicle uses)."""
@@ -41,6 +44,7 @@ class RoutingConstraints:
     def clear(self) -> None:
         self.blocked[:] = False
         self.penalty[:] = 0.0
+        self.epoch += 1
 
     def blocked_segments(self) -> list[tuple[int, int]]:
         src, dst, _ = self.plant.arcs

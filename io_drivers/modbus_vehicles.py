@@ -29,7 +29,7 @@ from plc_runtime import ConfigError, ProcessImage
 from .protocol import STATES, Status
 from .vehicle_records import VehicleRecords
 
-STATUS_REGISTERS, COMMAND_REGISTERS = 7, 6
+STATUS_REGISTERS, COMMAND_REGISTERS = 8, 6
 
 
 class ModbusVehicleLink:
@@ -155,12 +155,20 @@ class ModbusVehicleLink:
             if reply.isError():
                 self.counters["failures"] += 1
                 return
-            current, nxt, state, battery, speed, alive, fault = reply.registers
+            current, nxt, state, battery, speed, alive, fault, clear = reply.registers
             if state >= len(STATES) or battery > 100:
                 self.counters["bad_status"] += 1
                 return
             status = Status(
-                v, current, nxt, STATES[state], battery, speed / 100, alive, bool(fault)
+                v,
+                current,
+                nxt,
+                STATES[state],
+                battery,
+                speed / 100,
+                alive,
+                bool(fault),
+                bool(clear),
             )
             self.counters["reads"] += 1
             with self._lock:

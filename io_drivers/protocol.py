@@ -56,6 +56,7 @@ class Status:
     speed: float  # m/s
     alive: int  # 0..15, increments with every status frame
     fault: bool = False
+    clear: bool = False  # left the current node's crossing zone (driving on beyond it)
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,6 +94,7 @@ class Codec:
                 {
                     "vehicle_id": message.vehicle,
                     "fault_code": int(message.fault),
+                    "clear": int(message.clear),
                     "current_node": message.current_node,
                     "next_node": message.next_node,
                     "state": STATE_CODE[message.state],
@@ -155,6 +157,7 @@ class Codec:
                 float(s["speed"]),
                 int(s["alive"]),
                 bool(s["fault_code"]),
+                bool(s["clear"]),
             )
         if base == ROUTE:
             count = int(s["count"])

@@ -2,7 +2,7 @@
 link (CAN, Modbus): one layout, whatever bus carries it.
 
 Inputs at ``input_base + 8 * v``: WORD current node, WORD next node, BYTE state, BYTE
-battery %, BYTE speed cm/s, BYTE flags (online, stale, fault). Outputs at
+battery %, BYTE speed cm/s, BYTE flags (online, stale, fault, clear of the current node). Outputs at
 ``output_base + 8 * v``: WORD next nodes 1..3, BYTE count (bits 0-1) | go (bit 7), BYTE
 sequence. Input writes happen in the scan thread at the quiet point; outputs are read
 after copy-out, and only records that changed since the last tick are looked at.
@@ -19,7 +19,7 @@ from plc_runtime import ConfigError, ProcessImage
 from .protocol import MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Status
 
 RECORD = 8
-ONLINE, STALE, FAULT = 0x01, 0x02, 0x04
+ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
 GO_BIT, COUNT_MASK = 0x80, 0x03
 
 
@@ -99,7 +99,9 @@ class VehicleRecords:
             status = self.status.get(v)
             stale = self.is_stale(v)
             if status is not None or stale:
-                self.write_flags(v, stale, bool(status and status.fault))
+                self.write_flags(
+                    v, stale, bool(status and status.fault), bool(status and status.clear)
+                )
 
     def is_stale(self, vehicle: int) -> bool:
         last = self._last_seen.get(
@@ -119,8 +121,8 @@ class VehicleRecords:
         w["battery"](status.battery)
         w["speed"](min(255, round(status.speed * 100)))
 
-    def write_flags(self, vehicle: int, stale: bool, fault: bool) -> None:
-        flags = (STALE if stale else ONLINE) | (FAULT if fault else 0)
+    def write_flags(self, vehicle: int, stale: bool, fault: bool, clear: bool = False) -> None:
+        flags = (STALE if stale else ONLINE) | (FAULT if fault else 0) | (CLEAR if clear else 0)
         if self._flags.get(vehicle) != flags:
             self._flags[vehicle] = flags
             self._in[vehicle]["flags"](flags)

@@ -67,9 +67,17 @@ def build_parser() -> argparse.ArgumentParser:
         prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets."
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="run a program headless")
+    run = sub.add_parser("run", help="run a program headless (default: the fleet program)")
     run.add_argument(
-        "--program", default="demo", choices=sorted(PROGRAMS), help="program to run (default: demo)"
+        "config",
+        nargs="?",
+        help="fleet configuration (TOML, docs/fleet-config.md); default: the embedded model-plant fleet",
+    )
+    run.add_argument(
+        "--program",
+        default="fleet",
+        choices=["fleet", *sorted(PROGRAMS)],
+        help="program to run (default: fleet)",
     )
     length = run.add_mutually_exclusive_group()
     length.add_argument("--cycles", type=_positive(int), help="number of base cycles to run")
@@ -84,14 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--cycle-time",
         type=_positive(float),
-        default=0.010,
-        help="base cycle time in seconds (default 0.010)",
+        help="base cycle time in seconds (default: the fleet configuration's; demo 0.010)",
     )
     run.add_argument(
         "--watchdog",
         type=_positive(float),
-        default=150.0,
-        help="maximum cycle time in ms (default 150)",
+        help="maximum cycle time in ms (default: the fleet configuration's; demo 150)",
     )
     run.add_argument(
         "--spin",
@@ -110,6 +116,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--modbus",
         metavar="HOST:PORT",
         help="serve the process image over Modbus TCP (e.g. 127.0.0.1:5020)",
+    )
+    run.add_argument(
+        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
+    )
+    run.add_argument(
+        "--bus",
+        metavar="INTERFACE:CHANNEL",
+        help="fleet: the vehicles' CAN bus (e.g. socketcan:vcan0); default: the configuration's",
     )
     cli_topology.add_parsers(sub, _positive)
     cli_vehicles.add_parsers(sub, _positive)
@@ -144,6 +158,16 @@ def _one_line_warning(message: Warning | str, category: type, *args: Any, **kwar
 def _run(args: argparse.Namespace) -> int:
     if not args.realtime and (args.rt or args.spin):
         raise CliError("--rt and --spin only apply with --realtime")
+    if args.program == "fleet":
+        from . import cli_fleet
+
+        return cli_fleet.run(args, _drive, _task_table, _modbus_server)
+    if args.config:
+        raise CliError(f"a configuration file is for the fleet program, not {args.program!r}")
+    if args.cycle_time is None:
+        args.cycle_time = 0.010
+    if args.watchdog is None:
+        args.watchdog = 150.0
     if args.realtime:
         clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
     else:
@@ -204,7 +228,13 @@ def _interrupt(rt: Runtime) -> None:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> None:
+def _drive(
+    rt: Runtime,
+    total: int | None,
+    live: bool,
+    announce: str | None,
+    render: Any = None,
+) -> None:
     """Run in chunks of about a tenth of a second so the screen and Ctrl-C stay responsive.
 
     ``announce`` goes to stderr once the first chunk has run, so a supervising process
@@ -214,7 +244,8 @@ def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> 
     # No auto-refresh: rich would redraw from a background thread, and a second Python
     # thread in the scan's process costs milliseconds of lateness (GIL hand-over). The
     # screen is redrawn here, between chunks, in the idle time before the next release.
-    display = Live(_status_table(rt, total), auto_refresh=False, transient=True) if live else None
+    render = render or (lambda: _status_table(rt, total))
+    display = Live(render(), auto_refresh=False, transient=True) if live else None
     drawn = time.monotonic()
     if display:
         display.start()
@@ -227,7 +258,7 @@ def _drive(rt: Runtime, total: int | None, live: bool, announce: str | None) -> 
                 print(announce, file=sys.stderr, flush=True)
                 announce = None
             if display and time.monotonic() - drawn >= REDRAW_INTERVAL:
-                display.update(_status_table(rt, total), refresh=True)
+                display.update(render(), refresh=True)
                 drawn = time.monotonic()
             if ran < n:
                 break
@@ -277,6 +308,10 @@ def _stats_table(title: str, rows: dict[str, dict[str, Any]], columns: list[str]
     for name, d in rows.items():
         table.add_row(name, *(_COLUMNS[header](d) for header in columns))
     return table
+
+
+def _task_table(title: str, rows: dict[str, dict[str, Any]], live: bool) -> Table:
+    return _stats_table(title, rows, _LIVE_COLUMNS if live else _SUMMARY_COLUMNS)
 
 
 def _status_table(rt: Runtime, total: int | None) -> Table:

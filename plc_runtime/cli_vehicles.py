@@ -15,8 +15,19 @@ from .programs.route import load_plant
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
     p = sub.add_parser("vehicles", help="run simulated AGVs in this process, talking over a bus")
-    p.add_argument("--plant", required=True, help="plant file or sample name")
-    p.add_argument("--count", type=positive(int), default=4, help="number of vehicles (ids 1..N)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--plant", help="plant file or sample name")
+    source.add_argument(
+        "--config", help="fleet configuration: its plant, vehicles and start nodes, status period"
+    )
+    p.add_argument(
+        "--count", type=positive(int), default=4, help="with --plant: number of vehicles (ids 1..N)"
+    )
+    p.add_argument(
+        "--monitor-out",
+        metavar="FILE",
+        help="count head-on and node conflicts from the true positions; write them here (JSON) at exit",
+    )
     link = p.add_mutually_exclusive_group()
     link.add_argument(
         "--bus",
@@ -45,18 +56,33 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
 
 
 def vehicles_command(args: argparse.Namespace) -> int:
+    from vehicles.monitor import ConflictMonitor
     from vehicles.runner import default_starts, parse_bus, run_fleet
 
-    plant = load_plant(args.plant)
+    status_period = 0.1
+    if args.config:
+        from .programs.fleet_config import load_config
+
+        cfg = load_config(args.config)
+        plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s
+    else:
+        plant = load_plant(args.plant)
     try:
         interface, channel = (None, None) if args.modbus_base_port else parse_bus(args.bus)
-        starts = default_starts(plant, args.count)
+        if not args.config:
+            starts = default_starts(plant, args.count)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+    monitors: list[ConflictMonitor] = []
+
+    def watch(fleet: Any) -> None:
+        if not monitors:
+            monitors.append(ConflictMonitor(fleet))
+        monitors[0].check()
 
     def ready(link: str) -> None:
         print(
-            f"plc-runtime: {args.count} vehicles ready, {link}, starts {starts}",
+            f"plc-runtime: {len(starts)} vehicles ready, {link}, starts {starts}",
             file=sys.stderr,
             flush=True,
         )
@@ -72,9 +98,20 @@ def vehicles_command(args: argparse.Namespace) -> int:
             args.seed,
             modbus_base_port=args.modbus_base_port,
             on_ready=ready,
+            on_step=watch if args.monitor_out else None,
+            status_period=status_period,
         )
     except (OSError, ValueError, ImportError, RuntimeError, TimeoutError) as exc:
         raise ConfigError(f"vehicle link: {exc}") from None
+    if args.monitor_out and monitors:
+        m = monitors[0]
+        report = {
+            "head_on_conflicts": m.head_on,
+            "node_conflicts": m.node,
+            "events": [e.__dict__ for e in m.events[:100]],
+        }
+        with open(args.monitor_out, "w", encoding="utf-8") as f:
+            json.dump(report, f)
     final = {
         v: {
             "node": a.node,

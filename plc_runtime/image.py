@@ -342,6 +342,24 @@ class ProgramImage:
 
         return write_checked
 
+    def record_view(self, area: str, start: int, length: int) -> np.ndarray:
+        """The raw bytes ``start .. start + length`` of an area, as a numpy view.
+
+        For blocks that handle many same-shaped records at once (one per vehicle): they
+        reinterpret the bytes with a structured dtype instead of resolving an address per
+        field. The view follows the program's image, so inputs are the cycle's snapshot and
+        read-only; writes to outputs bypass tag range checks, as a raw byte area should."""
+        mem = self._image.memory_for_program(area)
+        if start < 0 or length < 0 or start + length > mem.bytes.size:
+            raise AddressError(
+                f"area {area}: bytes {start}..{start + length} outside its {mem.bytes.size} bytes"
+            )
+        view = mem.bytes[start : start + length]
+        if area == "I":
+            view = view.view()
+            view.flags.writeable = False
+        return view
+
     @property
     def tags(self) -> TagTable:
         return self._image.tags

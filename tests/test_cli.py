@@ -13,7 +13,7 @@ SCRIPT = Path(sys.executable).parent / "plc-runtime"
 
 
 def test_run_json_summary(capsys):
-    assert main(["run", "--cycles", "300", "--json"]) == 0
+    assert main(["run", "--program", "demo", "--cycles", "300", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["cycles"] == 300 and summary["state"] == "RUN"
     assert summary["sim_time_s"] == pytest.approx(3.0)
@@ -26,10 +26,16 @@ def test_run_json_summary(capsys):
 
 def test_duration_and_retain_file(tmp_path, capsys):
     retain = tmp_path / "demo.retain"
-    assert main(["run", "--duration", "2.5", "--json", "--retain", str(retain)]) == 0
+    assert (
+        main(["run", "--program", "demo", "--duration", "2.5", "--json", "--retain", str(retain)])
+        == 0
+    )
     first = json.loads(capsys.readouterr().out)
     assert first["cycles"] == 250
-    assert main(["run", "--duration", "2", "--json", "--retain", str(retain)]) == 0
+    assert (
+        main(["run", "--program", "demo", "--duration", "2", "--json", "--retain", str(retain)])
+        == 0
+    )
     second = json.loads(capsys.readouterr().out)
     assert (
         second["tags"]["flash_count"] == first["tags"]["flash_count"] + 2
@@ -37,24 +43,37 @@ def test_duration_and_retain_file(tmp_path, capsys):
 
 
 def test_fault_gives_exit_code_1(capsys):
-    assert main(["run", "--cycles", "10", "--json", "--watchdog", "0.001"]) == 1
+    assert (
+        main(["run", "--program", "demo", "--cycles", "10", "--json", "--watchdog", "0.001"]) == 1
+    )
     summary = json.loads(capsys.readouterr().out)
     assert summary["state"] == "FAULT" and "watchdog" in summary["fault_reason"]
 
 
 def test_usage_errors_are_one_line(capsys):
-    assert main(["run", "--rt"]) == 2
+    assert main(["run", "--program", "demo", "--rt"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["plc-runtime: error: --rt and --spin only apply with --realtime"]
     with pytest.raises(SystemExit) as exc:
-        main(["run", "--cycles", "-3"])
+        main(["run", "--program", "demo", "--cycles", "-3"])
     assert exc.value.code == 2
     assert "must be a finite number > 0" in capsys.readouterr().err
 
 
 def test_console_script_realtime():
     out = subprocess.run(
-        [str(SCRIPT), "run", "--cycles", "20", "--cycle-time", "0.005", "--realtime", "--json"],
+        [
+            str(SCRIPT),
+            "run",
+            "--program",
+            "demo",
+            "--cycles",
+            "20",
+            "--cycle-time",
+            "0.005",
+            "--realtime",
+            "--json",
+        ],
         capture_output=True,
         text=True,
         timeout=60,
@@ -68,7 +87,10 @@ def test_console_script_realtime():
 
 def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
     proc = subprocess.Popen(
-        [str(SCRIPT), "run", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [str(SCRIPT), "run", "--program", "demo", "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         assert "until Ctrl-C" in proc.stderr.readline()  # it is running now
@@ -85,7 +107,9 @@ def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
 def test_retain_problems_are_one_line_warnings(tmp_path, capsys):
     retain = tmp_path / "demo.retain"
     retain.write_text("not a retain file\n")
-    assert main(["run", "--cycles", "5", "--json", "--retain", str(retain)]) == 0
+    assert (
+        main(["run", "--program", "demo", "--cycles", "5", "--json", "--retain", str(retain)]) == 0
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(
         "plc-runtime: warning: retain data not used, cold start:"
@@ -93,7 +117,7 @@ def test_retain_problems_are_one_line_warnings(tmp_path, capsys):
 
 
 def test_demo_flashes_at_exactly_one_hertz(capsys):
-    assert main(["run", "--duration", "100", "--json"]) == 0
+    assert main(["run", "--program", "demo", "--duration", "100", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["tags"]["flash_count"] == 100
 
 
@@ -108,12 +132,12 @@ def test_demo_flashes_at_exactly_one_hertz(capsys):
 )
 def test_non_finite_numbers_are_usage_errors(args, capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["run", *args])
+        main(["run", "--program", "demo", *args])
     assert exc.value.code == 2
     assert "Traceback" not in capsys.readouterr().err
 
 
 def test_bad_cycle_time_is_one_line(capsys):
-    assert main(["run", "--cycle-time", "1e-320", "--cycles", "1"]) == 2
+    assert main(["run", "--program", "demo", "--cycle-time", "1e-320", "--cycles", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cycle_time must be a number of seconds" in err[0]

@@ -133,7 +133,16 @@ def test_cli_serves_the_image_while_running(tmp_path):
         port = probe.getsockname()[1]
     script = Path(sys.executable).parent / "plc-runtime"
     proc = subprocess.Popen(
-        [str(script), "run", "--realtime", "--modbus", f"127.0.0.1:{port}", "--json"],
+        [
+            str(script),
+            "run",
+            "--program",
+            "demo",
+            "--realtime",
+            "--modbus",
+            f"127.0.0.1:{port}",
+            "--json",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

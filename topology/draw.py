@@ -7,7 +7,7 @@ nodes) are drawn without labels so the picture stays readable.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -35,8 +35,13 @@ def draw(
     routes: Sequence[Sequence[int]] = (),
     title: str | None = None,
     blocked: Sequence[tuple[int, int]] = (),
+    vehicles: Mapping[str, tuple[Sequence[int], Sequence[int]]] | None = None,
 ) -> Path:
-    """Write a PNG of the plant; ``routes`` (node-id lists) on top, ``blocked`` segments in red."""
+    """Write a PNG of the plant; ``routes`` (node-id lists) on top, ``blocked`` segments in red.
+
+    ``vehicles``: label -> (driven, planned) node lists, one colour per vehicle: the driven
+    route solid (every vehicle slightly offset, so shared lanes stay readable), the route
+    still planned dashed, ending in an arrow."""
     out = Path(out)
     if out.suffix.lower() != ".png":
         raise TopologyError("the drawing is a PNG: give a file name ending in .png", str(out))
@@ -93,6 +98,28 @@ def draw(
             zorder=2,
             label=f"route {k + 1}",
         )
+    for k, (label, (driven, planned)) in enumerate((vehicles or {}).items()):
+        colour = colours[k % len(colours)]
+        shift = (k - (len(vehicles) - 1) / 2) * 0.025 * max(1.0, span / 10)
+        for n, run in enumerate(_routable_runs(plant, driven)):
+            xs, ys = zip(*(pos[i] for i in run), strict=True)
+            ax.plot(
+                [x + shift for x in xs],
+                [y + shift for y in ys],
+                "-",
+                color=colour,
+                lw=2,
+                alpha=0.45,
+                zorder=2,
+                label=f"{label} driven" if n == 0 else None,
+            )
+        if len(planned) > 1:
+            xs, ys = zip(*(pos[i] for i in planned), strict=True)
+            ax.plot(xs, ys, "--", color=colour, lw=2.5, zorder=2, label=f"{label} planned")
+            _arrow(ax, (xs[-2], ys[-2]), (xs[-1], ys[-1]), colour)
+        if driven:
+            x, y = pos[driven[-1]]
+            ax.plot([x], [y], "s", color=colour, ms=9, mec="black", zorder=5)
     ax.set_title(title or f"{plant.name}: {plant.n} nodes, {len(plant.edges)} edges")
     ax.set_aspect("equal")
     ax.margins(0.05 * span / max(span, 1.0))
@@ -102,6 +129,19 @@ def draw(
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def _routable_runs(plant: Plant, path: Sequence[int]) -> list[list[int]]:
+    """Split a driven path where it used a non-routable lane (drawn curved already)."""
+    runs: list[list[int]] = []
+    for a, b in zip(path, path[1:], strict=False):
+        if (a, b) not in plant.arc_index:
+            continue
+        if runs and runs[-1][-1] == a:
+            runs[-1].append(b)
+        else:
+            runs.append([a, b])
+    return runs
 
 
 def _arrow(

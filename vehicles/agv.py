@@ -96,6 +96,12 @@ class AGV:
         return True
 
     @property
+    def clear(self) -> bool:
+        """Its rear has left the crossing zone of ``node`` (one vehicle length around the
+        node centre): another vehicle may enter the node behind it."""
+        return self.target is not None and self.progress - self.params.length >= self.params.length
+
+    @property
     def next_node(self) -> int | None:
         """The verified node it will reach next (the target, or the first released node)."""
         if self.target is not None:

@@ -10,12 +10,16 @@ from __future__ import annotations
 from plc_runtime import CycleContext, FunctionBlock
 
 from .fleet import Fleet
+from .monitor import ConflictMonitor
 
 
 class CoSimulation(FunctionBlock):
-    def __init__(self, fleet: Fleet) -> None:
+    def __init__(self, fleet: Fleet, monitor: ConflictMonitor | None = None) -> None:
         super().__init__()
         self.fleet = fleet
+        self.monitor = monitor
 
     def cycle(self, ctx: CycleContext) -> None:
         self.fleet.step(ctx.dt)
+        if self.monitor is not None:
+            self.monitor.check()

@@ -86,13 +86,15 @@ class Fleet:
         self._receive()
         self._apply_faults()
         self._front_sensors()
+        clear_before = {v: agv.clear for v, agv in self.vehicles.items()}
         reached = [v for v, agv in self.vehicles.items() if agv.step(dt)]
         self.time += dt
-        for vehicle in self.vehicles:
+        for vehicle, agv in self.vehicles.items():
             periodic = self.time + 1e-12 >= self._next_status[vehicle]
             if periodic:
                 self._next_status[vehicle] += self.status_period
-            if periodic or vehicle in reached:
+            # events are reported at once: a tag read, and leaving a node's crossing zone
+            if periodic or vehicle in reached or agv.clear != clear_before[vehicle]:
                 self._send_status(vehicle)
 
     def _apply_faults(self) -> None:
@@ -105,6 +107,9 @@ class Fleet:
 
     def _front_sensors(self) -> None:
         """A vehicle sees another on the same lane ahead of it, or standing on its target node."""
+        at_node: dict[int, list[AGV]] = {}
+        for agv in self.vehicles.values():
+            at_node.setdefault(agv.node, []).append(agv)
         for agv in self.vehicles.values():
             agv.blocked_ahead = False
             if agv.target is None:
@@ -113,7 +118,7 @@ class Fleet:
             # space it wants ahead grows with the braking distance
             p = agv.params
             reach = agv.progress + p.length + p.sensor_range + agv.speed**2 / (2 * p.decel)
-            for other in self.vehicles.values():
+            for other in at_node.get(agv.node, []) + at_node.get(agv.target, []):
                 if other is agv:
                     continue
                 same_lane = (
@@ -132,8 +137,8 @@ class Fleet:
                 elif oncoming:
                     ahead = agv.length - other.progress - other.params.length
                 else:
-                    ahead = None
-                if ahead is not None and ahead < reach:
+                    continue
+                if ahead < reach:
                     agv.blocked_ahead = True
                     break
 
@@ -150,6 +155,7 @@ class Fleet:
             agv.speed,
             self._alive[vehicle],
             agv.state == "FAULT",
+            agv.clear,
         )
 
     def _send_status(self, vehicle: int) -> None:

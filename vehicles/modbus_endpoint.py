@@ -4,6 +4,7 @@ Register map of one vehicle (all other addresses answer 0; writes elsewhere are 
 
     input registers   0 current node   1 next node (65535: none)   2 state code
                       3 battery %      4 speed cm/s                5 alive counter   6 fault
+                      7 clear of the current node (1/0)
     holding registers 0..2 next nodes  3 count (1..3)  4 go (0/1)  5 sequence (new value: new route)
 
 The controller writes the command block with one FC16 request, so a route never arrives
@@ -21,7 +22,7 @@ from io_drivers.protocol import STATE_CODE, RouteCommand, StopGo
 
 from .fleet import Fleet
 
-STATUS_REGISTERS = 7
+STATUS_REGISTERS = 8
 COMMAND_REGISTERS = 6
 
 
@@ -80,6 +81,7 @@ class VehicleModbusEndpoints:
                     min(255, round(s.speed * 100)),
                     s.alive,
                     int(s.fault),
+                    int(s.clear),
                 ]
 
     def _reader(self, v: int):

@@ -50,6 +50,8 @@ def run_fleet(
     faults: Mapping[int, Faults] | None = None,
     modbus_base_port: int | None = None,
     on_ready: Callable[[str], None] | None = None,
+    on_step: Callable[[Fleet], None] | None = None,
+    status_period: float = 0.1,
 ) -> Fleet:
     """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal.
 
@@ -68,7 +70,7 @@ def run_fleet(
         if modbus_base_port
         else can.Bus(interface=interface, channel=channel, receive_own_messages=False)
     )
-    fleet = Fleet(plant, starts, bus, faults=faults, seed=seed)
+    fleet = Fleet(plant, starts, bus, faults=faults, seed=seed, status_period=status_period)
     endpoints = (
         VehicleModbusEndpoints(fleet, base_port=modbus_base_port) if modbus_base_port else None
     )
@@ -89,6 +91,8 @@ def run_fleet(
             if endpoints:
                 endpoints.apply()
             fleet.step(period)
+            if on_step:
+                on_step(fleet)
             if endpoints:
                 endpoints.publish()
         return fleet

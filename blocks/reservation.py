@@ -1,0 +1,145 @@
+"""ReservationMatrix: which vehicle holds which node, and so which segments are occupied.
+
+The thesis (5.3) keeps an occupancy matrix of segments for t0 and t_next, built from the
+positions every vehicle broadcasts, and replans when the next segment is taken by an
+oncoming vehicle. Reports give no position inside a segment, so this block reserves
+nodes: a vehicle holds the node it last reported (t0) and every node released to it and not
+yet passed (t_next, up to the release horizon). A node has at most one holder, and a
+vehicle is only ever between nodes it holds, so:
+
+* two vehicles never occupy one node at once (the holder is the only one there), and
+* two vehicles never drive one segment head-on (each would hold both of its ends).
+
+A vehicle follows another closely: it may enter a node as soon as the one ahead reports it
+has left that node's crossing zone (the ``clear`` bit of its status), while that one still
+drives the segment beyond, holding the node at its end. The segment matrix (``segments``: who is on which segment, in
+which direction) and the per-arc penalties for the A* block are derived from the holds.
+Holds follow the reports: a report of a node passes every held node before it, and a
+vehicle found on a node it does not hold (a start position, a vehicle that moved without
+a command) takes it and the event is counted, never hidden.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from plc_runtime import CycleContext, FunctionBlock, Output
+from topology import Plant
+
+FREE = -1
+
+
+class ReservationMatrix(FunctionBlock):
+    occupied_nodes = Output(0, doc="nodes held by a vehicle")
+    forced_takeovers = Output(0, doc="vehicles found on a node held by another (should stay 0)")
+
+    def __init__(
+        self,
+        plant: Plant,
+        vehicles: Iterable[int],
+        occupied_penalty: float = 0.0,
+        oncoming_penalty: float | None = None,
+    ) -> None:
+        super().__init__()
+        self.plant = plant
+        self.vehicles = sorted(vehicles)
+        self.holder = np.full(plant.n, FREE, dtype=np.int64)
+        self.holds: dict[int, list[int]] = {v: [] for v in self.vehicles}  # node indices, in order
+        self.wants: dict[int, int | None] = dict.fromkeys(self.vehicles)  # node index waited for
+        self.intent: dict[int, int | None] = dict.fromkeys(self.vehicles)  # next planned node
+        self.cleared: dict[int, int | None] = dict.fromkeys(self.vehicles)  # reported, not held
+        src, dst, length = plant.arcs
+        longest = float(length.max()) if len(length) else 1.0
+        # An oncoming vehicle on the next segment is the thesis' "very high extra weight":
+        # any detour is preferred. Nodes merely occupied now cost nothing extra by default:
+        # by the time a vehicle gets there they have usually moved on (and queueing behind
+        # is the thesis' level 1); a penalty makes routes avoid crowded areas instead.
+        self.occupied_penalty = occupied_penalty
+        self.oncoming_penalty = (
+            oncoming_penalty if oncoming_penalty is not None else 1000 * longest * plant.n
+        )
+        order = np.argsort(dst, kind="stable")
+        self._in_arcs_order = order
+        self._in_arcs_start = np.searchsorted(dst[order], np.arange(plant.n + 1))
+
+    def cycle(self, ctx: CycleContext) -> None:
+        self.occupied_nodes = int((self.holder != FREE).sum())
+
+    # ----- holds --------------------------------------------------------------------------
+    def report(self, vehicle: int, node: int, clear: bool = False) -> None:
+        """The vehicle reported node index ``node`` as its current node (the last one it
+        reached); ``clear``: it has left that node's crossing zone, so the node is free for
+        the next vehicle although it is still the one reported."""
+        held = self.holds[vehicle]
+        if node in held:
+            k = held.index(node) + (1 if clear and len(held) > held.index(node) + 1 else 0)
+            for passed in held[:k]:
+                self.holder[passed] = FREE
+            del held[:k]
+            self.cleared[vehicle] = node if k and held[0] != node else None
+            return
+        if self.cleared[vehicle] == node:
+            return  # left behind already; the holds start at the node it drives to
+        # not a node it holds: physical truth wins (a start position or an unexpected move)
+        self.cleared[vehicle] = None
+        other = int(self.holder[node])
+        if other != FREE and other != vehicle:
+            self.forced_takeovers += 1
+            self.holds[other].remove(node)
+        for n in held:
+            self.holder[n] = FREE
+        held[:] = [node]
+        self.holder[node] = vehicle
+
+    def holder_of(self, node: int) -> int | None:
+        h = int(self.holder[node])
+        return None if h == FREE else h
+
+    def may_enter(self, vehicle: int, node: int) -> tuple[bool, int | None]:
+        """May ``vehicle`` be released into node index ``node`` now? (ok, blocking vehicle)."""
+        h = int(self.holder[node])
+        if h == FREE or h == vehicle:
+            return True, None
+        return False, h
+
+    def claim(self, vehicle: int, node: int) -> None:
+        h = int(self.holder[node])
+        if h != FREE and h != vehicle:
+            raise RuntimeError(f"node {self.plant.ids[node]} is held by vehicle {h}")
+        self.holder[node] = vehicle
+        self.holds[vehicle].append(node)
+
+    def held_by(self, vehicle: int) -> list[int]:
+        return list(self.holds[vehicle])
+
+    # ----- the matrix and penalties -------------------------------------------------------------
+    def segments(self) -> list[tuple[int, int, int]]:
+        """(from id, to id, vehicle) for every segment a vehicle is on or released into."""
+        ids = self.plant.ids
+        out = []
+        for v, held in self.holds.items():
+            for a, b in zip(held, held[1:], strict=False):
+                out.append((int(ids[a]), int(ids[b]), v))
+        return out
+
+    def in_arcs(self, node: int) -> np.ndarray:
+        return self._in_arcs_order[self._in_arcs_start[node] : self._in_arcs_start[node + 1]]
+
+    def penalties_for(
+        self, vehicle: int, out: np.ndarray, oncoming: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """Fill ``out`` (one value per arc) with the extra costs ``vehicle`` should plan with:
+        every arc into a node another vehicle holds costs ``occupied_penalty`` more, and the
+        segment ``oncoming`` (from, to indices) the thesis' very high extra weight."""
+        out[:] = 0.0
+        if self.occupied_penalty > 0:
+            taken = np.flatnonzero((self.holder != FREE) & (self.holder != vehicle))
+            for node in taken:
+                out[self.in_arcs(int(node))] += self.occupied_penalty
+        if oncoming is not None:
+            ids = self.plant.ids
+            for arc in self.plant.arc_index.get((int(ids[oncoming[0]]), int(ids[oncoming[1]])), []):
+                out[arc] += self.oncoming_penalty
+        return out

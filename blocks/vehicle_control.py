@@ -1,0 +1,286 @@
+"""VehicleControl: the per-vehicle control layer of the thesis (sections 5.3.1 and 5.3.2).
+
+One instance per vehicle, like the thesis' one PLC per vehicle. Every scan it reads the
+vehicle's record (reported current and next node), passes the nodes the vehicle has
+reached, and extends the released route node by node, up to ``lookahead`` nodes ahead of
+the vehicle, each only after the ReservationMatrix granted it: the staged communication of
+5.3.2, so a vehicle without a verified next node creeps to the crossing and stops there.
+
+Verification at every node (5.3.1): when the next node is held by a vehicle coming the
+other way, the route is replanned with that segment carrying a very high extra weight, so
+any detour wins; when the wait drags on (a queue, a vehicle processing), it replans the
+same way once. Routes come from an IncrementalAStar instance with a bounded number of
+expansions per cycle, planned from the last released node while the vehicle drives, and
+replanned whenever a permanent blockade is set or cleared. Released nodes are never taken
+back: the vehicle may already be past the point where it could obey.
+"""
+
+from __future__ import annotations
+
+from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
+from topology import Plant
+
+from .astar import IncrementalAStar
+from .constraints import RoutingConstraints
+from .fleet_io import CLEAR, FAULT, NO_NODE, ONLINE, STALE, VehicleRecordsView
+from .heuristic import HeuristicTable
+from .reservation import ReservationMatrix
+
+RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
+NO_ROUTE_RETRY_NS = 1_000_000_000
+
+
+class VehicleControl(FunctionBlock):
+    target = Input(None, doc="goal node id (from the sequencer); None: no goal")
+    fixed_route = Input(None, doc="a static route of node ids to drive instead (return lane)")
+    hold = Input(False, doc="plan, but release nothing (processing at a station)")
+    budget = Input(4, doc="A* expansions per cycle")
+
+    state = Output(
+        "offline", doc="offline|idle|planning|driving|waiting|arrived|no_route|stale|fault"
+    )
+    current = Output(None, doc="the node the vehicle last reported")
+    arrived = Output(False, doc="standing at its target with nothing left to drive")
+    waiting_for = Output(None, doc="the vehicle holding the node this one waits for")
+    wait_since_ns = Output(0)
+    replans = Output(0, doc="routes recomputed because the next segment was taken")
+    waits = Output(0, doc="times the vehicle had to stop for a node held by another")
+    no_routes = Output(0)
+    plans = Output(0)
+    planned = Output((), doc="released and planned nodes ahead, for drawing")
+
+    released = Static([])  # node ids released and not yet reached, in driving order
+    route = Static([])  # planned node ids after the last released one
+    goal = Static(None)  # the goal the route leads to
+    sequence = Static(0)
+    sent_ns = Static(0)
+    planning = Static(False)
+    adopted_fixed = Static(None)
+    plan_goal = Static(None)
+    blockade_epoch = Static(0)
+    retry_ns = Static(0)
+    wait_node = Static(None)
+    wait_replanned = Static(False)
+
+    def __init__(
+        self,
+        vehicle: int,
+        plant: Plant,
+        table: HeuristicTable,
+        reservation: ReservationMatrix,
+        records: VehicleRecordsView,
+        blockades: RoutingConstraints,
+        lookahead: int = 2,
+        wait_replan_s: float = 5.0,
+    ) -> None:
+        super().__init__()
+        if not 1 <= lookahead <= 3:
+            raise ValueError(f"lookahead must be 1..3 nodes, got {lookahead}")
+        self.vehicle = vehicle
+        self.plant = plant
+        self.reservation = reservation
+        self.records = records
+        self.blockades = blockades
+        self.lookahead = lookahead
+        self.wait_replan_ns = round(wait_replan_s * 1e9)
+        # own penalties (the occupancy seen from this vehicle), shared blockades
+        self.constraints = RoutingConstraints(plant)
+        self.constraints.blocked = blockades.blocked
+        self.astar = IncrementalAStar(plant, table, constraints=self.constraints)
+        self.index = plant.index
+
+    # ----- the scan ------------------------------------------------------------------------
+    def cycle(self, ctx: CycleContext) -> None:
+        rec = self.records.inputs(self.vehicle)
+        flags = int(rec["flags"])
+        if not flags & ONLINE and not flags & STALE:
+            self.state = "offline"
+            return
+        current, reported_next = int(rec["current"]), int(rec["next"])
+        if current == NO_NODE or current not in self.index:
+            self.state = "fault"
+            return
+        self._passed(current, bool(flags & CLEAR))
+        if flags & STALE or flags & FAULT:
+            # an obstacle where it was last seen: its holds stay, nothing more is released
+            self.state = "stale" if flags & STALE else "fault"
+            return
+        self._follow_inputs()
+        if self.planning:
+            self._plan_step(ctx)
+        elif self._needs_plan(ctx):
+            self._start_plan(ctx)
+        if not self.planning and not self.hold:
+            self._release(ctx)
+        self._resend_if_lost(ctx, reported_next)
+        self._publish_state()
+
+    def _passed(self, current: int, clear: bool) -> None:
+        if current in self.released:
+            del self.released[: self.released.index(current) + 1]
+        elif self.current != current and self.released:
+            # reported a node it was not released to: start over from where it is
+            self.released, self.route = [], []
+        self.current = current
+        self.reservation.report(self.vehicle, self.index[current], clear)
+
+    @property
+    def frontier(self) -> int:
+        return self.released[-1] if self.released else self.current
+
+    def _follow_inputs(self) -> None:
+        if self.fixed_route is not None:
+            if self.fixed_route != self.adopted_fixed:
+                self.adopted_fixed = self.fixed_route
+                fixed = list(self.fixed_route)
+                if fixed and fixed[0] == self.frontier:
+                    fixed = fixed[1:]
+                self.route, self.goal, self.planning = fixed, self.fixed_route[-1], False
+            return
+        self.adopted_fixed = None
+        if self.target != self.goal:
+            self.goal, self.route = self.target, []
+            self.planning = False
+
+    def _needs_plan(self, ctx: CycleContext) -> bool:
+        if self.goal is None or self.fixed_route is not None:
+            return False
+        if self.blockades_changed():
+            return True
+        if self.route or self.frontier == self.goal:
+            return False
+        return ctx.time_ns >= self.retry_ns
+
+    def blockades_changed(self) -> bool:
+        if self.blockade_epoch != self.blockades.epoch:
+            self.blockade_epoch = self.blockades.epoch
+            return self.goal is not None and self.frontier != self.goal
+        return False
+
+    # ----- planning ------------------------------------------------------------------------
+    def _start_plan(self, ctx: CycleContext, oncoming: tuple[int, int] | None = None) -> None:
+        self.reservation.penalties_for(
+            self.vehicle,
+            self.constraints.penalty,
+            None if oncoming is None else (self.index[oncoming[0]], self.index[oncoming[1]]),
+        )
+        self.planning, self.plan_goal, self.route = True, self.goal, []
+        self.plans += 1
+        self.astar(ctx, request=False)
+        self.astar(ctx, request=True, start=self.frontier, goal=self.goal, budget=self.budget)
+        self._take_result(ctx)
+
+    def _plan_step(self, ctx: CycleContext) -> None:
+        self.astar(ctx, request=True, budget=self.budget)
+        self._take_result(ctx)
+
+    def _take_result(self, ctx: CycleContext) -> None:
+        a = self.astar
+        if a.busy:
+            return
+        self.planning = False
+        if a.no_route:
+            self.no_routes += 1
+            self.retry_ns = ctx.time_ns + NO_ROUTE_RETRY_NS
+            self.route = []
+            return
+        route = list(a.route)
+        self.route = route[1:] if route and route[0] == self.frontier else []
+
+    # ----- releasing ---------------------------------------------------------------------------
+    def _release(self, ctx: CycleContext) -> None:
+        changed = False
+        while len(self.released) < self.lookahead and self.route:
+            here, there = self.frontier, self.route[0]
+            arcs = self.plant.arc_index.get((here, there))
+            if arcs is not None and self.blockades.blocked[arcs].all():
+                self._start_plan(ctx)  # the next segment was closed: plan around it
+                break
+            ok, blocker = self.reservation.may_enter(self.vehicle, self.index[there])
+            if not ok:
+                self._blocked(ctx, blocker, here, there)
+                break
+            self.reservation.claim(self.vehicle, self.index[there])
+            self.released.append(self.route.pop(0))
+            changed = True
+        if self.released or not self.route:
+            self._not_waiting()
+        if changed:
+            self._send(ctx)
+
+    def _blocked(self, ctx: CycleContext, blocker: int | None, here: int, there: int) -> None:
+        """The next node is held: wait there (only matters once nothing is released)."""
+        if self.released:
+            return  # still driving released nodes; try again next scan
+        res = self.reservation
+        res.wants[self.vehicle] = self.index[there]
+        if self.wait_node != there or self.waiting_for != blocker:
+            if self.wait_node != there:
+                self.waits += 1
+                self.wait_since_ns = ctx.time_ns
+                self.wait_replanned = False
+            self.wait_node, self.waiting_for = there, blocker
+        oncoming = blocker is not None and self.index[here] in (
+            res.intent.get(blocker),
+            res.wants.get(blocker),
+        )
+        overdue = ctx.time_ns - self.wait_since_ns >= self.wait_replan_ns
+        if (oncoming or overdue) and not self.wait_replanned and self.fixed_route is None:
+            self.wait_replanned = True
+            self.replans += 1
+            self._start_plan(ctx, oncoming=(here, there))
+
+    def _not_waiting(self) -> None:
+        self.reservation.wants[self.vehicle] = None
+        self.wait_node = self.waiting_for = None
+
+    def back_off(self, ctx: CycleContext, node: int) -> None:
+        """Deadlock resolution: give way by driving to the free neighbour ``node`` first."""
+        self.planning = False
+        self.route = [node]
+        self._not_waiting()
+        self.retry_ns = ctx.time_ns
+
+    # ----- the command -----------------------------------------------------------------------
+    def _send(self, ctx: CycleContext) -> None:
+        self.sequence = self.sequence % 255 + 1  # 0 means "no command yet"
+        self.sent_ns = ctx.time_ns
+        self.records.write_command(self.vehicle, tuple(self.released[:3]), True, self.sequence)
+
+    def _resend_if_lost(self, ctx: CycleContext, reported_next: int) -> None:
+        """A vehicle standing still with released nodes has not got the command (a lost
+        frame, or it passed a node before the command arrived and refused it): repeat it."""
+        if (
+            self.released
+            and reported_next == NO_NODE
+            and ctx.time_ns - self.sent_ns >= RESEND_AFTER_NS
+        ):
+            self._send(ctx)
+
+    def _publish_state(self) -> None:
+        res = self.reservation
+        res.intent[self.vehicle] = (
+            self.index[self.route[0]] if self.route and not self.released else None
+        )
+        self.arrived = (
+            self.goal is not None
+            and self.current == self.goal
+            and not self.released
+            and not self.route
+            and not self.planning
+        )
+        self.planned = tuple(self.released + self.route)
+        if self.arrived:
+            self.state = "arrived"
+        elif self.planning:
+            self.state = "planning"
+        elif self.waiting_for is not None:
+            self.state = "waiting"
+        elif self.released:
+            self.state = "driving"
+        elif self.goal is None:
+            self.state = "idle"
+        elif self.no_routes and not self.route and self.current != self.goal:
+            self.state = "no_route"
+        else:
+            self.state = "idle" if self.hold else "planning"

@@ -1,0 +1,285 @@
+"""The fleet control program: the thesis' system end to end (``plc-runtime run CONFIG``).
+
+One runtime, one task ``fleet`` at the configured cycle time:
+
+    driver copy-in (CAN: every vehicle's status into its input record)
+      -> blockade schedule (level 3: segments closing and reopening)
+      -> per vehicle: RecipeSequencer -> VehicleControl (verify, replan, release)
+      -> ReservationMatrix -> DeadlockResolver -> FleetRecorder
+    -> driver copy-out (released routes as RouteCommand frames)
+
+With ``cosimulate`` the vehicles are simulated in the same process, in a task ``plant``
+after the program in every tick, on the same virtual CAN bus (the runtime still talks to
+them only through frames); an independent ConflictMonitor watches their true positions.
+Without it (``--realtime``), the vehicles run in their own process on a shared bus.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import can
+
+from blocks.constraints import RoutingConstraints
+from blocks.deadlock import DeadlockResolver
+from blocks.fleet_io import RECORD, STATES, RecordArea, VehicleRecordsView
+from blocks.heuristic import HeuristicTable
+from blocks.recipe import RecipeRun, RecipeSequencer, StationChooser
+from blocks.reservation import ReservationMatrix
+from blocks.vehicle_control import VehicleControl
+from io_drivers.can_driver import CanDriver
+from plc_runtime import CycleContext, FunctionBlock, Runtime
+from plc_runtime.clock import VirtualClock, WallClock
+from vehicles.cosim import CoSimulation
+from vehicles.fleet import Fleet
+from vehicles.monitor import ConflictMonitor
+
+from .fleet_config import VEHICLES_PER_BUS, Blockade, FleetConfig
+
+AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
+
+
+class BlockadeSchedule(FunctionBlock):
+    """Closes and reopens segments at the configured times (thesis level 3)."""
+
+    def __init__(self, blockades: Iterable[Blockade], constraints: RoutingConstraints) -> None:
+        super().__init__()
+        self.pending = sorted(blockades, key=lambda b: b.at_s)
+        self.open_until: list[Blockade] = []
+        self.constraints = constraints
+        self.log: list[tuple[float, str, int, int]] = []
+
+    def cycle(self, ctx: CycleContext) -> None:
+        now = ctx.time
+        while self.pending and self.pending[0].at_s <= now:
+            b = self.pending.pop(0)
+            self.constraints.block(b.a, b.b, both_ways=True)
+            self.log.append((now, "closed", b.a, b.b))
+            if b.until_s is not None:
+                self.open_until.append(b)
+        for b in [b for b in self.open_until if b.until_s <= now]:
+            self.open_until.remove(b)
+            self.constraints.unblock(b.a, b.b, both_ways=True)
+            self.log.append((now, "reopened", b.a, b.b))
+
+
+class FleetCycle(FunctionBlock):
+    """Per vehicle, in id order: its sequencer, then its control (one instance each)."""
+
+    def __init__(self, pairs: list[tuple[RecipeSequencer, VehicleControl]]) -> None:
+        super().__init__()
+        self.pairs = pairs
+
+    def cycle(self, ctx: CycleContext) -> None:
+        for seq, control in self.pairs:
+            seq(ctx, arrived=control.arrived, current=control.current)
+            control(ctx, target=seq.target, fixed_route=seq.fixed_route, hold=seq.hold)
+
+
+class FleetRecorder(FunctionBlock):
+    """The driven routes (every reported node, in order), for the drawing and the CSV."""
+
+    def __init__(self, controls: dict[int, VehicleControl]) -> None:
+        super().__init__()
+        self.controls = controls
+        self.driven: dict[int, list[int]] = {v: [] for v in controls}
+
+    def cycle(self, ctx: CycleContext) -> None:
+        for v, control in self.controls.items():
+            node = control.current
+            path = self.driven[v]
+            if node is not None and (not path or path[-1] != node):
+                path.append(node)
+
+
+class FleetProgram:
+    def __init__(
+        self,
+        cfg: FleetConfig,
+        clock: VirtualClock | WallClock | None = None,
+        cosimulate: bool = True,
+        bus: tuple[str, str] | None = None,
+    ) -> None:
+        self.cfg = cfg
+        plant = cfg.plant
+        vehicles = sorted(cfg.starts)
+        self.vehicles = vehicles
+        n_buses = (vehicles[-1] - 1) // VEHICLES_PER_BUS + 1
+        interface, channel = bus or (cfg.bus_interface, cfg.bus_channel)
+        self.rt = Runtime(
+            cycle_time=cfg.cycle_time,
+            clock=clock,
+            watchdog=cfg.watchdog,
+            image_sizes={"I": AREA_BYTES * (n_buses + 1), "Q": AREA_BYTES * (n_buses + 1)},
+        )
+        areas, placement = [], {}
+        for k in range(n_buses):
+            local = [v - k * VEHICLES_PER_BUS for v in vehicles if (v - 1) // VEHICLES_PER_BUS == k]
+            base = AREA_BYTES * (k + 1)
+            areas.append(RecordArea(base, base, max(local) if local else 1))
+            for lv in local:
+                placement[lv + k * VEHICLES_PER_BUS] = (k, lv)
+            if local:
+                self.rt.add_driver(
+                    CanDriver(
+                        local,
+                        interface=interface,
+                        channel=channel if k == 0 else f"{channel}{k}",
+                        input_base=base,
+                        output_base=base,
+                        stale_after=cfg.stale_after_s,
+                        name=f"can{k}" if n_buses > 1 else "can",
+                    )
+                )
+        assert all(RECORD * (a.max_vehicle + 1) <= AREA_BYTES for a in areas)
+        self.records = VehicleRecordsView(areas, placement)
+        targets = sorted({s for stations in cfg.clusters.values() for s in stations})
+        self.table = HeuristicTable(plant, targets)
+        self.blockades = RoutingConstraints(plant)
+        self.reservation = ReservationMatrix(plant, vehicles, cfg.occupied_penalty)
+        self.chooser = StationChooser(plant, cfg.clusters, cfg.strategy, self.table, cfg.seed)
+        self.completed: list[RecipeRun] = []
+        self.controls: dict[int, VehicleControl] = {}
+        self.sequencers: dict[int, RecipeSequencer] = {}
+        for v in vehicles:
+            self.controls[v] = VehicleControl(
+                v,
+                plant,
+                self.table,
+                self.reservation,
+                self.records,
+                self.blockades,
+                lookahead=cfg.lookahead,
+                wait_replan_s=cfg.wait_replan_s,
+            )
+            self.controls[v].budget = cfg.astar_budget
+            self.sequencers[v] = RecipeSequencer(
+                v,
+                plant,
+                [cfg.recipes[name] for name in cfg.vehicle_recipes[v]],
+                self.chooser,
+                self._taken_by_other(v),
+                processing_s=cfg.processing_s,
+                rounds=cfg.rounds,
+                completed=self.completed,
+            )
+        self.schedule = BlockadeSchedule(cfg.blockades, self.blockades)
+        self.resolver = DeadlockResolver(
+            plant, self.controls, self.reservation, self.blockades, self._priority
+        )
+        self.recorder = FleetRecorder(self.controls)
+        self.rt.add_task(
+            "fleet",
+            [
+                _Startup(self.table, self.records),
+                self.schedule,
+                FleetCycle([(self.sequencers[v], self.controls[v]) for v in vehicles]),
+                self.reservation,
+                self.resolver,
+                self.recorder,
+            ],
+            interval=cfg.cycle_time,
+            priority=0,
+        )
+        self.fleet: Fleet | None = None
+        self.monitor: ConflictMonitor | None = None
+        self._sim_buses: list[can.BusABC] = []
+        if cosimulate:
+            self._add_simulation(interface, channel, n_buses)
+
+    def _add_simulation(self, interface: str, channel: str, n_buses: int) -> None:
+        if interface != "virtual":
+            return  # vehicles on a real bus are someone else's (their own process)
+        cfg = self.cfg
+        fleets, offsets = [], []
+        for k in range(n_buses):
+            starts = {
+                v - k * VEHICLES_PER_BUS: cfg.starts[v]
+                for v in self.vehicles
+                if (v - 1) // VEHICLES_PER_BUS == k
+            }
+            if not starts:
+                continue
+            bus = can.Bus(
+                interface="virtual",
+                channel=channel if k == 0 else f"{channel}{k}",
+                receive_own_messages=False,
+            )
+            self._sim_buses.append(bus)
+            fleets.append(
+                Fleet(cfg.plant, starts, bus, status_period=cfg.status_period_s, seed=cfg.seed + k)
+            )
+            offsets.append(k * VEHICLES_PER_BUS)
+        self.fleets = fleets
+        self.fleet = fleets[0]
+        self.monitor = ConflictMonitor(fleets, offsets)
+        self.rt.add_task(
+            "plant",
+            [
+                CoSimulation(f, self.monitor if i == len(fleets) - 1 else None)
+                for i, f in enumerate(fleets)
+            ],
+            interval=cfg.cycle_time,
+            priority=1,
+        )
+
+    def _taken_by_other(self, vehicle: int):
+        def taken(station: int) -> bool:
+            idx = self.cfg.plant.index[station]
+            holder = self.reservation.holder_of(idx)
+            if holder is not None and holder != vehicle:
+                return True
+            return any(s.target == station for v, s in self.sequencers.items() if v != vehicle)
+
+        return taken
+
+    def _priority(self, vehicle: int) -> tuple[int, int]:
+        return (self.sequencers[vehicle].priority_ns, vehicle)
+
+    def close(self) -> None:
+        self.rt.stop()
+        for bus in self._sim_buses:
+            bus.shutdown()
+        self._sim_buses = []
+
+    # ----- what the program reports ----------------------------------------------------------
+    def vehicle_rows(self) -> list[dict[str, object]]:
+        rows = []
+        for v in self.vehicles:
+            c, s = self.controls[v], self.sequencers[v]
+            rec = self.records.inputs(v) if self.records._in else None
+            recipe = self.cfg.recipes.get(s.recipe_name)
+            rows.append(
+                {
+                    "vehicle": v,
+                    "state": c.state,
+                    "reported": STATES[int(rec["state"])]
+                    if rec is not None and int(rec["state"]) < len(STATES)
+                    else "-",
+                    "node": c.current,
+                    "target": s.target,
+                    "recipe": s.recipe_name,
+                    "step": f"{s.step + 1}/{len(recipe.functions)}" if recipe else "-",
+                    "phase": s.phase,
+                    "battery": int(rec["battery"]) if rec is not None else None,
+                    "rounds": s.rounds_done,
+                    "waits": c.waits,
+                    "replans": c.replans,
+                }
+            )
+        return rows
+
+
+class _Startup(FunctionBlock):
+    """OB100 for the fleet: build the heuristic table and bind the record views."""
+
+    def __init__(self, table: HeuristicTable, records: VehicleRecordsView) -> None:
+        super().__init__()
+        self.table, self.records = table, records
+
+    def startup(self, ctx: CycleContext) -> None:
+        self.table.startup(ctx)
+        self.records.bind(ctx)
+
+    def cycle(self, ctx: CycleContext) -> None:
+        self.table.cycle(ctx)

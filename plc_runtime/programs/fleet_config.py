@@ -1,0 +1,324 @@
+"""The fleet configuration file (TOML; docs/fleet-config.md): plant, vehicles, recipes,
+function clusters, station strategy, cycle time, bus and routing settings.
+
+Every error names the file and the key (``fleet.toml: vehicles[2].start: ...``), and every
+value is checked against the plant before anything runs: unknown nodes, functions nobody
+provides, two vehicles on one start node, unknown recipe names.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from blocks.recipe import STRATEGIES, Recipe
+from plc_runtime.errors import ConfigError
+from topology import SAMPLES, Plant, TopologyError, load
+
+DEFAULT_CONFIG = Path(__file__).with_name("default_fleet.toml")
+VEHICLES_PER_BUS = 126
+
+
+@dataclass(frozen=True)
+class Blockade:
+    a: int
+    b: int
+    at_s: float
+    until_s: float | None  # None: for the rest of the run
+
+
+@dataclass
+class FleetConfig:
+    source: str
+    plant: Plant
+    starts: dict[int, int]  # vehicle id -> start node
+    recipes: dict[str, Recipe]
+    vehicle_recipes: dict[int, list[str]]
+    clusters: dict[int, list[int]]
+    strategy: str = "random"
+    seed: int = 0
+    processing_s: float = 3.0
+    rounds: int = 0
+    cycle_time: float = 0.010
+    watchdog: float = 0.150
+    duration_s: float = 600.0
+    astar_budget: int = 4
+    lookahead: int = 2
+    wait_replan_s: float = 5.0
+    occupied_penalty: float = 0.0
+    bus_interface: str = "virtual"
+    bus_channel: str = "agv"
+    status_period_s: float = 0.1
+    stale_after_s: float = 0.5
+    blockades: list[Blockade] = field(default_factory=list)
+
+    @property
+    def level(self) -> str:
+        """The thesis level this configuration exercises (for the summary)."""
+        multi = any(len(s) > 1 for f, s in self.clusters.items() if f > 1)
+        distinct = (
+            len({tuple(r) for r in self.vehicle_recipes.values()}) > 1 or len(self.recipes) > 1
+        )
+        if distinct and multi and self.blockades:
+            return "4"
+        if self.blockades:
+            return "3"
+        return "2" if multi else "1"
+
+
+class _Reader:
+    """Typed access to one TOML table, with errors that say where."""
+
+    def __init__(self, source: str, table: dict[str, Any], where: str) -> None:
+        self.source, self.table, self.where = source, table, where
+        self.used: set[str] = set()
+
+    def fail(self, key: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.source}: {self.where}{key}: {message}")
+
+    def get(self, key: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
+        self.used.add(key)
+        if key not in self.table:
+            if default is ...:
+                raise self.fail(key, "missing")
+            return default
+        value = self.table[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        if isinstance(value, bool) and bool not in kinds:
+            raise self.fail(key, f"expected {_names(kinds)}, got {value!r}")
+        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kinds):
+            raise self.fail(key, f"expected {_names(kinds)}, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise self.fail(key, f"must be finite, got {value!r}")
+        return value
+
+    def number(self, key: str, default: float, low: float, high: float = math.inf) -> float:
+        value = self.get(key, float, default)
+        if not low <= value <= high:
+            raise self.fail(key, f"must be in {low}..{high}, got {value}")
+        return value
+
+    def integer(self, key: str, default: int, low: int, high: int) -> int:
+        value = self.get(key, int, default)
+        if not low <= value <= high:
+            raise self.fail(key, f"must be in {low}..{high}, got {value}")
+        return value
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.table) - self.used)
+        if unknown:
+            raise self.fail(unknown[0], "unknown key")
+
+
+def _names(kinds: tuple[type, ...]) -> str:
+    return " or ".join(
+        {
+            int: "an integer",
+            float: "a number",
+            str: "a string",
+            list: "a list",
+            dict: "a table",
+            bool: "true/false",
+        }[k]
+        for k in kinds
+    )
+
+
+def load_config(path: str | Path | None = None) -> FleetConfig:
+    """Read a fleet configuration; ``None`` is the embedded default (``make run``)."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    source = path.name if path == DEFAULT_CONFIG else str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{source}: not UTF-8 text") from None
+    return parse_config(text, source, path.parent)
+
+
+def parse_config(text: str, source: str = "<config>", base: Path | None = None) -> FleetConfig:
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply") from None
+    top = _Reader(source, doc, "")
+    plant = _plant(_Reader(source, top.get("plant", dict), "plant."), base or Path("."))
+    runtime = _Reader(source, top.get("runtime", dict, {}), "runtime.")
+    routing = _Reader(source, top.get("routing", dict, {}), "routing.")
+    stations = _Reader(source, top.get("stations", dict, {}), "stations.")
+    sequencer = _Reader(source, top.get("sequencer", dict, {}), "sequencer.")
+    bus = _Reader(source, top.get("bus", dict, {}), "bus.")
+    recipes = _recipes(source, top.get("recipes", list), plant)
+    clusters = _clusters(stations, plant)
+    for recipe in recipes.values():
+        for f in recipe.functions:
+            if not clusters.get(f):
+                raise ConfigError(
+                    f"{source}: recipes: recipe {recipe.name!r} needs function {f}, "
+                    "which no station provides (add it to stations.clusters)"
+                )
+    starts, vehicle_recipes = _vehicles(source, top.get("vehicles", list), plant, recipes)
+    cfg = FleetConfig(
+        source=source,
+        plant=plant,
+        starts=starts,
+        recipes=recipes,
+        vehicle_recipes=vehicle_recipes,
+        clusters=clusters,
+        strategy=stations.get("strategy", str, "random"),
+        seed=stations.integer("seed", 0, 0, 2**32 - 1),
+        processing_s=stations.number("processing_s", 3.0, 0.0, 3600.0),
+        rounds=sequencer.integer("rounds", 0, 0, 10**6),
+        cycle_time=runtime.number("cycle_time_ms", 10.0, 0.1, 1000.0) / 1e3,
+        watchdog=runtime.number("watchdog_ms", 150.0, 1.0, 6000.0) / 1e3,
+        duration_s=runtime.number("duration_s", 600.0, 0.001, 1e7),
+        astar_budget=routing.integer("astar_budget", 4, 1, 10**6),
+        lookahead=routing.integer("lookahead", 2, 1, 3),
+        wait_replan_s=routing.number("wait_replan_s", 5.0, 0.0, 3600.0),
+        occupied_penalty=routing.number("occupied_penalty", 0.0, 0.0, 1e9),
+        bus_interface=bus.get("interface", str, "virtual"),
+        bus_channel=bus.get("channel", str, "agv"),
+        status_period_s=bus.number("status_period_s", 0.1, 0.001, 30.0),
+        stale_after_s=bus.number("stale_after_s", 0.5, 0.01, 300.0),
+        blockades=_blockades(source, top.get("blockades", list, []), plant),
+    )
+    if cfg.strategy not in STRATEGIES:
+        raise stations.fail(
+            "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
+        )
+    for reader in (runtime, routing, stations, sequencer, bus, top):
+        reader.finish()
+    return cfg
+
+
+def _plant(reader: _Reader, base: Path) -> Plant:
+    sample = reader.get("sample", str, None)
+    file = reader.get("file", str, None)
+    reader.finish()
+    if (sample is None) == (file is None):
+        raise reader.fail("sample", "give exactly one of plant.sample and plant.file")
+    if sample is not None:
+        if sample not in SAMPLES:
+            raise reader.fail(
+                "sample", f"unknown sample plant {sample!r} (one of {', '.join(SAMPLES)})"
+            )
+        return SAMPLES[sample]()
+    path = Path(file)
+    if not path.is_absolute():
+        path = base / path
+    try:
+        return load(path)
+    except TopologyError as exc:
+        raise ConfigError(f"{reader.source}: plant.file: {exc}") from None
+
+
+def _node(reader: _Reader, key: str, plant: Plant) -> int:
+    node = reader.get(key, int)
+    if node not in plant.index:
+        raise reader.fail(key, f"node {node} is not in plant {plant.name!r}")
+    return node
+
+
+def _recipes(source: str, items: list, plant: Plant) -> dict[str, Recipe]:
+    if not items:
+        raise ConfigError(f"{source}: recipes: at least one [[recipes]] entry is needed")
+    recipes: dict[str, Recipe] = {}
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"{source}: recipes[{k}]: expected a table")
+        r = _Reader(source, item, f"recipes[{k}].")
+        name = r.get("name", str)
+        functions = r.get("functions", list)
+        r.finish()
+        if name in recipes:
+            raise r.fail("name", f"recipe {name!r} defined twice")
+        if not functions or not all(
+            isinstance(f, int) and not isinstance(f, bool) and f >= 0 for f in functions
+        ):
+            raise r.fail(
+                "functions", f"expected a non-empty list of function ids >= 0, got {functions!r}"
+            )
+        recipes[name] = Recipe(name, tuple(functions))
+    return recipes
+
+
+def _clusters(reader: _Reader, plant: Plant) -> dict[int, list[int]]:
+    clusters: dict[int, list[int]] = {}
+    for node in plant.nodes:
+        for f in node.functions:
+            clusters.setdefault(f, []).append(node.id)
+    given = reader.get("clusters", dict, {})
+    for key, stations in given.items():
+        if not key.isdigit():
+            raise reader.fail(f"clusters.{key}", "function ids are integers >= 0")
+        if (
+            not isinstance(stations, list)
+            or not stations
+            or not all(isinstance(s, int) and not isinstance(s, bool) for s in stations)
+        ):
+            raise reader.fail(
+                f"clusters.{key}", f"expected a non-empty list of node ids, got {stations!r}"
+            )
+        for s in stations:
+            if s not in plant.index:
+                raise reader.fail(f"clusters.{key}", f"node {s} is not in plant {plant.name!r}")
+        clusters[int(key)] = list(stations)
+    return clusters
+
+
+def _vehicles(
+    source: str, items: list, plant: Plant, recipes: dict[str, Recipe]
+) -> tuple[dict[int, int], dict[int, list[str]]]:
+    if not items:
+        raise ConfigError(f"{source}: vehicles: at least one [[vehicles]] entry is needed")
+    starts: dict[int, int] = {}
+    chosen: dict[int, list[str]] = {}
+    names = list(recipes)
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"{source}: vehicles[{k}]: expected a table")
+        r = _Reader(source, item, f"vehicles[{k}].")
+        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
+        start = _node(r, "start", plant)
+        own = r.get("recipes", list, None)
+        r.finish()
+        if vid in starts:
+            raise r.fail("id", f"vehicle {vid} defined twice")
+        if start in starts.values():
+            other = next(v for v, s in starts.items() if s == start)
+            raise r.fail("start", f"node {start} is already vehicle {other}'s start")
+        if own is None:
+            # every vehicle runs all recipes, each starting at a different one (level 4)
+            own = names[len(starts) % len(names) :] + names[: len(starts) % len(names)]
+        for name in own:
+            if name not in recipes:
+                raise r.fail("recipes", f"unknown recipe {name!r} (defined: {', '.join(names)})")
+        starts[vid] = start
+        chosen[vid] = list(own)
+    return starts, chosen
+
+
+def _blockades(source: str, items: list, plant: Plant) -> list[Blockade]:
+    out = []
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"{source}: blockades[{k}]: expected a table")
+        r = _Reader(source, item, f"blockades[{k}].")
+        a, b = _node(r, "from", plant), _node(r, "to", plant)
+        at = r.number("at_s", 0.0, 0.0)
+        until = r.get("until_s", float, None)
+        r.finish()
+        if not plant.arc_index.get((a, b)) and not plant.arc_index.get((b, a)):
+            raise r.fail("to", f"no routable segment between nodes {a} and {b}")
+        if until is not None and until <= at:
+            raise r.fail("until_s", f"must be after at_s ({at}), got {until}")
+        out.append(Blockade(a, b, at, until))
+    return out
