@@ -25,6 +25,7 @@ from .reservation import ReservationMatrix
 from .vehicle_control import VehicleControl
 
 IDLE_PUSH_AFTER_NS = 1_000_000_000
+MAX_BACK_OFFS = 12  # per cycle of vehicles that makes no progress: then it is a livelock
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,13 @@ class DeadlockResolver(FunctionBlock):
         self.blockades = blockades
         self.priority = priority  # smaller is more urgent
         self.events: list[DeadlockEvent] = []
-        self._stuck: set[frozenset[int]] = set()  # unresolved cycles already reported
+        # unresolved cycles already reported, with their members' progress at the time: they
+        # stay reported (stranded) until one of them reaches a new recipe step
+        self._stuck: dict[frozenset[int], tuple] = {}
+        # back-offs per cycle of vehicles while none of them reaches a new recipe step: a
+        # plant where giving way only moves the deadlock (a dead-end corridor) is reported
+        # as unresolved instead of being shuffled back and forth forever
+        self._attempts: dict[frozenset[int], tuple[tuple, int]] = {}
 
     def cycle(self, ctx: CycleContext) -> None:
         waits = {
@@ -64,25 +71,43 @@ class DeadlockResolver(FunctionBlock):
             for v, c in self.controls.items()
             if c.state == "waiting" and c.waiting_for is not None
         }
-        stuck_now: set[frozenset[int]] = set()
+        self._stuck = {
+            key: progress
+            for key, progress in self._stuck.items()
+            if progress == tuple(self.priority(v) for v in sorted(key))
+        }
         for ring in self._cycles(waits):
             key = frozenset(ring)
-            if key not in self._stuck:
+            progress = tuple(self.priority(v) for v in sorted(ring))
+            if key in self._stuck:
+                continue  # reported already; nothing has changed for them
+            seen_before = key in self._attempts and self._attempts[key][0] == progress
+            if not seen_before:
                 self.detected += 1
-            victim, node = self._back_off_candidate(ring, waits)
+            seen, tries = self._attempts.get(key, (progress, 0))
+            tries = tries if seen == progress else 0
+            victim, node = (
+                self._back_off_candidate(ring, waits) if tries < MAX_BACK_OFFS else (None, None)
+            )
             if victim is None:
-                if key not in self._stuck:
-                    self.unresolved += 1
-                    self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
-                stuck_now.add(key)
+                self.unresolved += 1
+                self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
+                self._stuck[key] = progress
                 continue
-            self.controls[victim].back_off(ctx, node)
+            self._attempts[key] = (progress, tries + 1)
+            vacated = self.controls[victim].current
+            self.controls[victim].back_off(
+                ctx, node, self._needed_by(set(ring) - {victim}, vacated)
+            )
             self.resolved += 1
             self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
             for v in ring:
                 waits.pop(v, None)
-        self._stuck = stuck_now
         self._push_idle(ctx, waits)
+
+    def stranded(self) -> list[int]:
+        """Vehicles in a waits-for cycle nobody could break (for the summary)."""
+        return sorted({v for ring in self._stuck for v in ring})
 
     @staticmethod
     def _cycles(waits: Mapping[int, int]) -> list[list[int]]:
@@ -104,13 +129,38 @@ class DeadlockResolver(FunctionBlock):
     def _back_off_candidate(
         self, ring: list[int], waits: Mapping[int, int]
     ) -> tuple[int | None, int | None]:
+        """Lowest priority first, preferring a vehicle that can step off the others' routes
+        (a siding) over one that would only retreat along them (and meet them again)."""
         members = set(ring)
         behind = {v for v, blocker in waits.items() if blocker in members and v not in members}
-        for v in sorted(members | behind, key=self.priority, reverse=True):
-            node = self._free_neighbour(v)
+        order = sorted(members | behind, key=self.priority, reverse=True)
+        fallback = None
+        for v in order:
+            others = self._planned_nodes(members - {v})
+            node = self._free_neighbour(v, avoid=others)
             if node is not None:
                 return v, node
-        return None, None
+            if fallback is None:
+                node = self._free_neighbour(v)
+                if node is not None:
+                    fallback = (v, node)
+        return fallback or (None, None)
+
+    def _planned_nodes(self, vehicles: set[int]) -> set[int]:
+        index = self.plant.index
+        return {index[n] for v in vehicles for n in self.controls[v].planned}
+
+    def _needed_by(self, vehicles: set[int], node: int | None) -> Callable[[], int | None]:
+        """The first of ``vehicles`` that still plans to pass ``node`` (an id), or None."""
+
+        def needed() -> int | None:
+            for v in sorted(vehicles):
+                c = self.controls[v]
+                if node in c.planned or c.current == node:
+                    return v
+            return None
+
+        return needed
 
     def _free_neighbour(self, vehicle: int, avoid: set[int] = frozenset()) -> int | None:
         control = self.controls[vehicle]

@@ -17,6 +17,8 @@ back: the vehicle may already be past the point where it could obey.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
@@ -88,6 +90,8 @@ class VehicleControl(FunctionBlock):
         self.constraints.blocked = blockades.blocked
         self.astar = IncrementalAStar(plant, table, constraints=self.constraints)
         self.index = plant.index
+        self.yield_node: int | None = None
+        self.yield_while: Callable[[], int | None] | None = None
 
     # ----- the scan ------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
@@ -196,6 +200,16 @@ class VehicleControl(FunctionBlock):
             if arcs is not None and self.blockades.blocked[arcs].all():
                 self._start_plan(ctx)  # the next segment was closed: plan around it
                 break
+            if self.index[there] in self.reservation.holds[self.vehicle]:
+                break  # the route comes back to a node it holds: pass it first, then go on
+            if there == self.yield_node:
+                needing = self.yield_while()
+                if needing is not None:
+                    # giving way: the vehicle it backed off for still needs this node; for
+                    # deadlock detection that is waiting for that vehicle
+                    self._blocked(ctx, needing, here, there)
+                    break
+                self.yield_node, self.yield_while = None, None
             ok, blocker = self.reservation.may_enter(self.vehicle, self.index[there])
             if not ok:
                 self._blocked(ctx, blocker, here, there)
@@ -203,8 +217,8 @@ class VehicleControl(FunctionBlock):
             self.reservation.claim(self.vehicle, self.index[there])
             self.released.append(self.route.pop(0))
             changed = True
-        if self.released or not self.route:
-            self._not_waiting()
+        if changed or (not self.route and not self.planning):
+            self._not_waiting()  # moving again (or nothing left to wait for)
         if changed:
             self._send(ctx)
 
@@ -234,12 +248,18 @@ class VehicleControl(FunctionBlock):
         self.reservation.wants[self.vehicle] = None
         self.wait_node = self.waiting_for = None
 
-    def back_off(self, ctx: CycleContext, node: int) -> None:
-        """Deadlock resolution: give way by driving to the free neighbour ``node`` first."""
+    def back_off(
+        self, ctx: CycleContext, node: int, needed: Callable[[], int | None] | None = None
+    ) -> None:
+        """Deadlock resolution: give way by driving to the free neighbour ``node`` first,
+        and do not take the node it leaves again while ``needed()`` names a vehicle it gave
+        way to that still plans to pass there."""
         self.planning = False
         self.route = [node]
         self._not_waiting()
         self.retry_ns = ctx.time_ns
+        if needed is not None:
+            self.yield_node, self.yield_while = self.current, needed
 
     # ----- the command -----------------------------------------------------------------------
     def _send(self, ctx: CycleContext) -> None:

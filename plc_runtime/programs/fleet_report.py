@@ -77,6 +77,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "deadlocks_detected": resolver.detected,
         "deadlocks_resolved": resolver.resolved,
         "deadlocks_unresolved": resolver.unresolved,
+        "stranded_vehicles": resolver.stranded(),
         "deadlock_events": [
             {
                 "time_s": round(e.time_s, 3),

@@ -1,0 +1,70 @@
+"""The thesis' open case (5.3.1): the only remaining path is occupied by an oncoming vehicle.
+With somewhere to give way the deadlock is detected and resolved; without, it is reported,
+never a silent hang."""
+
+from __future__ import annotations
+
+import pytest
+from fleet_scenarios import make_config, run
+
+from plc_runtime.programs.fleet import FleetProgram
+from plc_runtime.programs.fleet_report import summary
+from topology import Edge, Node, Plant
+
+
+def corridor(siding: bool) -> Plant:
+    nodes = [Node(1, "west", 0.0, 0.0, "station", (2,))]
+    nodes += [Node(i, f"c{i}", float(i - 1), 0.0) for i in (2, 3, 4)]
+    nodes.append(Node(5, "east", 4.0, 0.0, "station", (3,)))
+    edges = [Edge(i, i + 1, 1.0) for i in range(1, 5)]
+    if siding:
+        nodes.append(Node(6, "siding", 2.0, 1.0))
+        edges.append(Edge(3, 6, 1.0))
+    return Plant.build(nodes, edges, name="corridor", functions={2: "west", 3: "east"})
+
+
+@pytest.fixture
+def head_on():
+    made = []
+
+    def build(siding: bool) -> FleetProgram:
+        cfg = make_config(
+            corridor(siding),
+            {1: 1, 2: 5},
+            {"to-east": [3], "to-west": [2]},
+            {2: [1], 3: [5]},
+            vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
+            rounds=1,
+        )
+        p = FleetProgram(cfg)
+        made.append(p)
+        return p
+
+    yield build
+    for p in made:
+        p.close()
+
+
+def test_a_head_on_deadlock_is_resolved_by_backing_off_into_the_siding(head_on):
+    p = head_on(siding=True)
+    run(p, 90)
+    assert p.resolver.detected >= 1 and p.resolver.resolved >= 1
+    event = p.resolver.events[0]
+    assert set(event.vehicles) == {1, 2} and event.to_node == 6
+    # vehicle 2 has the lower priority (same step age, higher id), but it could only retreat
+    # along vehicle 1's route; vehicle 1 can step off both routes into the siding
+    assert event.backed_off == 1
+    assert sorted(r.vehicle for r in p.completed) == [1, 2]
+    assert p.resolver.unresolved == 0
+
+
+def test_without_a_way_out_the_deadlock_is_reported_not_hidden(head_on):
+    p = head_on(siding=False)
+    run(p, 90)
+    assert p.completed == []
+    assert p.resolver.unresolved >= 1
+    assert p.resolver.stranded() == [1, 2]
+    assert p.rt.state == "RUN"  # the scan goes on; the cell is reported, not faulted
+    result = summary(p, wall_s=1.0)
+    assert result["deadlocks_unresolved"] >= 1 and result["stranded_vehicles"] == [1, 2]
+    assert result["head_on_conflicts"] == 0 and result["node_conflicts"] == 0
