@@ -192,6 +192,7 @@ class RecipeSequencer(FunctionBlock):
                 at.done_s = ctx.time
                 self.chooser.busy_s[at.station] += self._processing(at.function)
                 self.hold, self.processing_at = False, None
+                self.phase = "to_station"
                 self._after_section(ctx)
         elif self.phase == "returning":
             if self.arrived and self.current == self.fixed_route[-1]:

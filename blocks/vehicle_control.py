@@ -7,9 +7,10 @@ the vehicle, each only after the ReservationMatrix granted it: the staged commun
 5.3.2, so a vehicle without a verified next node creeps to the crossing and stops there.
 
 Verification at every node (5.3.1): when the next node is held by a vehicle coming the
-other way, the route is replanned with that segment carrying a very high extra weight, so
-any detour wins; when the wait drags on (a queue, a vehicle processing), it replans the
-same way once. Routes come from an IncrementalAStar instance with a bounded number of
+other way, the less urgent of the two replans with that segment carrying a very high extra
+weight, so any detour wins (if both turned away, as in the thesis, they could meet again on
+the other side, for ever); when the wait drags on (a queue, a vehicle processing), it
+replans the same way once. Routes come from an IncrementalAStar instance with a bounded number of
 expansions per cycle, planned from the last released node while the vehicle drives, and
 replanned whenever a permanent blockade is set or cleared. Released nodes are never taken
 back: the vehicle may already be past the point where it could obey.
@@ -74,6 +75,7 @@ class VehicleControl(FunctionBlock):
         blockades: RoutingConstraints,
         lookahead: int = 2,
         wait_replan_s: float = 5.0,
+        priority: Callable[[int], tuple] | None = None,
     ) -> None:
         super().__init__()
         if not 1 <= lookahead <= 3:
@@ -85,6 +87,9 @@ class VehicleControl(FunctionBlock):
         self.blockades = blockades
         self.lookahead = lookahead
         self.wait_replan_ns = round(wait_replan_s * 1e9)
+        # smaller is more urgent; of two vehicles facing each other only the less urgent one
+        # detours, so they cannot both turn away and meet again on the other side for ever
+        self.priority = priority or (lambda v: (0, v))
         # own penalties (the occupancy seen from this vehicle), shared blockades
         self.constraints = RoutingConstraints(plant)
         self.constraints.blocked = blockades.blocked
@@ -234,9 +239,10 @@ class VehicleControl(FunctionBlock):
                 self.wait_since_ns = ctx.time_ns
                 self.wait_replanned = False
             self.wait_node, self.waiting_for = there, blocker
-        oncoming = blocker is not None and self.index[here] in (
-            res.intent.get(blocker),
-            res.wants.get(blocker),
+        oncoming = (
+            blocker is not None
+            and self.index[here] in (res.intent.get(blocker), res.wants.get(blocker))
+            and self.priority(self.vehicle) > self.priority(blocker)
         )
         overdue = ctx.time_ns - self.wait_since_ns >= self.wait_replan_ns
         if (oncoming or overdue) and not self.wait_replanned and self.fixed_route is None:

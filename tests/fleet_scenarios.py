@@ -66,6 +66,8 @@ def make_config(plant, starts, recipes, clusters, vehicle_recipes=None, **settin
     from blocks.recipe import Recipe
 
     names = list(recipes)
+    # tests measure behaviour, not wall time: a slow CI machine must not trip the watchdog
+    settings.setdefault("watchdog", 5.0)
     return FleetConfig(
         source="test",
         plant=plant,

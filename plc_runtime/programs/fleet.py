@@ -151,6 +151,7 @@ class FleetProgram:
                 self.blockades,
                 lookahead=cfg.lookahead,
                 wait_replan_s=cfg.wait_replan_s,
+                priority=self._priority,
             )
             self.controls[v].budget = cfg.astar_budget
             self.sequencers[v] = RecipeSequencer(
