@@ -205,8 +205,15 @@ class VehicleControl(FunctionBlock):
             if arcs is not None and self.blockades.blocked[arcs].all():
                 self._start_plan(ctx)  # the next segment was closed: plan around it
                 break
-            if self.index[there] in self.reservation.holds[self.vehicle]:
-                break  # the route comes back to a node it holds: pass it first, then go on
+            if (
+                there == self.current
+                or there in self.released
+                or self.index[there] in self.reservation.holds[self.vehicle]
+            ):
+                # the route comes back to a node it is at, holds or will pass: reports name
+                # nodes, so it must reach the next node first, or a report of this node would
+                # be ambiguous (the visit before or the one after?)
+                break
             if there == self.yield_node:
                 needing = self.yield_while()
                 if needing is not None:

@@ -1,0 +1,149 @@
+"""The fleet program from the command line and its configuration file: the JSON summary
+contract, the output folder, errors that name the file and key, the real-time run with the
+vehicles in their own process."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from plc_runtime.cli import main
+from plc_runtime.errors import ConfigError
+from plc_runtime.programs.fleet_config import DEFAULT_CONFIG, load_config, parse_config
+
+CONTRACT = {
+    "cycles",
+    "overruns",
+    "state",
+    "sim_time_s",
+    "vehicles",
+    "recipes_completed",
+    "stations_visited",
+    "replans",
+    "waits",
+    "deadlocks_resolved",
+    "head_on_conflicts",
+    "node_conflicts",
+    "station_utilisation",
+    "tasks",
+}
+
+
+def test_default_job_json_summary_and_output_files(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", "--duration", "90", "--json", "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert CONTRACT <= set(summary)
+    assert summary["state"] == "RUN" and summary["cycles"] == 9000
+    assert summary["sim_time_s"] == pytest.approx(90.0)
+    assert set(summary["vehicles"]) == {"1", "2", "3", "4"}
+    assert summary["recipes_completed"] >= 2
+    assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
+    assert set(summary["tasks"]) == {"fleet", "plant"}
+    assert json.loads((out / "summary.json").read_text())["cycles"] == 9000
+    rows = list(csv.DictReader((out / "recipes.csv").open()))
+    assert rows and {r["vehicle"] for r in rows} <= {"1", "2", "3", "4"}
+    done = [r for r in rows if r["recipe_finished_s"]]
+    assert len({(r["vehicle"], r["round"]) for r in done}) == summary["recipes_completed"]
+    for r in rows:
+        assert float(r["dispatched_s"]) <= float(r["arrived_s"]) <= float(r["done_s"])
+    assert (out / "routes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_config_file_on_the_command_line(tmp_path, capsys):
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(
+        DEFAULT_CONFIG.read_text().replace('strategy = "random"', 'strategy = "least_utilised"')
+    )
+    assert main(["run", str(cfg), "--cycles", "500", "--json", "--out", str(tmp_path / "o")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["config"] == str(cfg) and summary["cycles"] == 500
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (("start = 10", "start = 99"), "vehicles[1].start: node 99 is not in plant 'model-plant'"),
+        (("start = 10", "start = 0"), "vehicles[1].start: node 0 is already vehicle 1's start"),
+        (("cycle_time_ms = 10", "cycle_time_ms = 0"), "runtime.cycle_time_ms: must be in"),
+        (('strategy = "random"', 'strategy = "best"'), "stations.strategy: must be one of"),
+        (
+            ("functions = [6, 5, 1]", "functions = [6, 9, 1]"),
+            "needs function 9, which no station provides",
+        ),
+        (("lookahead = 2", "lookahead = 2\nspeed = 3"), "routing.speed: unknown key"),
+        (("until_s = 300", "until_s = 100"), "blockades[0].until_s: must be after at_s"),
+        (("to = 8", "to = 9"), "blockades[0].to: no routable segment between nodes 7 and 9"),
+        (("[plant]", "[plant\n"), "fleet.toml: "),
+    ],
+)
+def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):
+    text = DEFAULT_CONFIG.read_text()
+    assert change[0] in text
+    path = tmp_path / "fleet.toml"
+    path.write_text(text.replace(change[0], change[1], 1))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert message in str(exc.value) and str(path) in str(exc.value)
+
+
+def test_bad_configuration_is_one_line_on_the_cli(tmp_path, capsys):
+    path = tmp_path / "fleet.toml"
+    path.write_text('[plant]\nsample = "nowhere"\n')
+    assert main(["run", str(path), "--cycles", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "plant.sample: unknown sample plant 'nowhere'" in err[0]
+    assert main(["run", str(tmp_path / "missing.toml")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+
+
+def test_realtime_needs_a_bus_another_process_can_reach(capsys):
+    assert main(["run", "--realtime", "--cycles", "10"]) == 2
+    assert "virtual bus cannot reach" in capsys.readouterr().err
+
+
+def test_parse_config_keeps_vehicle_recipes_distinct():
+    cfg = parse_config(DEFAULT_CONFIG.read_text(), "default")
+    firsts = [cfg.vehicle_recipes[v][0] for v in sorted(cfg.vehicle_recipes)]
+    assert len(set(firsts)) == 4 and cfg.level == "4"
+
+
+def _namespace_reason() -> str | None:
+    import os
+
+    if os.geteuid() != 0 or not shutil.which("unshare") or not shutil.which("ip"):
+        return "needs root, unshare and ip for a private network namespace"
+    probe = subprocess.run(["unshare", "-n", "true"], capture_output=True, check=False)
+    return None if probe.returncode == 0 else "unshare -n refused"
+
+
+@pytest.mark.skipif(_namespace_reason() is not None, reason=_namespace_reason() or "")
+def test_realtime_run_with_the_vehicles_in_their_own_process(tmp_path):
+    """Wall clock, the vehicles a child process on udp_multicast inside a private network
+    namespace; its conflict monitor reports back into the summary."""
+    inside = (
+        "ip link set lo up && ip route add 224.0.0.0/4 dev lo && "
+        f"exec {sys.executable} -m plc_runtime.cli run --realtime --duration 12 --json "
+        f"--bus udp_multicast:239.74.163.9 --out {tmp_path / 'out'}"
+    )
+    result = subprocess.run(
+        ["unshare", "-n", "sh", "-c", inside],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["clock"] == "wall" and summary["state"] == "RUN"
+    assert "vehicles' process" in summary["conflict_monitor"]
+    assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
+    assert summary["stations_visited"] >= 1
+    assert summary["drivers"]["can"]["frames_in"] > 0
+    assert Path(tmp_path / "out" / "routes.png").exists()
