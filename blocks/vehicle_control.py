@@ -102,8 +102,8 @@ class VehicleControl(FunctionBlock):
     def cycle(self, ctx: CycleContext) -> None:
         rec = self.records.inputs(self.vehicle)
         flags = int(rec["flags"])
-        if not flags & ONLINE and not flags & STALE:
-            self.state = "offline"
+        if not flags & ONLINE and (not flags & STALE or self.current is None):
+            self.state = "offline"  # never heard of: its record holds no position
             return
         current, reported_next = int(rec["current"]), int(rec["next"])
         if current == NO_NODE or current not in self.index:

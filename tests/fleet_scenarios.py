@@ -49,6 +49,9 @@ def run(program: FleetProgram, seconds: float, check_every_cycle: bool = True) -
             for c in program.controls.values():
                 trace.max_expansions = max(trace.max_expansions, c.astar.expansions_last_cycle)
                 assert c.astar.expansions_last_cycle <= budget
+    # no vehicle was ever found on a node another one held (positions are known before
+    # anything is released, and every move is a granted one)
+    assert program.reservation.forced_takeovers == 0
     return trace
 
 

@@ -28,7 +28,7 @@ from blocks.recipe import RecipeRun, RecipeSequencer, StationChooser
 from blocks.reservation import ReservationMatrix
 from blocks.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver
-from plc_runtime import CycleContext, FunctionBlock, Runtime
+from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
@@ -64,16 +64,32 @@ class BlockadeSchedule(FunctionBlock):
 
 
 class FleetCycle(FunctionBlock):
-    """Per vehicle, in id order: its sequencer, then its control (one instance each)."""
+    """Per vehicle, in id order: its sequencer, then its control (one instance each).
 
-    def __init__(self, pairs: list[tuple[RecipeSequencer, VehicleControl]]) -> None:
+    Nothing is released before every vehicle has reported where it stands (or has been
+    silent for ``grace_s``: it is then stale and reported as such): a vehicle whose start
+    node is not known yet could otherwise be driven into."""
+
+    ready = Output(False, doc="every vehicle's position is known")
+
+    def __init__(self, pairs: list[tuple[RecipeSequencer, VehicleControl]], grace_s: float) -> None:
         super().__init__()
         self.pairs = pairs
+        self.grace_ns = round(grace_s * 1e9)
 
     def cycle(self, ctx: CycleContext) -> None:
+        if not self.ready:
+            self.ready = ctx.time_ns > self.grace_ns or all(
+                c.current is not None for _s, c in self.pairs
+            )
         for seq, control in self.pairs:
             seq(ctx, arrived=control.arrived, current=control.current)
-            control(ctx, target=seq.target, fixed_route=seq.fixed_route, hold=seq.hold)
+            control(
+                ctx,
+                target=seq.target,
+                fixed_route=seq.fixed_route,
+                hold=seq.hold or not self.ready,
+            )
 
 
 class FleetRecorder(FunctionBlock):
@@ -174,7 +190,9 @@ class FleetProgram:
             [
                 _Startup(self.table, self.records),
                 self.schedule,
-                FleetCycle([(self.sequencers[v], self.controls[v]) for v in vehicles]),
+                FleetCycle(
+                    [(self.sequencers[v], self.controls[v]) for v in vehicles], cfg.stale_after_s
+                ),
                 self.reservation,
                 self.resolver,
                 self.recorder,

@@ -1,0 +1,82 @@
+"""ReservationMatrix and the vehicle records as the fleet blocks see them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blocks.fleet_io import CLEAR, ONLINE, RecordArea, VehicleRecordsView
+from blocks.reservation import ReservationMatrix
+from io_drivers.protocol import Status
+from io_drivers.vehicle_records import VehicleRecords
+from plc_runtime import ProcessImage
+from plc_runtime.context import CycleContext
+from plc_runtime.image import ProgramImage
+from topology import model_plant
+
+
+def test_holds_follow_reports_and_the_clear_bit():
+    plant = model_plant()
+    idx = plant.index
+    res = ReservationMatrix(plant, [1, 2])
+    res.report(1, idx[6])
+    res.claim(1, idx[7])
+    res.claim(1, idx[8])
+    assert res.may_enter(2, idx[7]) == (False, 1)
+    res.report(1, idx[6], clear=True)  # left node 6's crossing zone: 6 is free
+    assert res.holder_of(idx[6]) is None and res.held_by(1) == [idx[7], idx[8]]
+    res.report(1, idx[6], clear=True)  # repeated periodic status: nothing changes
+    assert res.held_by(1) == [idx[7], idx[8]]
+    res.report(1, idx[7])  # reached 7
+    assert res.held_by(1) == [idx[7], idx[8]]
+    res.report(1, idx[8])
+    assert res.held_by(1) == [idx[8]] and res.holder_of(idx[7]) is None
+    assert res.segments() == []
+    res.claim(1, idx[9])
+    assert res.segments() == [(8, 9, 1)]
+    with pytest.raises(RuntimeError):
+        res.claim(2, idx[9])
+    assert res.forced_takeovers == 0
+
+
+def test_a_vehicle_found_on_a_node_it_does_not_hold_is_counted():
+    plant = model_plant()
+    idx = plant.index
+    res = ReservationMatrix(plant, [1, 2])
+    res.report(1, idx[6])
+    res.report(2, idx[6])
+    assert res.forced_takeovers == 1 and res.holder_of(idx[6]) == 2 and res.held_by(1) == []
+
+
+def test_oncoming_segment_gets_the_very_high_penalty():
+    plant = model_plant()
+    idx = plant.index
+    res = ReservationMatrix(plant, [1, 2], occupied_penalty=5.0)
+    res.report(2, idx[7])
+    out = np.zeros(plant.n_arcs)
+    res.penalties_for(1, out, oncoming=(idx[6], idx[7]))
+    arc = plant.arc_index[(6, 7)][0]
+    assert out[arc] == pytest.approx(5.0 + res.oncoming_penalty)
+    other_into_7 = plant.arc_index[(8, 7)][0]
+    assert out[other_into_7] == 5.0
+
+
+def test_record_view_reads_what_the_vehicle_link_writes():
+    image = ProcessImage(sizes={"I": 2048, "Q": 2048})
+    records = VehicleRecords(image, [3, 126], 1024, 1024, stale_after_ns=10**9)
+    records.received(Status(3, 17, 4, "DRIVING", 88, 0.42, 1, False, True), 0)
+    records.refresh_flags(0)
+    image.copy_in()
+    view = VehicleRecordsView([RecordArea(1024, 1024, 126)], {3: (0, 3), 126: (0, 126)})
+    view.bind(CycleContext(ProgramImage(image), "t", 10**7))
+    rec = view.inputs(3)
+    assert (int(rec["current"]), int(rec["next"]), int(rec["battery"]), int(rec["speed"])) == (
+        17,
+        4,
+        88,
+        42,
+    )
+    assert int(rec["flags"]) == ONLINE | CLEAR
+    view.write_command(126, (5, 6), True, 9)
+    image.copy_out()
+    assert records.command(126) == (True, 9, (5, 6))
