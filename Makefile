@@ -24,6 +24,8 @@ bench: $(STAMP)
 	$(BIN)/python bench/heuristic_table.py
 	$(BIN)/python bench/astar_step.py
 	$(BIN)/python bench/io_throughput.py
+	$(BIN)/python bench/fleet_scale.py
+	$(BIN)/python bench/warehouse_throughput.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -27,8 +27,9 @@ the S7 default watchdog of 150 ms is given; the control cost per vehicle is comp
 an overlong scan is counted instead of stopping the run (the default 150 ms watchdog faults
 the 1000-vehicle run in its first second, while all vehicles plan at once).
 
-Runs simulate ``--sim-seconds`` (300) per size; the default takes about 6-8 minutes, most of
-it the 1000-vehicle run (real-time factor about 1). ``--quick``: 10 simulated seconds each.
+Runs simulate ``--sim-seconds`` (300) per size; the default takes about 5.5 minutes on one
+core, 4 of them the 1000-vehicle run (real-time factor 1.3, plus 10 s to build the program).
+``--quick``: 10 simulated seconds each, about 25 s in all.
 
     .venv/bin/python bench/fleet_scale.py [--sizes 4 16 64 256 1000] [--sim-seconds 300] [--quick]
 """

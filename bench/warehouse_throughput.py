@@ -60,6 +60,7 @@ WIDTH = 46
 REFERENCE = {60: 2.33, 100: 3.56, 140: 4.55}  # tasks per timestep, centralised C++ planner
 UPPER_BOUND = {60: 2.59, 100: 4.32, 140: 6.05}  # no-congestion bound of that setting
 STUCK_TIMESTEPS = 500
+EARLY_TIMESTEPS = 500  # throughput over the first 500 timesteps too (before any gridlock)
 
 
 def mean_endpoint_distance(program) -> float:
@@ -105,17 +106,25 @@ def run_size(vehicles: int, timesteps: int, cycle_time: float, watchdog: float) 
             last[run.vehicle] = max(last[run.vehicle], run.finished_s)
     stuck_since = simulated - STUCK_TIMESTEPS * timestep_s()
     stuck = [v for v, t in last.items() if t < stuck_since] if stuck_since > 0 else []
-    stuck_info = [
-        (
-            v,
-            program.controls[v].state,
-            program.controls[v].current,
-            program.sequencers[v].target,
-            program.controls[v].waiting_for,
-            last[v],
+    agvs = {
+        v + k * 126: agv
+        for k, fleet in enumerate(program.fleets)
+        for v, agv in fleet.vehicles.items()
+    }
+    stuck_info = []
+    for v in stuck[:8]:
+        c, agv = program.controls[v], agvs[v]
+        physical = f"physically at {agv.node}"
+        if agv.target is not None:
+            physical += f" -> {agv.target} ({agv.progress:.2f} m)"
+        physical += f", speed {agv.speed:.2f} m/s"
+        physical += ", blocked ahead" if agv.blocked_ahead else ""
+        physical += ", stalled" if agv.stalled else ""
+        stuck_info.append(
+            (v, c.state, c.current, program.sequencers[v].target, c.waiting_for, last[v], physical)
         )
-        for v in stuck[:8]
-    ]
+    finished = sorted(r.finished_s for r in program.completed if r.finished_s is not None)
+    early_s = EARLY_TIMESTEPS * timestep_s()
     out = {
         "vehicles": vehicles,
         "state": rt.state,
@@ -125,6 +134,10 @@ def run_size(vehicles: int, timesteps: int, cycle_time: float, watchdog: float) 
         "wall_s": wall_s,
         "setup_s": setup_s,
         "tasks": len(program.completed),
+        "early": sum(1 for t in finished if t <= early_s) / EARLY_TIMESTEPS
+        if simulated >= early_s
+        else None,
+        "last_task_s": finished[-1] if finished else None,
         "mean_d": mean_d,
         "whole_us": [np.percentile(whole, q) / 1e3 for q in (50, 99)] if len(whole) else [0, 0],
         "control_us": [np.percentile(control, q) / 1e3 for q in (50, 99)]
@@ -160,7 +173,7 @@ def main() -> None:
     args = parser.parse_args()
     timesteps = 100 if args.quick else args.timesteps
     cycle = args.cycle_ms / 1e3
-    console = Console(width=max(Console().width, 230))
+    console = Console(width=max(Console().width, 260))
     console.print(
         f"Lifelong warehouse throughput, Python {sys.version.split()[0]}: warehouse 33x46, "
         f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms"
@@ -181,6 +194,8 @@ def main() -> None:
         "vehicles",
         "tasks",
         "ours tasks/timestep",
+        f"ours, first {EARLY_TIMESTEPS} timesteps",
+        "last task at timestep",
         "reference (C++ MAPF)",
         "ours / reference",
         "no-congestion bound (published)",
@@ -204,6 +219,8 @@ def main() -> None:
             str(n),
             str(r["tasks"]),
             f"{ours:.3f}",
+            f"{r['early']:.3f}" if r["early"] is not None else "-",
+            f"{r['last_task_s'] / timestep_s():.0f}" if r["last_task_s"] is not None else "-",
             f"{ref:.2f}" if ref else "-",
             f"{ours / ref:.2f}" if ref else "-",
             f"{bound:.2f}" if bound else "-",
@@ -233,10 +250,11 @@ def main() -> None:
             )
         for e in r["deadlock_events"]:
             console.print(f"  unresolved deadlock with {r['vehicles']} vehicles: {e}")
-        for v, state, node, target, waiting_for, last in r["stuck_info"]:
+        for v, state, node, target, waiting_for, last, physical in r["stuck_info"]:
             console.print(
                 f"  stuck with {r['vehicles']} vehicles: vehicle {v} state {state} at node {node} "
-                f"target {target} waiting for {waiting_for}, last task done at {last:.0f} s"
+                f"target {target} waiting for {waiting_for}, last task done at {last:.0f} s; "
+                f"{physical}"
             )
     console.print(f"total wall time {total:.0f} s")
 
