@@ -26,12 +26,15 @@ detected/resolved/unresolved, vehicles that completed nothing in the last 500 ti
 (stuck), scan times and the wall time of each run.
 
 Cycle time: 50 ms. A short run measured 1.8 / 3.3 / ~4.8 ms per scan for 60 / 100 / 140
-vehicles at 50 ms (co-simulation included), i.e. about 6 / 11 / 16 minutes for the
-200,000 scans of each 5000-timestep run: about 30 minutes in total. 100 ms would halve the
-scans but not the wall time (each scan then simulates twice the motion and the scans got
-~1.5x longer: real-time factor 20 instead of 15 at 100 vehicles), and it changed the
-behaviour: at 100 vehicles over 300 s, 105 instead of 147 tasks and 3 head-on + 10 node
-conflicts instead of 0. So 50 ms it is (``--cycle-ms`` to change).
+vehicles (co-simulation included); the full runs take about 6 / 12 / 17-18 minutes of wall
+time for their 200,000 scans each, about 35 minutes in all (run the sizes separately with
+``--sizes`` to split it). 100 ms would halve the scans but not the wall time (each scan then
+simulates twice the motion and took ~1.5x longer: real-time factor 20 instead of 15 at 100
+vehicles), and in a 300 s trial at 100 vehicles it changed the behaviour: 105 instead of 147
+tasks and 3 head-on + 10 node conflicts instead of 0. So 50 ms it is (``--cycle-ms``).
+
+Because a lifelong run can degrade (vehicles jammed for good), the table also gives the
+throughput over the first 500 timesteps and the timestep of the last completed task.
 
     .venv/bin/python bench/warehouse_throughput.py [--timesteps 5000] [--sizes 60 100 140] [--quick]
 """

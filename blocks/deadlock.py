@@ -38,7 +38,7 @@ class DeadlockEvent:
 
 class DeadlockResolver(FunctionBlock):
     detected = Output(0, doc="waits-for cycles found")
-    resolved = Output(0, doc="cycles broken by a vehicle backing off")
+    resolved = Output(0, doc="back-offs ordered (one cycle may need several)")
     unresolved = Output(0, doc="cycles nobody could leave when found (retried every scan)")
     pushes = Output(0, doc="idle vehicles moved aside for a waiting one")
 
