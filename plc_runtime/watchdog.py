@@ -12,6 +12,7 @@ started elsewhere keeps the after-the-fact check of the measured scan time only.
 
 from __future__ import annotations
 
+import atexit
 import signal
 import threading
 import warnings
@@ -57,6 +58,9 @@ class WatchdogAlarm:
                 )
                 return False
             self._previous_handler = signal.signal(signal.SIGALRM, self._on_alarm)
+            # a program that ends without stop(): at interpreter exit the handler is gone
+            # while the timer may still be armed, and SIGALRM would kill the process
+            atexit.register(self.uninstall)
         self._unsafe_codes = unsafe_codes | {self.begin_scan.__code__, self.end_scan.__code__}
         self._thread = threading.get_ident()
         self._pending = False
@@ -70,6 +74,7 @@ class WatchdogAlarm:
             if threading.current_thread() is threading.main_thread():
                 signal.signal(signal.SIGALRM, self._previous_handler)
                 self._thread = None
+                atexit.unregister(self.uninstall)
         self._pending = False
 
     def begin_scan(self, start_ns: int) -> None:
