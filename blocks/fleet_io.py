@@ -73,6 +73,10 @@ class VehicleRecordsView:
             self._in.append(ctx.image.record_view("I", a.input_base, size).view(IN_RECORD))
             self._out.append(ctx.image.record_view("Q", a.output_base, size).view(OUT_RECORD))
 
+    @property
+    def bound(self) -> bool:
+        return bool(self._in)
+
     def inputs(self, vehicle: int) -> np.void:
         area, local = self.vehicles[vehicle]
         return self._in[area][local]

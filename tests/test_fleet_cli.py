@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from netns import run_isolated, unavailable
 
 from plc_runtime.cli import main
 from plc_runtime.errors import ConfigError
@@ -114,30 +113,13 @@ def test_parse_config_keeps_vehicle_recipes_distinct():
     assert len(set(firsts)) == 4 and cfg.level == "4"
 
 
-def _namespace_reason() -> str | None:
-    import os
-
-    if os.geteuid() != 0 or not shutil.which("unshare") or not shutil.which("ip"):
-        return "needs root, unshare and ip for a private network namespace"
-    probe = subprocess.run(["unshare", "-n", "true"], capture_output=True, check=False)
-    return None if probe.returncode == 0 else "unshare -n refused"
-
-
-@pytest.mark.skipif(_namespace_reason() is not None, reason=_namespace_reason() or "")
+@pytest.mark.skipif(unavailable() is not None, reason=unavailable() or "")
 def test_realtime_run_with_the_vehicles_in_their_own_process(tmp_path):
     """Wall clock, the vehicles a child process on udp_multicast inside a private network
     namespace; its conflict monitor reports back into the summary."""
-    inside = (
-        "ip link set lo up && ip route add 224.0.0.0/4 dev lo && "
-        f"exec {sys.executable} -m plc_runtime.cli run --realtime --duration 12 --json "
+    result = run_isolated(
+        f"{sys.executable} -m plc_runtime.cli run --realtime --duration 12 --json "
         f"--bus udp_multicast:239.74.163.9 --out {tmp_path / 'out'}"
-    )
-    result = subprocess.run(
-        ["unshare", "-n", "sh", "-c", inside],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     summary = json.loads(result.stdout.strip().splitlines()[-1])

@@ -266,7 +266,7 @@ class FleetProgram:
         rows = []
         for v in self.vehicles:
             c, s = self.controls[v], self.sequencers[v]
-            rec = self.records.inputs(v) if self.records._in else None
+            rec = self.records.inputs(v) if self.records.bound else None
             recipe = self.cfg.recipes.get(s.recipe_name)
             rows.append(
                 {

@@ -1,0 +1,30 @@
+"""Running a command in a private network namespace with multicast on loopback: processes
+talk over udp_multicast and nothing leaves the machine. Needs root and util-linux unshare."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+
+def unavailable() -> str | None:
+    """Why no namespace can be made here, or None."""
+    if os.geteuid() != 0:
+        return "needs root to create a network namespace"
+    if not shutil.which("unshare") or not shutil.which("ip"):
+        return "needs unshare (util-linux) and ip (iproute2)"
+    probe = subprocess.run(["unshare", "-n", "true"], capture_output=True, check=False)
+    return None if probe.returncode == 0 else f"unshare -n refused: {probe.stderr.decode().strip()}"
+
+
+def run_isolated(command: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``command`` (a shell line) inside a fresh namespace with lo up and a multicast route."""
+    inside = f"ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec {command}"
+    return subprocess.run(
+        ["unshare", "-n", "sh", "-c", inside],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
