@@ -1,15 +1,33 @@
-"""DeadlockResolver: finds vehicles waiting for each other in a circle, and breaks the circle.
+"""DeadlockResolver: starts the vehicles standing at nodes, in priority order, pushing
+standing vehicles out of the way, and breaks the waits-for cycles that remain.
 
-The thesis leaves one case open (5.3.1): when the only remaining path is occupied, two
-vehicles can wait for each other forever. Every scan this block builds the waits-for graph
-(each waiting vehicle points at the vehicle holding the node it waits for; one edge per
-vehicle, so cycles are found by walking, O(vehicles)) and resolves every cycle at once,
-deterministically: the vehicles of the cycle and those queued behind them are tried from
-the lowest priority up (priority: the older step goes first, then the lower id); the first
-that has a free neighbour node backs off to it, which frees its node for the others. A
-vehicle that is idle (no goal) and blocks a waiting vehicle is moved aside the same way.
-A cycle nobody in it can leave is reported (``unresolved``) and retried every scan: a
-blockade may clear, a vehicle may come back online. Every detection is recorded.
+A node has one holder, so a vehicle that cannot go on waits for the holder of its next node,
+and vehicles waiting for each other in a circle wait forever (the thesis' open case, 5.3.1:
+the only remaining path is occupied). In lifelong operation on single-lane aisles such
+circles form all the time, with queues behind them that no single back-off can clear. So
+the starts of all standing vehicles are decided here, centrally, every scan, by priority
+inheritance with backtracking (PIBT, Okumura et al.), in its asynchronous form:
+
+* standing vehicles are taken most urgent first (the older recipe step, then the lower id);
+  each asks for the next node of its route;
+* if a standing vehicle holds that node, it inherits the asker's priority and must move
+  aside to one of its own neighbours (off the asker's route if it can, else closest to its
+  own goal), pushing the next one in turn; a chain that finds no room fails and the asker
+  tries nothing else: it waits (a vehicle never waits for a vehicle that waits for it, so
+  no circle is ever created by the chain itself);
+* a node held by a driving vehicle, or one processing at a station, is waited for: it
+  leaves by itself; vehicles that are offline, stale or faulty are walls;
+* every decision is remade from the current holds next scan; only granted starts commit.
+
+The most urgent vehicle is never pushed, and on a plant where every segment lies on a cycle
+its chain always finds room while there are fewer vehicles than nodes, so it reaches its
+goal; a vehicle's urgency grows while it has not reached its goal, so every vehicle becomes
+the most urgent one in turn. Pushing cannot help where the plant has dead ends (a siding,
+a corridor without a loop): a waits-for circle that remains after the pushes is broken by
+backing off the least urgent vehicle that can step off the others' routes, which then does
+not retake the node it left while they still need it. A circle nobody in it can leave is
+reported (``unresolved``) and retried every scan: a blockade may clear, a vehicle may come
+back online. Every detection is recorded.
 """
 
 from __future__ import annotations
@@ -21,11 +39,13 @@ from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
 from .constraints import RoutingConstraints
+from .heuristic import HeuristicTable
 from .reservation import ReservationMatrix
 from .vehicle_control import VehicleControl
 
-IDLE_PUSH_AFTER_NS = 1_000_000_000
-MAX_BACK_OFFS = 12  # per cycle of vehicles that makes no progress: then it is a livelock
+MAX_BACK_OFFS = 8  # returns of one cycle without progress: then it is a livelock
+MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
+WALLS = ("offline", "stale", "fault")
 
 
 @dataclass(frozen=True)
@@ -38,9 +58,9 @@ class DeadlockEvent:
 
 class DeadlockResolver(FunctionBlock):
     detected = Output(0, doc="waits-for cycles found")
-    resolved = Output(0, doc="back-offs ordered (one cycle may need several)")
+    resolved = Output(0, doc="cycles broken: by a push, or by a back-off (may need several)")
     unresolved = Output(0, doc="cycles nobody could leave when found (retried every scan)")
-    pushes = Output(0, doc="idle vehicles moved aside for a waiting one")
+    pushes = Output(0, doc="standing vehicles moved aside for a more urgent one")
 
     def __init__(
         self,
@@ -49,6 +69,7 @@ class DeadlockResolver(FunctionBlock):
         reservation: ReservationMatrix,
         blockades: RoutingConstraints,
         priority: Callable[[int], tuple[int, int]],
+        table: HeuristicTable,
     ) -> None:
         super().__init__()
         self.plant = plant
@@ -56,6 +77,7 @@ class DeadlockResolver(FunctionBlock):
         self.reservation = reservation
         self.blockades = blockades
         self.priority = priority  # smaller is more urgent
+        self.table = table
         self.events: list[DeadlockEvent] = []
         # unresolved cycles already reported, with their members' progress at the time: they
         # stay reported (stranded) until one of them reaches a new recipe step
@@ -64,46 +86,196 @@ class DeadlockResolver(FunctionBlock):
         # plant where giving way only moves the deadlock (a dead-end corridor) is reported
         # as unresolved instead of being shuffled back and forth forever
         self._attempts: dict[frozenset[int], tuple[tuple, int]] = {}
+        self._last_rings: set[frozenset[int]] = set()
+        # one scan's decisions: vehicle -> node index it goes to (its own: it stays)
+        self._next: dict[int, int] = {}
+        self._reserved: dict[int, int] = {}  # node index -> the vehicle it was given to
+        self._pushed: set[int] = set()
+        self._standing_now: Mapping[int, int] = {}
+        self._pushable: set[int] = set()
+        self._requests: Mapping[int, int] = {}
 
     def cycle(self, ctx: CycleContext) -> None:
-        waits = {
-            v: c.waiting_for
-            for v, c in self.controls.items()
-            if c.state == "waiting" and c.waiting_for is not None
-        }
+        standing, pushable = self._standing()
+        requests = {}
+        for v in sorted(standing, key=self.priority):
+            node = self.controls[v].request(ctx)
+            if node is not None:
+                requests[v] = self.plant.index[node]
+        waits = self._waits(standing, requests)
+        self._arbitrate(standing, pushable, requests)
+        self._execute(ctx, standing, requests)
         self._stuck = {
             key: progress
             for key, progress in self._stuck.items()
             if progress == tuple(self.priority(v) for v in sorted(key))
         }
-        for ring in self._cycles(waits):
-            key = frozenset(ring)
-            progress = tuple(self.priority(v) for v in sorted(ring))
-            if key in self._stuck:
-                continue  # reported already; nothing has changed for them
-            seen_before = key in self._attempts and self._attempts[key][0] == progress
-            if not seen_before:
-                self.detected += 1
-            seen, tries = self._attempts.get(key, (progress, 0))
-            tries = tries if seen == progress else 0
-            victim, node = (
-                self._back_off_candidate(ring, waits) if tries < MAX_BACK_OFFS else (None, None)
-            )
-            if victim is None:
-                self.unresolved += 1
-                self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
-                self._stuck[key] = progress
+        rings = self._cycles(waits)
+        for ring in rings:
+            if frozenset(ring) not in self._last_rings:
+                self._resolve(ctx, ring, waits, standing)
+        self._last_rings = {frozenset(ring) for ring in rings}
+
+    def _resolve(
+        self, ctx: CycleContext, ring: list[int], waits: Mapping[int, int], standing: Mapping
+    ) -> None:
+        """A waits-for cycle has formed: count it, and if this scan's pushes did not break
+        it, back off the least urgent vehicle that can step off the others' routes. The
+        same vehicles in a cycle again without any of them reaching a new recipe step count
+        as one detection; after ``MAX_BACK_OFFS`` such returns it is a livelock: reported."""
+        key = frozenset(ring)
+        if key in self._stuck:
+            return  # reported already; nothing has changed for them
+        progress = tuple(self.priority(v) for v in sorted(ring))
+        seen, tries = self._attempts.get(key, (None, 0))
+        if seen != progress:
+            self.detected += 1
+            tries = 0
+        moved = [v for v in ring if self._next.get(v, standing[v]) != standing[v]]
+        victim, node = None, None
+        if tries < MAX_BACK_OFFS:
+            if moved:
+                victim = next((m for m in moved if m in self._pushed), moved[0])
+                node = int(self.plant.ids[self._next[victim]])
+            else:
+                victim, node = self._back_off_candidate(ring, waits)
+                if victim is not None:
+                    vacated = self.controls[victim].current
+                    needed = self._needed_by(set(ring) - {victim}, vacated)
+                    self.controls[victim].back_off(ctx, node, needed)
+        if victim is None:
+            self.unresolved += 1
+            self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
+            self._stuck[key] = progress
+            return
+        self._attempts[key] = (progress, tries + 1)
+        self.resolved += 1
+        self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
+
+    # ----- the starts ---------------------------------------------------------------------------
+    def _standing(self) -> tuple[dict[int, int], set[int]]:
+        """Vehicles standing at a node (nothing released beyond it) -> that node's index;
+        and those of them that may be pushed (not processing, not on a fixed route)."""
+        index = self.plant.index
+        standing, pushable = {}, set()
+        for v, c in self.controls.items():
+            if c.current is None or c.released or c.state in WALLS:
                 continue
-            self._attempts[key] = (progress, tries + 1)
-            vacated = self.controls[victim].current
-            self.controls[victim].back_off(
-                ctx, node, self._needed_by(set(ring) - {victim}, vacated)
+            standing[v] = index[c.current]
+            if not c.hold and c.fixed_route is None:
+                pushable.add(v)
+        return standing, pushable
+
+    def _waits(self, standing: Mapping[int, int], requests: Mapping[int, int]) -> dict[int, int]:
+        """The waits-for graph of the standing vehicles, before this scan's decisions."""
+        res = self.reservation
+        waits = {}
+        for v in standing:
+            if v in requests:
+                holder = res.holder_of(requests[v])
+                if holder is not None and holder != v:
+                    waits[v] = holder
+            elif self.controls[v].state == "waiting" and self.controls[v].waiting_for is not None:
+                waits[v] = self.controls[v].waiting_for  # giving way to it
+        return waits
+
+    def _arbitrate(
+        self, standing: Mapping[int, int], pushable: set[int], requests: Mapping[int, int]
+    ) -> None:
+        self._next, self._reserved, self._pushed = {}, {}, set()
+        self._standing_now, self._pushable, self._requests = standing, pushable, requests
+        index = self.plant.index
+        for v in sorted(requests, key=self.priority):
+            if v not in self._next:
+                route = {index[n] for n in self.controls[v].planned}
+                self._start(v, [requests[v]], route, (v,))
+
+    def _start(self, v: int, candidates: list[int], route: set[int], chain: tuple) -> bool:
+        """Give ``v`` the first of ``candidates`` it can have, pushing standing holders aside
+        (``chain``: the vehicles waiting on this decision, ``v`` last). False: it stays."""
+        res, standing = self.reservation, self._standing_now
+        for node in candidates:
+            if node in self._reserved:
+                continue  # given to another vehicle this scan (or it stays there)
+            holder = res.holder_of(node)
+            if holder is not None and holder != v and not self._may_follow(holder, route, chain):
+                continue
+            self._reserved[node], self._next[v] = v, node
+            return True
+        here = standing[v]
+        self._reserved[here], self._next[v] = v, here
+        return False
+
+    def _may_follow(self, holder: int, route: set[int], chain: tuple) -> bool:
+        """May the last vehicle of ``chain`` go to the node ``holder`` holds, waiting for it
+        to leave? Decides (pushes) a standing holder first."""
+        if holder in chain:
+            return False  # it waits on this decision: waiting for it would be a circle
+        standing = self._standing_now
+        if holder not in standing:
+            return self.controls[holder].state not in WALLS  # driving: it leaves by itself
+        if holder in self._next:
+            return self._next[holder] != standing[holder]  # told to move on: follow it
+        if len(chain) >= MAX_CHAIN:
+            return False
+        node = standing[holder]
+        if holder in self._pushable:
+            self._reserved[node], self._next[chain[-1]] = chain[-1], node
+            if self._start(holder, self._aside(holder, route), route, (*chain, holder)):
+                self._pushed.add(holder)
+                return True
+            return False  # it could not make room, and stays
+        if holder in self._requests:  # on a fixed route: it may move on along it
+            return self._start(holder, [self._requests[holder]], route, (*chain, holder))
+        # processing at a station: it leaves by itself; only a vehicle on its own route waits
+        return len(chain) == 1
+
+    def _aside(self, v: int, route: set[int]) -> list[int]:
+        """Where a pushed vehicle may go, best first: off the pusher's route, a free node,
+        closer to its own goal, then the lower id (deterministic)."""
+        c = self.controls[v]
+        here = self.plant.index[c.current]
+        goal = c.goal if c.goal is not None and self.table.has_row(c.goal) else None
+        row = self.table.row(goal) if goal is not None else None
+        res, ids = self.reservation, self.plant.ids
+        options = []
+        for there, arc, _length in self.plant.neighbors[here]:
+            if self.blockades.blocked[arc]:
+                continue
+            key = (
+                there in route,
+                res.holder_of(there) is not None,
+                float(row[there]) if row is not None else 0.0,
+                int(ids[there]),
             )
-            self.resolved += 1
-            self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
-            for v in ring:
-                waits.pop(v, None)
-        self._push_idle(ctx, waits)
+            options.append((key, there))
+        return [there for _key, there in sorted(options)]
+
+    def _execute(
+        self, ctx: CycleContext, standing: Mapping[int, int], requests: Mapping[int, int]
+    ) -> None:
+        """Grant the starts whose node is free; the rest wait (and are asked again)."""
+        res, ids = self.reservation, self.plant.ids
+        res.awaited = {}
+        for v, node in self._next.items():
+            control = self.controls[v]
+            if node == standing[v]:
+                if v in requests:  # it stays: its node was given away or could not be freed
+                    wanted = requests[v]
+                    blocker = res.holder_of(wanted)
+                    if blocker is None or blocker == v:
+                        blocker = self._reserved.get(wanted)
+                    control.wait_for(ctx, blocker, int(ids[wanted]))
+                continue
+            holder = res.holder_of(node)
+            if holder is None:
+                control.grant(ctx, int(ids[node]))
+                if v in self._pushed:
+                    self.pushes += 1
+            else:
+                res.awaited[node] = v
+                if v in requests:
+                    control.wait_for(ctx, holder, int(ids[node]))
 
     def stranded(self) -> list[int]:
         """Vehicles in a waits-for cycle nobody could break (for the summary)."""
@@ -178,34 +350,3 @@ class DeadlockResolver(FunctionBlock):
                 waited = any(w == there for w in res.wants.values())
                 options.append((waited, int(self.plant.ids[there])))
         return min(options)[1] if options else None
-
-    def _push_idle(self, ctx: CycleContext, waits: Mapping[int, int]) -> None:
-        for v, blocker in sorted(waits.items()):
-            if not self._idle(blocker):
-                continue
-            if ctx.time_ns - self.controls[v].wait_since_ns < IDLE_PUSH_AFTER_NS:
-                continue
-            self._make_room(ctx, blocker, {self.plant.index[self.controls[v].current]}, depth=4)
-
-    def _idle(self, vehicle: int) -> bool:
-        c = self.controls.get(vehicle)
-        return c is not None and c.goal is None and c.state == "idle"
-
-    def _make_room(self, ctx: CycleContext, vehicle: int, avoid: set[int], depth: int) -> bool:
-        """Move an idle vehicle to a free neighbour; if it has none, move an idle neighbour
-        out of its way first (a chain of at most ``depth``), so it can follow next scan."""
-        here = self.plant.index[self.controls[vehicle].current]
-        node = self._free_neighbour(vehicle, avoid=avoid)
-        if node is not None:
-            self.controls[vehicle].back_off(ctx, node)
-            self.pushes += 1
-            return True
-        if depth == 0:
-            return False
-        for there, arc, _length in self.plant.neighbors[here]:
-            other = self.reservation.holder_of(there)
-            if there in avoid or self.blockades.blocked[arc] or other is None:
-                continue
-            if self._idle(other) and self._make_room(ctx, other, avoid | {here}, depth - 1):
-                return True
-        return False

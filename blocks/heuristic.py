@@ -125,6 +125,10 @@ class HeuristicTable(FunctionBlock):
             self._queued.append(target)
         return None
 
+    def has_row(self, target: int) -> bool:
+        """Are the distances to ``target`` at hand (without queueing a row)?"""
+        return target in self._rows or target in self._late
+
     def distance(self, node: int, target: int) -> float | None:
         """Exact distance node -> target (ids), None while the row is being computed."""
         row = self.row(target)

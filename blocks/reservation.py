@@ -50,6 +50,8 @@ class ReservationMatrix(FunctionBlock):
         self.wants: dict[int, int | None] = dict.fromkeys(self.vehicles)  # node index waited for
         self.intent: dict[int, int | None] = dict.fromkeys(self.vehicles)  # next planned node
         self.cleared: dict[int, int | None] = dict.fromkeys(self.vehicles)  # reported, not held
+        # node index -> the standing vehicle told to wait for it (set by the resolver each scan)
+        self.awaited: dict[int, int] = {}
         src, dst, length = plant.arcs
         longest = float(length.max()) if len(length) else 1.0
         # An oncoming vehicle on the next segment is the thesis' "very high extra weight":
@@ -103,6 +105,11 @@ class ReservationMatrix(FunctionBlock):
         if h == FREE or h == vehicle:
             return True, None
         return False, h
+
+    def awaited_by(self, vehicle: int, node: int) -> int | None:
+        """The standing vehicle, other than ``vehicle``, waiting for node index ``node``."""
+        w = self.awaited.get(node)
+        return None if w is None or w == vehicle else w
 
     def claim(self, vehicle: int, node: int) -> None:
         h = int(self.holder[node])

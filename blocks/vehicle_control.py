@@ -5,6 +5,10 @@ vehicle's record (reported current and next node), passes the nodes the vehicle 
 reached, and extends the released route node by node, up to ``lookahead`` nodes ahead of
 the vehicle, each only after the ReservationMatrix granted it: the staged communication of
 5.3.2, so a vehicle without a verified next node creeps to the crossing and stops there.
+A vehicle standing at a node does not start by itself: it posts its next node
+(``request``) and the DeadlockResolver grants the starts of all standing vehicles in
+priority order (``grant``), pushing standing vehicles out of the way where needed; a
+moving vehicle never extends into a node a standing vehicle was told to wait for.
 
 Verification at every node (5.3.1): when the next node is held by a vehicle coming the
 other way, the less urgent of the two replans with that segment carrying a very high extra
@@ -119,8 +123,10 @@ class VehicleControl(FunctionBlock):
             self._plan_step(ctx)
         elif self._needs_plan(ctx):
             self._start_plan(ctx)
-        if not self.planning and not self.hold:
-            self._release(ctx)
+        if self.released and not self.planning and not self.hold:
+            self._release(ctx)  # driving: extend; standing: the resolver grants the start
+        elif not self.released and not self.route and not self.planning:
+            self._not_waiting()
         self._resend_if_lost(ctx, reported_next)
         self._publish_state()
 
@@ -198,6 +204,7 @@ class VehicleControl(FunctionBlock):
 
     # ----- releasing ---------------------------------------------------------------------------
     def _release(self, ctx: CycleContext) -> None:
+        """Driving: extend the released route up to ``lookahead`` nodes, each only if free."""
         changed = False
         while len(self.released) < self.lookahead and self.route:
             here, there = self.frontier, self.route[0]
@@ -215,29 +222,24 @@ class VehicleControl(FunctionBlock):
                 # be ambiguous (the visit before or the one after?)
                 break
             if there == self.yield_node:
-                needing = self.yield_while()
-                if needing is not None:
-                    # giving way: the vehicle it backed off for still needs this node; for
-                    # deadlock detection that is waiting for that vehicle
-                    self._blocked(ctx, needing, here, there)
-                    break
+                if self.yield_while() is not None:
+                    break  # giving way: it stops at the frontier and asks again from there
                 self.yield_node, self.yield_while = None, None
-            ok, blocker = self.reservation.may_enter(self.vehicle, self.index[there])
-            if not ok:
-                self._blocked(ctx, blocker, here, there)
+            res, idx = self.reservation, self.index[there]
+            if (
+                not res.may_enter(self.vehicle, idx)[0]
+                or res.awaited_by(self.vehicle, idx) is not None
+            ):
+                # held, or a standing vehicle was told to wait for it: stop at the frontier
                 break
-            self.reservation.claim(self.vehicle, self.index[there])
+            res.claim(self.vehicle, idx)
             self.released.append(self.route.pop(0))
             changed = True
-        if changed or (not self.route and not self.planning):
-            self._not_waiting()  # moving again (or nothing left to wait for)
         if changed:
             self._send(ctx)
 
     def _blocked(self, ctx: CycleContext, blocker: int | None, here: int, there: int) -> None:
-        """The next node is held: wait there (only matters once nothing is released)."""
-        if self.released:
-            return  # still driving released nodes; try again next scan
+        """Standing at ``here``, its start to ``there`` was not granted: it waits."""
         res = self.reservation
         res.wants[self.vehicle] = self.index[there]
         if self.wait_node != there or self.waiting_for != blocker:
@@ -260,6 +262,49 @@ class VehicleControl(FunctionBlock):
     def _not_waiting(self) -> None:
         self.reservation.wants[self.vehicle] = None
         self.wait_node = self.waiting_for = None
+
+    # ----- starts, granted by the resolver -----------------------------------------------------
+    def request(self, ctx: CycleContext) -> int | None:
+        """The node (id) a vehicle standing at a node wants to start to, or None: nothing to
+        drive, planning, on hold, giving way, or the next segment closed (it replans)."""
+        if self.released or self.planning or self.hold or not self.route:
+            return None
+        here, there = self.current, self.route[0]
+        arcs = self.plant.arc_index.get((here, there))
+        if arcs is not None and self.blockades.blocked[arcs].all():
+            self._start_plan(ctx)  # the next segment was closed: plan around it
+            return None
+        if there == here or self.index[there] in self.reservation.holds[self.vehicle]:
+            return None  # the route comes back here: it must leave first (reports are nodes)
+        if there == self.yield_node:
+            needing = self.yield_while()
+            if needing is not None:
+                # giving way: the vehicle it backed off for still needs this node; for
+                # deadlock detection that is waiting for that vehicle
+                self._blocked(ctx, needing, here, there)
+                self._publish_state()
+                return None
+            self.yield_node, self.yield_while = None, None
+        return there
+
+    def grant(self, ctx: CycleContext, node: int) -> None:
+        """Start to the free node ``node`` (an id): the next node of its route, or a node it
+        was pushed to (it then replans from there)."""
+        self.reservation.claim(self.vehicle, self.index[node])
+        if self.route and self.route[0] == node:
+            self.route.pop(0)
+        else:
+            self.route, self.planning = [], False
+            self.retry_ns = ctx.time_ns
+        self.released.append(node)
+        self._not_waiting()
+        self._send(ctx)
+        self._publish_state()
+
+    def wait_for(self, ctx: CycleContext, blocker: int | None, node: int) -> None:
+        """Its start to ``node`` (an id) was not granted this scan: it waits for ``blocker``."""
+        self._blocked(ctx, blocker, self.current, node)
+        self._publish_state()
 
     def back_off(
         self, ctx: CycleContext, node: int, needed: Callable[[], int | None] | None = None

@@ -45,15 +45,18 @@ def head_on():
         p.close()
 
 
-def test_a_head_on_deadlock_is_resolved_by_backing_off_into_the_siding(head_on):
+def test_a_head_on_deadlock_is_resolved_by_pushing_and_backing_off_into_the_siding(head_on):
     p = head_on(siding=True)
     run(p, 90)
     assert p.resolver.detected >= 1 and p.resolver.resolved >= 1
-    event = p.resolver.events[0]
-    assert set(event.vehicles) == {1, 2} and event.to_node == 6
-    # vehicle 2 has the lower priority (same step age, higher id), but it could only retreat
-    # along vehicle 1's route; vehicle 1 can step off both routes into the siding
-    assert event.backed_off == 1
+    events = p.resolver.events
+    assert all(set(e.vehicles) == {1, 2} for e in events)
+    # vehicle 1 is the more urgent (same step age, lower id): it first pushes vehicle 2 back
+    # to the east end, where pushing can go no further; the cycle that remains is broken by
+    # a back-off, and the one that can step off both routes, into the siding, is vehicle 1
+    assert (events[0].backed_off, events[0].to_node) == (2, 5)
+    assert (events[-1].backed_off, events[-1].to_node) == (1, 6)
+    assert p.resolver.pushes >= 1
     assert sorted(r.vehicle for r in p.completed) == [1, 2]
     assert p.resolver.unresolved == 0
 

@@ -182,7 +182,7 @@ class FleetProgram:
             )
         self.schedule = BlockadeSchedule(cfg.blockades, self.blockades)
         self.resolver = DeadlockResolver(
-            plant, self.controls, self.reservation, self.blockades, self._priority
+            plant, self.controls, self.reservation, self.blockades, self._priority, self.table
         )
         self.recorder = FleetRecorder(self.controls)
         self.rt.add_task(

@@ -87,7 +87,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             }
             for e in resolver.events[:100]
         ],
-        "idle_vehicles_moved": resolver.pushes,
+        "vehicles_pushed": resolver.pushes,
         "head_on_conflicts": monitor.head_on if monitor else None,
         "node_conflicts": monitor.node if monitor else None,
         "conflict_monitor": "simulated positions"
