@@ -41,6 +41,7 @@ class ReservationMatrix(FunctionBlock):
         vehicles: Iterable[int],
         occupied_penalty: float = 0.0,
         oncoming_penalty: float | None = None,
+        contraflow_penalty: float = 0.0,
     ) -> None:
         super().__init__()
         self.plant = plant
@@ -62,6 +63,18 @@ class ReservationMatrix(FunctionBlock):
         self.oncoming_penalty = (
             oncoming_penalty if oncoming_penalty is not None else 1000 * longest * plant.n
         )
+        # Every vehicle's planned route, as arcs, counted per arc: a vehicle planning against
+        # the planned flow of others will meet them head-on in a single-lane aisle, so each
+        # opposing route costs ``contraflow_penalty`` per arc (a route along the flow is free)
+        self.contraflow_penalty = contraflow_penalty
+        self.flow = np.zeros(len(src) + 1, dtype=np.float64)  # last: no reverse arc
+        arc_of = {(int(u), int(v)): arc for arc, (u, v) in enumerate(zip(src, dst, strict=True))}
+        self._arc_of = arc_of
+        self._reverse = np.array(
+            [arc_of.get((int(v), int(u)), len(src)) for u, v in zip(src, dst, strict=True)],
+            dtype=np.int64,
+        )
+        self._planned: dict[int, list[int]] = {v: [] for v in self.vehicles}
         order = np.argsort(dst, kind="stable")
         self._in_arcs_order = order
         self._in_arcs_start = np.searchsorted(dst[order], np.arange(plant.n + 1))
@@ -131,6 +144,20 @@ class ReservationMatrix(FunctionBlock):
                 out.append((int(ids[a]), int(ids[b]), v))
         return out
 
+    def plan(self, vehicle: int, nodes: list[int]) -> None:
+        """The node indices ``vehicle`` plans to drive, from where it is: its share of the
+        planned flow."""
+        arcs = self._planned[vehicle]
+        for arc in arcs:
+            self.flow[arc] -= 1
+        arcs[:] = [
+            arc
+            for a, b in zip(nodes, nodes[1:], strict=False)
+            if (arc := self._arc_of.get((a, b))) is not None
+        ]
+        for arc in arcs:
+            self.flow[arc] += 1
+
     def in_arcs(self, node: int) -> np.ndarray:
         return self._in_arcs_order[self._in_arcs_start[node] : self._in_arcs_start[node + 1]]
 
@@ -138,9 +165,15 @@ class ReservationMatrix(FunctionBlock):
         self, vehicle: int, out: np.ndarray, oncoming: tuple[int, int] | None = None
     ) -> np.ndarray:
         """Fill ``out`` (one value per arc) with the extra costs ``vehicle`` should plan with:
-        every arc into a node another vehicle holds costs ``occupied_penalty`` more, and the
+        every arc against another vehicle's planned route costs ``contraflow_penalty`` more
+        per such route, every arc into a node another vehicle holds ``occupied_penalty`` more,
+        and the
         segment ``oncoming`` (from, to indices) the thesis' very high extra weight."""
         out[:] = 0.0
+        if self.contraflow_penalty > 0:
+            out += self.contraflow_penalty * self.flow[self._reverse]
+            own = self._reverse[self._planned[vehicle]]
+            out[own[own < len(out)]] -= self.contraflow_penalty
         if self.occupied_penalty > 0:
             taken = np.flatnonzero((self.holder != FREE) & (self.holder != vehicle))
             for node in taken:

@@ -100,6 +100,7 @@ class VehicleControl(FunctionBlock):
         self.astar = IncrementalAStar(plant, table, constraints=self.constraints)
         self.index = plant.index
         self.yield_node: int | None = None
+        self._planned_from: int | None = None
         self.yield_while: Callable[[], int | None] | None = None
 
     # ----- the scan ------------------------------------------------------------------------
@@ -347,7 +348,11 @@ class VehicleControl(FunctionBlock):
             and not self.route
             and not self.planning
         )
-        self.planned = tuple(self.released + self.route)
+        planned = tuple(self.released + self.route)
+        if planned != self.planned or (planned and self.current != self._planned_from):
+            self.planned, self._planned_from = planned, self.current
+            index = self.index
+            res.plan(self.vehicle, [index[n] for n in (self.current, *planned)])
         if self.arrived:
             self.state = "arrived"
         elif self.planning:

@@ -152,7 +152,12 @@ class FleetProgram:
         targets = sorted({s for stations in cfg.clusters.values() for s in stations})
         self.table = HeuristicTable(plant, targets)
         self.blockades = RoutingConstraints(plant)
-        self.reservation = ReservationMatrix(plant, vehicles, cfg.occupied_penalty)
+        self.reservation = ReservationMatrix(
+            plant,
+            vehicles,
+            occupied_penalty=cfg.occupied_penalty,
+            contraflow_penalty=cfg.contraflow_penalty,
+        )
         self.chooser = StationChooser(plant, cfg.clusters, cfg.strategy, self.table, cfg.seed)
         self.completed: list[RecipeRun] = []
         self.controls: dict[int, VehicleControl] = {}

@@ -49,6 +49,7 @@ class FleetConfig:
     lookahead: int = 2
     wait_replan_s: float = 5.0
     occupied_penalty: float = 0.0
+    contraflow_penalty: float = 3.0
     bus_interface: str = "virtual"
     bus_channel: str = "agv"
     status_period_s: float = 0.1
@@ -184,6 +185,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         lookahead=routing.integer("lookahead", 2, 1, 3),
         wait_replan_s=routing.number("wait_replan_s", 5.0, 0.0, 3600.0),
         occupied_penalty=routing.number("occupied_penalty", 0.0, 0.0, 1e9),
+        contraflow_penalty=routing.number("contraflow_penalty", 3.0, 0.0, 1e9),
         bus_interface=bus.get("interface", str, "virtual"),
         bus_channel=bus.get("channel", str, "agv"),
         status_period_s=bus.number("status_period_s", 0.1, 0.001, 30.0),
