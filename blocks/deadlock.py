@@ -256,7 +256,12 @@ class DeadlockResolver(FunctionBlock):
     ) -> None:
         """Grant the starts whose node is free; the rest wait (and are asked again)."""
         res, ids = self.reservation, self.plant.ids
-        res.awaited = {}
+        res.awaited = {
+            node: v
+            for v, node in self._next.items()
+            if node != standing[v] and res.holder_of(node) is not None
+        }
+        res.moving_on = set(res.awaited.values())
         for v, node in self._next.items():
             control = self.controls[v]
             if node == standing[v]:
@@ -272,10 +277,8 @@ class DeadlockResolver(FunctionBlock):
                 control.grant(ctx, int(ids[node]))
                 if v in self._pushed:
                     self.pushes += 1
-            else:
-                res.awaited[node] = v
-                if v in requests:
-                    control.wait_for(ctx, holder, int(ids[node]))
+            elif v in requests:
+                control.wait_for(ctx, holder, int(ids[node]))
 
     def stranded(self) -> list[int]:
         """Vehicles in a waits-for cycle nobody could break (for the summary)."""

@@ -53,6 +53,7 @@ class ReservationMatrix(FunctionBlock):
         self.cleared: dict[int, int | None] = dict.fromkeys(self.vehicles)  # reported, not held
         # node index -> the standing vehicle told to wait for it (set by the resolver each scan)
         self.awaited: dict[int, int] = {}
+        self.moving_on: set[int] = set()  # standing vehicles told to move, waiting for the node
         src, dst, length = plant.arcs
         longest = float(length.max()) if len(length) else 1.0
         # An oncoming vehicle on the next segment is the thesis' "very high extra weight":
@@ -123,6 +124,10 @@ class ReservationMatrix(FunctionBlock):
         """The standing vehicle, other than ``vehicle``, waiting for node index ``node``."""
         w = self.awaited.get(node)
         return None if w is None or w == vehicle else w
+
+    def making_way(self, vehicle: int) -> bool:
+        """Is ``vehicle`` driving (released beyond its node) or told to move on?"""
+        return len(self.holds[vehicle]) > 1 or vehicle in self.moving_on
 
     def claim(self, vehicle: int, node: int) -> None:
         h = int(self.holder[node])

@@ -35,6 +35,7 @@ from .reservation import ReservationMatrix
 
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
 NO_ROUTE_RETRY_NS = 1_000_000_000
+YIELD_NS = 20_000_000_000  # giving way after a back-off ends after this at the latest
 
 
 class VehicleControl(FunctionBlock):
@@ -102,6 +103,7 @@ class VehicleControl(FunctionBlock):
         self.yield_node: int | None = None
         self._planned_from: int | None = None
         self.yield_while: Callable[[], int | None] | None = None
+        self.yield_until_ns = 0
 
     # ----- the scan ------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
@@ -223,7 +225,7 @@ class VehicleControl(FunctionBlock):
                 # be ambiguous (the visit before or the one after?)
                 break
             if there == self.yield_node:
-                if self.yield_while() is not None:
+                if self._giving_way(ctx) is not None:
                     break  # giving way: it stops at the frontier and asks again from there
                 self.yield_node, self.yield_while = None, None
             res, idx = self.reservation, self.index[there]
@@ -254,6 +256,8 @@ class VehicleControl(FunctionBlock):
             and self.index[here] in (res.intent.get(blocker), res.wants.get(blocker))
             and self.priority(self.vehicle) > self.priority(blocker)
         )
+        if blocker is not None and res.making_way(blocker):
+            self.wait_since_ns = ctx.time_ns  # it is on its way: the wait is not overdue
         overdue = ctx.time_ns - self.wait_since_ns >= self.wait_replan_ns
         if (oncoming or overdue) and not self.wait_replanned and self.fixed_route is None:
             self.wait_replanned = True
@@ -278,7 +282,7 @@ class VehicleControl(FunctionBlock):
         if there == here or self.index[there] in self.reservation.holds[self.vehicle]:
             return None  # the route comes back here: it must leave first (reports are nodes)
         if there == self.yield_node:
-            needing = self.yield_while()
+            needing = self._giving_way(ctx)
             if needing is not None:
                 # giving way: the vehicle it backed off for still needs this node; for
                 # deadlock detection that is waiting for that vehicle
@@ -319,6 +323,15 @@ class VehicleControl(FunctionBlock):
         self.retry_ns = ctx.time_ns
         if needed is not None:
             self.yield_node, self.yield_while = self.current, needed
+            self.yield_until_ns = ctx.time_ns + YIELD_NS
+
+    def _giving_way(self, ctx: CycleContext) -> int | None:
+        """The vehicle it still gives way to, or None. Bounded in time: a vehicle that only
+        gives way never becomes urgent enough to be started, so it would wait for ever if
+        the one it backed off for got stuck elsewhere."""
+        if ctx.time_ns >= self.yield_until_ns:
+            return None
+        return self.yield_while()
 
     # ----- the command -----------------------------------------------------------------------
     def _send(self, ctx: CycleContext) -> None:

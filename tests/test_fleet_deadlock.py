@@ -71,3 +71,36 @@ def test_without_a_way_out_the_deadlock_is_reported_not_hidden(head_on):
     result = summary(p, wall_s=1.0)
     assert result["deadlocks_unresolved"] >= 1 and result["stranded_vehicles"] == [1, 2]
     assert result["head_on_conflicts"] == 0 and result["node_conflicts"] == 0
+
+
+def test_a_queue_of_standing_vehicles_is_pushed_aside_by_priority_inheritance():
+    """Vehicle 1's shortest route runs through two standing vehicles, one behind the other:
+    the first can only move onto the second's node, so the second must make room first (a
+    chain of pushes, each off vehicle 1's route where it can), and vehicle 1 drives through."""
+    nodes = [Node(i, f"n{i}", float(i - 1), 0.0) for i in (1, 2, 3, 4)]
+    nodes.append(Node(5, "east", 4.0, 0.0, "station", (2,)))
+    nodes += [Node(6, "loop-w", 1.0, 1.0), Node(7, "loop-e", 3.0, 1.0)]
+    nodes[2] = Node(3, "park-a", 2.0, 0.0, "station", (3,))
+    nodes[3] = Node(4, "park-b", 3.0, 0.0, "station", (4,))
+    edges = [Edge(i, i + 1, 1.0) for i in range(1, 5)]
+    edges += [Edge(2, 6, 1.0), Edge(6, 7, 2.0), Edge(7, 4, 1.0)]
+    plant = Plant.build(nodes, edges, name="queue", functions={2: "e", 3: "a", 4: "b"})
+    cfg = make_config(
+        plant,
+        {1: 1, 2: 3, 3: 4},
+        {"east": [2], "park-a": [3], "park-b": [4]},
+        {2: [5], 3: [3], 4: [4]},
+        vehicle_recipes={1: ["east"], 2: ["park-a"], 3: ["park-b"]},
+        rounds=1,
+    )
+    p = FleetProgram(cfg)
+    try:
+        run(p, 60)
+        assert [r.vehicle for r in p.completed if r.vehicle == 1] == [1]
+        assert p.resolver.pushes >= 3  # vehicle 3 twice (to make room), vehicle 2 once or more
+        driven = p.recorder.driven
+        assert driven[1][:5] == [1, 2, 3, 4, 5]  # straight through, no detour
+        assert {6, 7} & set(driven[3])  # the one behind stepped off the route into the loop
+        assert p.resolver.unresolved == 0
+    finally:
+        p.close()

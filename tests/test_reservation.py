@@ -80,3 +80,22 @@ def test_record_view_reads_what_the_vehicle_link_writes():
     view.write_command(126, (5, 6), True, 9)
     image.copy_out()
     assert records.command(126) == (True, 9, (5, 6))
+
+
+def test_planned_routes_make_the_opposite_direction_cost_more():
+    plant = model_plant()
+    idx = plant.index
+    res = ReservationMatrix(plant, [1, 2, 3], contraflow_penalty=3.0)
+    res.plan(2, [idx[6], idx[7], idx[8]])
+    res.plan(3, [idx[6], idx[7]])
+    out = np.zeros(plant.n_arcs)
+    res.penalties_for(1, out)
+    against = plant.arc_index[(7, 6)][0]
+    assert out[against] == 6.0  # two routes the other way
+    assert out[plant.arc_index[(8, 7)][0]] == 3.0
+    assert out[plant.arc_index[(6, 7)][0]] == 0.0  # along the flow: free
+    res.penalties_for(2, out)
+    assert out[against] == 3.0  # its own route is not held against it
+    res.plan(2, [idx[8]])  # it has arrived: its share of the flow is gone
+    res.penalties_for(1, out)
+    assert out[against] == 3.0 and out[plant.arc_index[(8, 7)][0]] == 0.0
