@@ -155,15 +155,16 @@ class DeadlockResolver(FunctionBlock):
     # ----- the starts ---------------------------------------------------------------------------
     def _standing(self) -> tuple[dict[int, int], set[int]]:
         """Vehicles standing at a node (nothing released beyond it) -> that node's index;
-        and those of them that may be pushed (not processing, not on a fixed route)."""
+        and those of them that may be pushed (not arrived or processing, not on a fixed
+        route)."""
         index = self.plant.index
         standing, pushable = {}, set()
         for v, c in self.controls.items():
             if c.current is None or c.released or c.state in WALLS:
                 continue
             standing[v] = index[c.current]
-            if not c.hold and c.fixed_route is None:
-                pushable.add(v)
+            if not (c.hold or c.arrived) and c.fixed_route is None:
+                pushable.add(v)  # (arrived: its sequencer sees that next scan, then holds)
         return standing, pushable
 
     def _waits(self, standing: Mapping[int, int], requests: Mapping[int, int]) -> dict[int, int]:
