@@ -25,13 +25,13 @@ Also reported: the independent conflict monitor's counts (must be 0), deadlocks
 detected/resolved/unresolved, vehicles that completed nothing in the last 500 timesteps
 (stuck), scan times and the wall time of each run.
 
-Cycle time: 50 ms. A short run measured 1.8 / 3.3 / ~4.8 ms per scan for 60 / 100 / 140
-vehicles (co-simulation included); the full runs take about 6 / 12 / 17-18 minutes of wall
-time for their 200,000 scans each, about 35 minutes in all (run the sizes separately with
-``--sizes`` to split it). 100 ms would halve the scans but not the wall time (each scan then
-simulates twice the motion and took ~1.5x longer: real-time factor 20 instead of 15 at 100
-vehicles), and in a 300 s trial at 100 vehicles it changed the behaviour: 105 instead of 147
-tasks and 3 head-on + 10 node conflicts instead of 0. So 50 ms it is (``--cycle-ms``).
+Cycle time: 50 ms. The full runs took 6 / 12 / 18 minutes of wall time for their 200,000
+scans each (scan p50 1.8 / 3.5 / 5.4 ms, co-simulation included), about 36 minutes in one
+process; run the sizes separately with ``--sizes`` to split it. 100 ms would halve the
+scans but not the wall time (each scan then simulates twice the motion and takes ~1.5x
+longer). An earlier version of the program also counted 3 head-on and 10 node conflicts in
+a 300 s trial at 100 vehicles and 100 ms; the cause was not found. The current version
+counted none in the same trial (205 tasks). 50 ms is kept (``--cycle-ms`` changes it).
 
 Because a lifelong run can degrade (vehicles jammed for good), the table also gives the
 throughput over the first 500 timesteps and the timestep of the last completed task.
