@@ -211,23 +211,8 @@ class VehicleControl(FunctionBlock):
         changed = False
         while len(self.released) < self.lookahead and self.route:
             here, there = self.frontier, self.route[0]
-            arcs = self.plant.arc_index.get((here, there))
-            if arcs is not None and self.blockades.blocked[arcs].all():
-                self._start_plan(ctx)  # the next segment was closed: plan around it
-                break
-            if (
-                there == self.current
-                or there in self.released
-                or self.index[there] in self.reservation.holds[self.vehicle]
-            ):
-                # the route comes back to a node it is at, holds or will pass: reports name
-                # nodes, so it must reach the next node first, or a report of this node would
-                # be ambiguous (the visit before or the one after?)
-                break
-            if there == self.yield_node:
-                if self._giving_way(ctx) is not None:
-                    break  # giving way: it stops at the frontier and asks again from there
-                self.yield_node, self.yield_while = None, None
+            if self._step_withheld(ctx, here, there)[0]:
+                break  # it stops at the frontier and asks again from there
             res, idx = self.reservation, self.index[there]
             if (
                 not res.may_enter(self.vehicle, idx)[0]
@@ -275,22 +260,35 @@ class VehicleControl(FunctionBlock):
         if self.released or self.planning or self.hold or not self.route:
             return None
         here, there = self.current, self.route[0]
+        withheld, giving_way_to = self._step_withheld(ctx, here, there)
+        if giving_way_to is not None:
+            # for deadlock detection, giving way is waiting for the vehicle it gave way to
+            self._blocked(ctx, giving_way_to, here, there)
+            self._publish_state()
+        return None if withheld else there
+
+    def _step_withheld(self, ctx: CycleContext, here: int, there: int) -> tuple[bool, int | None]:
+        """Must the route step ``here`` -> ``there`` wait, whoever holds ``there``? Also the
+        vehicle it gives way to, if that is the reason. A closed segment starts a replan."""
         arcs = self.plant.arc_index.get((here, there))
         if arcs is not None and self.blockades.blocked[arcs].all():
             self._start_plan(ctx)  # the next segment was closed: plan around it
-            return None
-        if there == here or self.index[there] in self.reservation.holds[self.vehicle]:
-            return None  # the route comes back here: it must leave first (reports are nodes)
+            return True, None
+        if (
+            there == self.current
+            or there in self.released
+            or self.index[there] in self.reservation.holds[self.vehicle]
+        ):
+            # the route comes back to a node it is at, holds or will pass: reports name
+            # nodes, so it must reach the next node first, or a report of this node would
+            # be ambiguous (the visit before or the one after?)
+            return True, None
         if there == self.yield_node:
             needing = self._giving_way(ctx)
             if needing is not None:
-                # giving way: the vehicle it backed off for still needs this node; for
-                # deadlock detection that is waiting for that vehicle
-                self._blocked(ctx, needing, here, there)
-                self._publish_state()
-                return None
+                return True, needing  # the vehicle it backed off for still needs this node
             self.yield_node, self.yield_while = None, None
-        return there
+        return False, None
 
     def grant(self, ctx: CycleContext, node: int) -> None:
         """Start to the free node ``node`` (an id): the next node of its route, or a node it
