@@ -28,8 +28,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from blocks.astar import IncrementalAStar  # noqa: E402
-from blocks.heuristic import HeuristicTable  # noqa: E402
+from blocks.routing.astar import IncrementalAStar  # noqa: E402
+from blocks.routing.heuristic import HeuristicTable  # noqa: E402
 from plc_runtime import FunctionBlock, Runtime, VirtualClock  # noqa: E402
 from topology import load, warehouse  # noqa: E402
 from topology.formats import load_scenarios  # noqa: E402

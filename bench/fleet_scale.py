@@ -53,7 +53,7 @@ from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from blocks.recipe import Recipe  # noqa: E402
+from blocks.jobs.recipe import Recipe  # noqa: E402
 from plc_runtime.programs.fleet import FleetProgram  # noqa: E402
 from plc_runtime.programs.fleet_config import FleetConfig  # noqa: E402
 from topology import Plant, warehouse  # noqa: E402

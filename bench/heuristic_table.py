@@ -1,7 +1,7 @@
 """Heuristic-table build time: exact distance of every node to each target.
 
 Plants: open square grids (4-connected, unit lengths) of about 1e3, 1e4, 1e5 and 1e6 nodes;
-targets: 10, 100 and 1000 random nodes. Ours: ``blocks.heuristic.distances_to`` (scipy
+targets: 10, 100 and 1000 random nodes. Ours: ``blocks.routing.heuristic.distances_to`` (scipy
 csgraph Dijkstra on the reversed graph, float32 rounded down). Baseline, in the same run:
 networkx ``single_source_dijkstra_path_length`` on the reversed DiGraph, one call per target,
 timed over as many targets as fit in ``--nx-seconds`` and reported per target (networkx
@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from blocks.heuristic import distances_to  # noqa: E402
+from blocks.routing.heuristic import distances_to  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 
 

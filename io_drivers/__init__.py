@@ -1,1 +1,1 @@
-"""Bus drivers that connect the runtime to vehicles and HMIs: CAN (python-can) and Modbus TCP (pymodbus) (issue 4)."""
+"""Bus drivers that connect the runtime to vehicles and HMIs: CAN (python-can) and Modbus TCP (pymodbus)."""

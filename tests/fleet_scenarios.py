@@ -66,7 +66,7 @@ def visited_functions(program: FleetProgram, vehicle: int) -> list[tuple[str, li
 
 def make_config(plant, starts, recipes, clusters, vehicle_recipes=None, **settings) -> FleetConfig:
     """A FleetConfig built in code (recipes: name -> function ids)."""
-    from blocks.recipe import Recipe
+    from blocks.jobs.recipe import Recipe
 
     names = list(recipes)
     # tests measure behaviour, not wall time: a slow CI machine must not trip the watchdog

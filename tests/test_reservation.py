@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blocks.fleet_io import CLEAR, ONLINE, RecordArea, VehicleRecordsView
-from blocks.reservation import ReservationMatrix
+from blocks.traffic.records import CLEAR, ONLINE, RecordArea, VehicleRecordsView
+from blocks.traffic.reservation import ReservationMatrix
 from io_drivers.protocol import Status
 from io_drivers.vehicle_records import VehicleRecords
 from plc_runtime import ProcessImage

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from blocks.astar import IncrementalAStar
-from blocks.constraints import RoutingConstraints
-from blocks.heuristic import HeuristicTable, distances_to
+from blocks.routing.astar import IncrementalAStar
+from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.heuristic import HeuristicTable, distances_to
 from plc_runtime import FunctionBlock, Runtime, VirtualClock
 from topology import Edge, Node, Plant, grid, model_plant, route_cost
 

@@ -1,1 +1,1 @@
-"""The AGV simulator: vehicles that drive the plant graph and talk to the runtime only over a bus (issue 4)."""
+"""The AGV simulator: vehicles that drive the plant graph and talk to the runtime only over a bus."""

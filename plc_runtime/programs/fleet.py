@@ -20,13 +20,13 @@ from collections.abc import Iterable
 
 import can
 
-from blocks.constraints import RoutingConstraints
-from blocks.deadlock import DeadlockResolver
-from blocks.fleet_io import RECORD, STATES, RecordArea, VehicleRecordsView
-from blocks.heuristic import HeuristicTable
-from blocks.recipe import RecipeRun, RecipeSequencer, StationChooser
-from blocks.reservation import ReservationMatrix
-from blocks.vehicle_control import VehicleControl
+from blocks.jobs.recipe import RecipeRun, RecipeSequencer, StationChooser
+from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.heuristic import HeuristicTable
+from blocks.traffic.deadlock import DeadlockResolver
+from blocks.traffic.records import RECORD, STATES, RecordArea, VehicleRecordsView
+from blocks.traffic.reservation import ReservationMatrix
+from blocks.traffic.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock

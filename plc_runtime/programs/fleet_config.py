@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from blocks.recipe import STRATEGIES, Recipe
+from blocks.jobs.recipe import STRATEGIES, Recipe
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from blocks.astar import IncrementalAStar
-from blocks.constraints import RoutingConstraints
-from blocks.heuristic import HeuristicTable
+from blocks.routing.astar import IncrementalAStar
+from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import ConfigError, CycleContext, FunctionBlock, Runtime, VirtualClock
 from topology import SAMPLES, Plant, TopologyError, load
 

@@ -26,12 +26,12 @@ import math
 
 import numpy as np
 
+from blocks.standard import R_TRIG
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
 from .constraints import RoutingConstraints
 from .heuristic import HeuristicTable
-from .standard import R_TRIG
 
 HEURISTICS = ("table", "euclidean", "manhattan", "zero")
 

@@ -35,11 +35,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
-from .constraints import RoutingConstraints
-from .heuristic import HeuristicTable
 from .reservation import ReservationMatrix
 from .vehicle_control import VehicleControl
 

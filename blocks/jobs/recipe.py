@@ -22,11 +22,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blocks.routing.heuristic import HeuristicTable
+from blocks.standard import TON
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
-
-from .heuristic import HeuristicTable
-from .standard import TON
 
 STRATEGIES = ("random", "round_robin", "least_utilised", "nearest", "occupancy_aware")
 ENTRY, EXIT = 0, 1

@@ -24,13 +24,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from blocks.routing.astar import IncrementalAStar
+from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
-from .astar import IncrementalAStar
-from .constraints import RoutingConstraints
-from .fleet_io import CLEAR, FAULT, NO_NODE, ONLINE, STALE, VehicleRecordsView
-from .heuristic import HeuristicTable
+from .records import CLEAR, FAULT, NO_NODE, ONLINE, STALE, VehicleRecordsView
 from .reservation import ReservationMatrix
 
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
