@@ -1,6 +1,6 @@
 """The whole fleet program against fleet size: 4, 16, 64, 256 and 1000 vehicles.
 
-Every size runs the fleet program (``plc_runtime.programs.fleet``) end to end on the virtual
+Every size runs the fleet program (``fleet.program``) end to end on the virtual
 clock: CAN copy-in, per vehicle sequencer and VehicleControl (incremental A*, reservations,
 replanning), ReservationMatrix, DeadlockResolver, recorder, CAN copy-out, with the vehicles
 co-simulated in the same scan (task ``plant``, after the program) on virtual CAN buses (126
@@ -54,8 +54,8 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from blocks.jobs.recipe import Recipe  # noqa: E402
-from plc_runtime.programs.fleet import FleetProgram  # noqa: E402
-from plc_runtime.programs.fleet_config import FleetConfig  # noqa: E402
+from fleet.config import FleetConfig  # noqa: E402
+from fleet.program import FleetProgram  # noqa: E402
 from topology import Plant, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
 

@@ -1,9 +1,11 @@
-"""The ``plc-runtime`` command line.
+"""The generic ``run`` machinery of a command line built on the runtime.
 
-``plc-runtime run`` runs a program headless: on the virtual clock as fast as it can (the
-default), or on the wall clock with ``--realtime``. On a terminal it shows a live status
-screen; at the end it prints a summary (``--json``: one JSON object on stdout). Errors are
-one line on stderr and a non-zero exit code.
+A program is a function that builds a :class:`Runtime` from a clock, a cycle time, a
+watchdog and a retain file. :func:`run_program` runs it headless: on the virtual clock as
+fast as it can (the default), or on the wall clock with ``--realtime``. On a terminal it
+shows a live status screen; at the end it prints a summary (``--json``: one JSON object on
+stdout). Errors are one line on stderr and a non-zero exit code. An application adds its
+own commands and programs around this.
 """
 
 from __future__ import annotations
@@ -14,19 +16,15 @@ import math
 import signal
 import sys
 import time
-import warnings
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from topology import TopologyError
-
-from . import cli_topology, cli_vehicles
 from .clock import VirtualClock, WallClock
-from .errors import PlcError
-from .programs import PROGRAMS
+from .io import IoDriver
 from .runtime import Runtime
 
 EXIT_FAULT = 1
@@ -39,7 +37,9 @@ class CliError(Exception):
     """A usage error to report as one line."""
 
 
-def _positive(kind: type) -> Any:
+def positive(kind: type) -> Any:
+    """An argparse type: a finite number of ``kind`` greater than 0."""
+
     def parse(text: str) -> Any:
         try:
             value = kind(text)
@@ -52,7 +52,8 @@ def _positive(kind: type) -> Any:
     return parse
 
 
-def _non_negative(text: str) -> float:
+def non_negative(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
     try:
         value = float(text)
     except ValueError:
@@ -62,28 +63,13 @@ def _non_negative(text: str) -> float:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets."
-    )
-    sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="run a program headless (default: the fleet program)")
-    run.add_argument(
-        "config",
-        nargs="?",
-        help="fleet configuration (TOML, docs/fleet-config.md); default: the embedded model-plant fleet",
-    )
-    run.add_argument(
-        "--program",
-        default="fleet",
-        choices=["fleet", *sorted(PROGRAMS)],
-        help="program to run (default: fleet)",
-    )
+def add_run_options(run: argparse.ArgumentParser) -> None:
+    """The options every program shares: how long, which clock, cycle and watchdog, retain."""
     length = run.add_mutually_exclusive_group()
-    length.add_argument("--cycles", type=_positive(int), help="number of base cycles to run")
+    length.add_argument("--cycles", type=positive(int), help="number of base cycles to run")
     length.add_argument(
         "--duration",
-        type=_positive(float),
+        type=positive(float),
         help="seconds to run (simulated; wall-clock with --realtime)",
     )
     run.add_argument(
@@ -91,17 +77,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument(
         "--cycle-time",
-        type=_positive(float),
-        help="base cycle time in seconds (default: the fleet configuration's; demo 0.010)",
+        type=positive(float),
+        help="base cycle time in seconds (default: the program's)",
     )
     run.add_argument(
         "--watchdog",
-        type=_positive(float),
-        help="maximum cycle time in ms (default: the fleet configuration's; demo 150)",
+        type=positive(float),
+        help="maximum cycle time in ms (default: the program's)",
     )
     run.add_argument(
         "--spin",
-        type=_non_negative,
+        type=non_negative,
         default=0.0,
         help="realtime: spin the last SPIN ms before each deadline",
     )
@@ -112,74 +98,40 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--json", action="store_true", help="print the summary as one JSON object on stdout"
     )
-    run.add_argument(
-        "--modbus",
-        metavar="HOST:PORT",
-        help="serve the process image over Modbus TCP (e.g. 127.0.0.1:5020)",
-    )
-    run.add_argument(
-        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
-    )
-    run.add_argument(
-        "--bus",
-        metavar="INTERFACE:CHANNEL",
-        help="fleet: the vehicles' CAN bus (e.g. socketcan:vcan0); default: the configuration's",
-    )
-    cli_topology.add_parsers(sub, _positive)
-    cli_vehicles.add_parsers(sub, _positive)
-    return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    show_warning = warnings.showwarning
-    warnings.showwarning = _one_line_warning
-    commands = {
-        "run": _run,
-        "plant": cli_topology.plant_command,
-        "route": cli_topology.route_command,
-        "vehicles": cli_vehicles.vehicles_command,
-    }
-    try:
-        return commands[args.command](args)
-    except BrokenPipeError:  # stdout closed early (e.g. piped into head): nothing left to report
-        return EXIT_ERROR
-    except (PlcError, CliError, TopologyError, OSError) as exc:
-        print(f"plc-runtime: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    finally:
-        warnings.showwarning = show_warning
-
-
-def _one_line_warning(message: Warning | str, category: type, *args: Any, **kwargs: Any) -> None:
+def one_line_warning(message: Warning | str, category: type, *args: Any, **kwargs: Any) -> None:
+    """``warnings.showwarning`` for a command line: one line on stderr, no source line."""
     print(f"plc-runtime: warning: {message}", file=sys.stderr)
 
 
-def _run(args: argparse.Namespace) -> int:
+ProgramBuilder = Callable[..., Runtime]
+"""``build(clock=, cycle_time=, watchdog=, retain_file=) -> Runtime`` (a runtime in STOP)."""
+
+
+def run_program(
+    args: argparse.Namespace,
+    name: str,
+    build: ProgramBuilder,
+    drivers: Iterable[IoDriver] = (),
+    cycle_time: float = 0.010,
+    watchdog_ms: float = 150.0,
+) -> int:
+    """Run a program built by ``build`` as the options in ``args`` say; the exit code."""
     if not args.realtime and (args.rt or args.spin):
         raise CliError("--rt and --spin only apply with --realtime")
-    if args.program == "fleet":
-        from . import cli_fleet
-
-        return cli_fleet.run(args, _drive, _task_table, _modbus_server)
-    if args.config:
-        raise CliError(f"a configuration file is for the fleet program, not {args.program!r}")
-    if args.cycle_time is None:
-        args.cycle_time = 0.010
-    if args.watchdog is None:
-        args.watchdog = 150.0
     if args.realtime:
         clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
     else:
         clock = VirtualClock()
-    rt = PROGRAMS[args.program](
+    rt = build(
         clock=clock,
-        cycle_time=args.cycle_time,
-        watchdog=args.watchdog / 1e3,
+        cycle_time=args.cycle_time if args.cycle_time is not None else cycle_time,
+        watchdog=(args.watchdog if args.watchdog is not None else watchdog_ms) / 1e3,
         retain_file=args.retain,
     )
-    if args.modbus:
-        rt.add_driver(_modbus_server(args.modbus))
+    for driver in drivers:
+        rt.add_driver(driver)
     rt.start()
     total = (
         args.cycles
@@ -190,11 +142,11 @@ def _run(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt))
     wall_start = time.monotonic()
     try:
-        _drive(
+        drive(
             rt,
             total,
             live,
-            announce=f"plc-runtime: running {args.program} until Ctrl-C" if total is None else None,
+            announce=f"plc-runtime: running {name} until Ctrl-C" if total is None else None,
         )
     except KeyboardInterrupt:  # the second Ctrl-C: abort at once, but still stop cleanly
         rt.stop()
@@ -204,22 +156,13 @@ def _run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, previous)
     wall = time.monotonic() - wall_start
     final_state = rt.state
-    summary = _summary(rt, args.program, final_state, wall)
+    result = summary(rt, name, final_state, wall)
     rt.stop()
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(result))
     else:
-        Console().print(_summary_table(summary))
+        Console().print(summary_table(result))
     return EXIT_FAULT if final_state == "FAULT" else 0
-
-
-def _modbus_server(spec: str):
-    from io_drivers.modbus_server import ModbusServer
-
-    host, sep, port = spec.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
-    return ModbusServer(host=host, port=int(port))
 
 
 def _interrupt(rt: Runtime) -> None:
@@ -228,7 +171,7 @@ def _interrupt(rt: Runtime) -> None:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def _drive(
+def drive(
     rt: Runtime,
     total: int | None,
     live: bool,
@@ -310,7 +253,7 @@ def _stats_table(title: str, rows: dict[str, dict[str, Any]], columns: list[str]
     return table
 
 
-def _task_table(title: str, rows: dict[str, dict[str, Any]], live: bool) -> Table:
+def task_table(title: str, rows: dict[str, dict[str, Any]], live: bool) -> Table:
     return _stats_table(title, rows, _LIVE_COLUMNS if live else _SUMMARY_COLUMNS)
 
 
@@ -323,7 +266,7 @@ def _status_table(rt: Runtime, total: int | None) -> Table:
     return _stats_table(title, rows, _LIVE_COLUMNS)
 
 
-def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any]:
+def summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any]:
     stats = rt.stats.to_dict()
     return {
         "program": program,
@@ -342,7 +285,7 @@ def _summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, An
     }
 
 
-def _summary_table(summary: dict[str, Any]) -> Table:
+def summary_table(summary: dict[str, Any]) -> Table:
     title = (
         f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
         f"{summary['sim_time_s']:.2f} s on the {summary['clock']} clock, {summary['wall_time_s']:.2f} s of wall time"
@@ -353,7 +296,3 @@ def _summary_table(summary: dict[str, Any]) -> Table:
     else:
         table.caption = "  ".join(f"{k}={v}" for k, v in summary["tags"].items())
     return table
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -345,7 +345,7 @@ class ProgramImage:
     def record_view(self, area: str, start: int, length: int) -> np.ndarray:
         """The raw bytes ``start .. start + length`` of an area, as a numpy view.
 
-        For blocks that handle many same-shaped records at once (one per vehicle): they
+        For blocks that handle many same-shaped records at once (one per machine or drive): they
         reinterpret the bytes with a structured dtype instead of resolving an address per
         field. The view follows the program's image, so inputs are the cycle's snapshot and
         read-only; writes to outputs bypass tag range checks, as a raw byte area should."""

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from plc_runtime.programs.fleet import FleetProgram
-from plc_runtime.programs.fleet_config import FleetConfig, parse_config
+from fleet.config import FleetConfig, parse_config
+from fleet.program import FleetProgram
 
 
 def config(text: str) -> FleetConfig:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from plc_runtime.cli import main
+from fleet.cli import main
 
 SCRIPT = Path(sys.executable).parent / "plc-runtime"
 

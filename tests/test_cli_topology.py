@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from plc_runtime.cli import main
+from fleet.cli import main
 from topology import model_plant
 from topology.formats import dump_toml
 

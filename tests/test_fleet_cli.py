@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 from netns import run_isolated, unavailable
 
-from plc_runtime.cli import main
+from fleet.cli import main
+from fleet.config import DEFAULT_CONFIG, load_config, parse_config
 from plc_runtime.errors import ConfigError
-from plc_runtime.programs.fleet_config import DEFAULT_CONFIG, load_config, parse_config
 
 CONTRACT = {
     "cycles",
@@ -118,7 +118,7 @@ def test_realtime_run_with_the_vehicles_in_their_own_process(tmp_path):
     """Wall clock, the vehicles a child process on udp_multicast inside a private network
     namespace; its conflict monitor reports back into the summary."""
     result = run_isolated(
-        f"{sys.executable} -m plc_runtime.cli run --realtime --duration 12 --json "
+        f"{sys.executable} -m fleet run --realtime --duration 12 --json "
         f"--bus udp_multicast:239.74.163.9 --out {tmp_path / 'out'}"
     )
     assert result.returncode == 0, result.stderr[-2000:]

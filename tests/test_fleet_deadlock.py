@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 from fleet_scenarios import make_config, run
 
-from plc_runtime.programs.fleet import FleetProgram
-from plc_runtime.programs.fleet_report import summary
+from fleet.program import FleetProgram
+from fleet.report import summary
 from topology import Edge, Node, Plant
 
 

@@ -7,8 +7,8 @@ import networkx as nx
 import pytest
 from fleet_scenarios import make_config, run, visited_functions
 
-from plc_runtime.programs.fleet import FleetProgram
-from plc_runtime.programs.fleet_config import load_config
+from fleet.config import load_config
+from fleet.program import FleetProgram
 from topology import model_plant
 from topology.model import route_cost
 
@@ -103,7 +103,7 @@ def test_level_2_vehicles_take_different_stations_and_overtake(program):
 
 
 def test_level_3_routes_avoid_a_blockade_and_come_back_after_it_clears(program):
-    from plc_runtime.programs.fleet_config import Blockade
+    from fleet.config import Blockade
 
     plant = model_plant()
     cfg = make_config(

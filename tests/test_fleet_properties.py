@@ -12,8 +12,8 @@ from fleet_scenarios import make_config, run
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
-from plc_runtime.programs.fleet import FleetProgram
-from plc_runtime.programs.fleet_config import Blockade
+from fleet.config import Blockade
+from fleet.program import FleetProgram
 from topology import Edge, Node, Plant
 
 # Each example simulates minutes of plant time, so shrinking a failure would take many

@@ -1,4 +1,13 @@
-"""Dependencies point one way: the core and topology import nothing of ours."""
+"""Dependencies point one way, so the folder list shows the architecture.
+
+    plc_runtime  <-  blocks.standard  <-  blocks.routing  <-  blocks.traffic  <-  blocks.jobs
+    topology     <-  blocks.routing, blocks.traffic, blocks.jobs, vehicles
+    plc_runtime  <-  io_drivers  <-  vehicles
+    everything   <-  fleet (the application: configuration, program assembly, reports, CLI)
+
+The soft-PLC (``plc_runtime``) and the plant model (``topology``) import nothing else of
+ours; no package but the application imports the application.
+"""
 
 import ast
 from pathlib import Path
@@ -6,43 +15,105 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-OURS = {"plc_runtime", "blocks", "topology", "io_drivers", "vehicles"}
+PACKAGES = ("plc_runtime", "topology", "blocks", "io_drivers", "vehicles", "fleet")
+
+# what each layer may import of ours (itself always)
+ALLOWED = {
+    "plc_runtime": set(),
+    "topology": set(),
+    "blocks.standard": {"plc_runtime"},
+    "blocks.routing": {"plc_runtime", "topology", "blocks.standard"},
+    "blocks.traffic": {"plc_runtime", "topology", "blocks.standard", "blocks.routing"},
+    "blocks.jobs": {
+        "plc_runtime",
+        "topology",
+        "blocks.standard",
+        "blocks.routing",
+        "blocks.traffic",
+    },
+    "io_drivers": {"plc_runtime"},
+    "vehicles": {"plc_runtime", "topology", "io_drivers"},
+    "fleet": {"plc_runtime", "topology", "blocks", "io_drivers", "vehicles"},
+}
 
 
-def imported_packages(path: Path) -> set[str]:
+def layer_of(module: str) -> str | None:
+    """The most specific layer a dotted module name belongs to."""
+    best = None
+    for layer in ALLOWED:
+        if module == layer or module.startswith(layer + "."):
+            if best is None or len(layer) > len(best):
+                best = layer
+    return best
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports_of(path: Path) -> set[str]:
+    """Every module of ours that ``path`` imports, relative imports resolved."""
+    package = module_name(path).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
-            found |= {alias.name.split(".")[0] for alias in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            found.add(node.module.split(".")[0])
-    return found & OURS
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+                names = [f"{module}.{a.name}" for a in node.names] if not node.module else []
+                found |= {module, *names}
+            elif node.module:
+                found.add(node.module)
+    return {m for m in found if m.split(".")[0] in PACKAGES}
 
 
-def sources(package: str, exclude: tuple[str, ...] = ()) -> list[Path]:
-    """The package's Python files, minus those with a path part starting with an ``exclude`` prefix."""
-    return [
-        p
-        for p in (ROOT / package).rglob("*.py")
-        if not any(
-            part.startswith(prefix) for prefix in exclude for part in p.relative_to(ROOT).parts
-        )
-    ]
+def sources() -> list[Path]:
+    return sorted(p for package in PACKAGES for p in (ROOT / package).rglob("*.py"))
 
 
-# the CLI modules (cli*.py) and program assembly (programs/) are the layer that sees everything
-@pytest.mark.parametrize("path", sources("plc_runtime", exclude=("cli", "programs")), ids=str)
-def test_runtime_core_imports_only_itself(path):
-    assert imported_packages(path) <= {"plc_runtime"}
+def allowed_for(layer: str, target: str) -> bool:
+    if layer_of(target) == layer:
+        return True
+    return any(target == a or target.startswith(a + ".") for a in ALLOWED[layer]) or (
+        # a package's __init__ (``blocks``) is a namespace, not a layer of its own
+        target in {"blocks"}
+    )
 
 
-@pytest.mark.parametrize("path", sources("topology"), ids=str)
-def test_topology_imports_nothing_of_ours(path):
-    assert imported_packages(path) <= {"topology"}
+@pytest.mark.parametrize("path", sources(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_follow_the_layers(path):
+    layer = layer_of(module_name(path))
+    if layer is None:  # blocks/__init__.py: documentation only
+        assert not imports_of(path), path
+        return
+    wrong = sorted(t for t in imports_of(path) if not allowed_for(layer, t))
+    assert not wrong, f"{path.relative_to(ROOT)} ({layer}) imports {wrong}"
 
 
-@pytest.mark.parametrize("package", ["blocks", "io_drivers", "vehicles"])
-def test_building_blocks_do_not_reach_into_program_assembly(package):
-    for path in sources(package):
-        text = path.read_text()
-        assert "plc_runtime.cli" not in text and "plc_runtime.programs" not in text, path
+def test_every_module_belongs_to_a_layer():
+    stray = [p for p in sources() if layer_of(module_name(p)) is None and p.name != "__init__.py"]
+    assert not stray
+
+
+def test_the_soft_plc_has_no_application_inside():
+    """Nothing under plc_runtime/ names an AGV concept: it is a generic runtime."""
+    for path in (ROOT / "plc_runtime").rglob("*.py"):
+        text = path.read_text().lower()
+        for word in ("vehicle", "agv", "recipe", "fleet"):
+            assert word not in text, f"{path.relative_to(ROOT)} mentions {word!r}"
+
+
+def test_the_checker_catches_wrong_arrows():
+    """The rule can fail: upward and sideways imports are reported."""
+    assert not allowed_for("plc_runtime", "blocks.standard")
+    assert not allowed_for("blocks.routing", "blocks.traffic.reservation")
+    assert not allowed_for("vehicles", "fleet.program")
+    assert not allowed_for("io_drivers", "topology")
+    assert allowed_for("blocks.jobs", "blocks.routing.heuristic")

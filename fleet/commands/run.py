@@ -26,11 +26,13 @@ from typing import Any
 from rich.console import Console, Group
 from rich.table import Table
 
-from .clock import VirtualClock, WallClock
-from .errors import ConfigError
-from .programs.fleet import FleetProgram
-from .programs.fleet_config import load_config
-from .programs.fleet_report import summary, write_all
+from plc_runtime.cli import drive, task_table
+from plc_runtime.clock import VirtualClock, WallClock
+from plc_runtime.errors import ConfigError
+
+from ..config import DEFAULT_CONFIG, load_config
+from ..program import FleetProgram
+from ..report import summary, write_all
 
 VEHICLES_READY_TIMEOUT = 20.0
 
@@ -39,7 +41,7 @@ class FleetRunError(ConfigError):
     """The fleet run could not be set up (bus, vehicle process)."""
 
 
-def run(args: argparse.Namespace, drive: Any, stats_table: Any, modbus: Any) -> int:
+def run(args: argparse.Namespace, modbus: Any) -> int:
     cfg = load_config(args.config)
     if args.cycle_time is not None:
         cfg.cycle_time = args.cycle_time
@@ -71,7 +73,7 @@ def run(args: argparse.Namespace, drive: Any, stats_table: Any, modbus: Any) -> 
     wall_start = time.monotonic()
     try:
         program.rt.start()
-        drive(program.rt, total, live, None, render=lambda: _dashboard(program, total, stats_table))
+        drive(program.rt, total, live, None, render=lambda: _dashboard(program, total))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -89,7 +91,7 @@ def run(args: argparse.Namespace, drive: Any, stats_table: Any, modbus: Any) -> 
     if args.json:
         print(json.dumps(result))
     else:
-        Console().print(_final_tables(result, stats_table))
+        Console().print(_final_tables(result))
     if interrupted:
         return 130
     return 1 if state == "FAULT" else 0
@@ -105,12 +107,10 @@ def _parse_bus(spec: str) -> tuple[str, str]:
 def _start_vehicles(
     config: str | None, bus: tuple[str, str], monitor_file: Path
 ) -> subprocess.Popen:
-    from .programs.fleet_config import DEFAULT_CONFIG
-
     cmd = [
         sys.executable,
         "-m",
-        "plc_runtime.cli",
+        "fleet",
         "vehicles",
         "--config",
         str(config or DEFAULT_CONFIG),
@@ -182,7 +182,7 @@ def _vehicle_table(program: FleetProgram, limit: int = 30) -> Table:
     return table
 
 
-def _dashboard(program: FleetProgram, total: int | None, stats_table: Any) -> Group:
+def _dashboard(program: FleetProgram, total: int | None) -> Group:
     rt = program.rt
     title = (
         f"fleet ({program.cfg.source})  state {rt.state}  cycle {rt.ticks}/{total}  "
@@ -190,15 +190,15 @@ def _dashboard(program: FleetProgram, total: int | None, stats_table: Any) -> Gr
         f"deadlocks resolved {program.resolver.resolved}"
     )
     rows = {name: s.to_dict() for name, s in rt.stats.tasks.items()}
-    return Group(stats_table(title, rows, live=True), _vehicle_table(program))
+    return Group(task_table(title, rows, live=True), _vehicle_table(program))
 
 
-def _final_tables(result: dict[str, Any], stats_table: Any) -> Group:
+def _final_tables(result: dict[str, Any]) -> Group:
     title = (
         f"fleet: {result['state']} after {result['cycles']} cycles, {result['sim_time_s']:.1f} s "
         f"on the {result['clock']} clock, {result['wall_time_s']:.2f} s of wall time"
     )
-    tasks = stats_table(title, {**result["tasks"], "(scan)": result["scan"]}, live=False)
+    tasks = task_table(title, {**result["tasks"], "(scan)": result["scan"]}, live=False)
     fleet = Table(title="fleet")
     fleet.add_column("measure")
     fleet.add_column("value", justify="right")

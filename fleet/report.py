@@ -16,7 +16,7 @@ from typing import Any
 
 from topology.draw import draw
 
-from .fleet import FleetProgram
+from .program import FleetProgram
 
 CSV_COLUMNS = (
     "vehicle",

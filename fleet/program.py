@@ -34,7 +34,7 @@ from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
 
-from .fleet_config import VEHICLES_PER_BUS, Blockade, FleetConfig
+from .config import VEHICLES_PER_BUS, Blockade, FleetConfig
 
 AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
 

@@ -18,7 +18,7 @@ from blocks.jobs.recipe import STRATEGIES, Recipe
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
 
-DEFAULT_CONFIG = Path(__file__).with_name("default_fleet.toml")
+DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
 VEHICLES_PER_BUS = 126
 
 

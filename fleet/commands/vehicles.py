@@ -9,8 +9,9 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from .errors import ConfigError
-from .programs.route import load_plant
+from plc_runtime.errors import ConfigError
+
+from ..route import load_plant
 
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
@@ -61,7 +62,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
 
     status_period = 0.1
     if args.config:
-        from .programs.fleet_config import load_config
+        from ..config import load_config
 
         cfg = load_config(args.config)
         plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from topology import Plant, load
 
-from .programs.route import find_route, load_plant, parse_segment
+from ..route import find_route, load_plant, parse_segment
 
 EXIT_NO_ROUTE = 1
 

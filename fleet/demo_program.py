@@ -3,8 +3,8 @@
 Task ``main`` (every base tick): a lamp ``%QX0.0`` flashes at 1 Hz unless the stop button
 ``%IX0.1`` is pressed; every flash is counted in a retentive marker word. Task ``slow``
 (every 100 ms, phase 50 ms, lower priority) smooths the analog input ``%IW2`` into
-``%MW10`` and keeps the uptime in whole seconds in ``%MD4``. It stands in for the fleet
-program until that exists, and is what ``plc-runtime run`` executes by default.
+``%MW10`` and keeps the uptime in whole seconds in ``%MD4``. It shows the runtime's
+semantics without a fleet: ``plc-runtime run --program demo``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,111 @@
+"""The ``plc-runtime`` command line: ``run``, ``plant``, ``route`` and ``vehicles``.
+
+``plc-runtime run`` runs the fleet program (or ``--program demo``) headless, with the
+generic run machinery of ``plc_runtime.cli``. Errors are one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+from io_drivers.modbus_server import ModbusServer
+from plc_runtime.cli import (
+    EXIT_ERROR,
+    CliError,
+    add_run_options,
+    one_line_warning,
+    positive,
+    run_program,
+)
+from plc_runtime.errors import PlcError
+from topology import TopologyError
+
+from . import demo_program
+from .commands import plant, vehicles
+
+PROGRAMS = {"demo": demo_program.build}
+"""Programs other than the fleet that ``run --program`` offers."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a program headless (default: the fleet program)")
+    run.add_argument(
+        "config",
+        nargs="?",
+        help="fleet configuration (TOML, docs/fleet-config.md); default: the embedded model-plant fleet",
+    )
+    run.add_argument(
+        "--program",
+        default="fleet",
+        choices=["fleet", *sorted(PROGRAMS)],
+        help="program to run (default: fleet)",
+    )
+    add_run_options(run)
+    run.add_argument(
+        "--modbus",
+        metavar="HOST:PORT",
+        help="serve the process image over Modbus TCP (e.g. 127.0.0.1:5020)",
+    )
+    run.add_argument(
+        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
+    )
+    run.add_argument(
+        "--bus",
+        metavar="INTERFACE:CHANNEL",
+        help="fleet: the vehicles' CAN bus (e.g. socketcan:vcan0); default: the configuration's",
+    )
+    plant.add_parsers(sub, positive)
+    vehicles.add_parsers(sub, positive)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    show_warning = warnings.showwarning
+    warnings.showwarning = one_line_warning
+    commands = {
+        "run": _run,
+        "plant": plant.plant_command,
+        "route": plant.route_command,
+        "vehicles": vehicles.vehicles_command,
+    }
+    try:
+        return commands[args.command](args)
+    except BrokenPipeError:  # stdout closed early (e.g. piped into head): nothing left to report
+        return EXIT_ERROR
+    except (PlcError, CliError, TopologyError, OSError) as exc:
+        print(f"plc-runtime: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    finally:
+        warnings.showwarning = show_warning
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not args.realtime and (args.rt or args.spin):
+        raise CliError("--rt and --spin only apply with --realtime")
+    if args.program == "fleet":
+        from .commands import run
+
+        return run.run(args, modbus_server)
+    if args.config:
+        raise CliError(f"a configuration file is for the fleet program, not {args.program!r}")
+    drivers = [modbus_server(args.modbus)] if args.modbus else []
+    return run_program(args, args.program, PROGRAMS[args.program], drivers)
+
+
+def modbus_server(spec: str) -> ModbusServer:
+    """The Modbus TCP server of ``--modbus HOST:PORT``."""
+    host, sep, port = spec.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
+    return ModbusServer(host=host, port=int(port))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
