@@ -30,9 +30,12 @@ out of the garbage collector (``gc.freeze()``, as the runtime's real-time mode d
 that, a full collection over the 1000-vehicle heap lands in a scan of the first seconds,
 where all vehicles plan at once, and the default 150 ms watchdog faulted the run at scan ~23.
 
-Runs simulate ``--sim-seconds`` (300) per size; the default takes about 5.5 minutes on one
-core, 4 of them the 1000-vehicle run (real-time factor 1.3, plus 10 s to build the program).
-``--quick``: 10 simulated seconds each, about 25 s in all.
+Runs simulate ``--sim-seconds`` (300) per size; the default takes about 10 minutes on the
+machine of docs/benchmarks.md, most of it the 1000-vehicle run (real-time factor 0.9, plus
+10 s to build the program), and several times that on a slower or busy machine.
+``--quick``: 10 simulated seconds for 4, 16 and 64 vehicles on the default warehouse, about
+5-15 s in all (256 and 1000 vehicles would add 10-90 s, most of it building their programs
+and their first, all-planning seconds).
 
     .venv/bin/python bench/fleet_scale.py [--sizes 4 16 64 256 1000] [--sim-seconds 300] [--quick]
 """
@@ -63,6 +66,8 @@ DEFAULT_H, DEFAULT_W = 33, 46
 MAX_DENSITY = 0.12  # vehicles per node at most
 FUNCTION = 3  # the function every endpoint provides
 S7_WATCHDOG_S = 0.150
+# --quick lowers these defaults; options given on the command line still win.
+QUICK = {"sim_seconds": 10.0, "sizes": [4, 16, 64]}
 
 
 def timestep_s(cell_size: float = 1.0) -> float:
@@ -222,17 +227,22 @@ def main() -> None:
     parser.add_argument("--sim-seconds", type=float, default=300.0)
     parser.add_argument("--cycle-ms", type=float, default=50.0)
     parser.add_argument("--watchdog-ms", type=float, default=1000.0)
-    parser.add_argument("--quick", action="store_true", help="10 simulated seconds per size")
+    parser.add_argument(
+        "--quick", action="store_true", help="reduced run: --sim-seconds 10 --sizes 4 16 64"
+    )
     args = parser.parse_args()
-    sim_s = 10.0 if args.quick else args.sim_seconds
+    if args.quick:
+        parser.set_defaults(**QUICK)
+        args = parser.parse_args()
+    sim_s = args.sim_seconds
     cycle = args.cycle_ms / 1e3
+    begin = time.perf_counter()
     console = Console(width=max(Console().width, 170))
     console.print(
         f"Fleet program against fleet size, Python {sys.version.split()[0]}: {sim_s:g} simulated s "
         f"per size, cycle {args.cycle_ms:g} ms, timestep {timestep_s():g} s"
     )
     rows = []
-    total = time.perf_counter()
     for n in args.sizes:
         r = run_size(n, sim_s, cycle, args.watchdog_ms / 1e3)
         rows.append(r)
@@ -240,7 +250,6 @@ def main() -> None:
             f"  {n} vehicles on {r['plant']} ({r['nodes']} nodes): setup {r['setup_s']:.1f} s, "
             f"run {r['wall_s']:.1f} s wall, state {r['state']}, final vehicle states {r['states']}"
         )
-    total = time.perf_counter() - total
 
     base = next((r for r in rows if r["vehicles"] == min(args.sizes)), rows[0])
     base_per_vehicle = base["control_us"][0] / base["vehicles"]
@@ -311,7 +320,7 @@ def main() -> None:
     for r in rows:
         for e in r["events"]:
             console.print(f"  conflict with {r['vehicles']} vehicles: {e}")
-    console.print(f"total wall time {total:.0f} s")
+    console.print(f"wall time {time.perf_counter() - begin:.1f} s")
 
 
 if __name__ == "__main__":

@@ -1,18 +1,26 @@
 """Bus I/O throughput of the runtime's drivers.
 
-1. CAN frames per second through ``CanDriver.read_inputs`` (decode, validate, write the
-   image), on the virtual bus and, where a private network namespace can be made (root),
-   on udp_multicast over loopback. Baseline, same process: a bare python-can ``recv`` loop
-   draining the same number of frames without decoding.
-2. Modbus TCP requests per second against the runtime's server (read 10 holding
+1. CAN frames per second through ``CanDriver.read_inputs`` (decode, CRC and counter
+   check, confirm, write the image), on the virtual bus and, where a private network
+   namespace can be made (root), on udp_multicast over loopback. Baseline, same process: a
+   bare python-can ``recv`` loop draining the same number of frames without decoding.
+2. Decode cost per status frame: the protected path (the codec compiled from the DBC, the
+   CRC-8 and the counter check) against cantools decoding the same frames at run time with
+   the same range checks and no protection, in the same run.
+3. Modbus TCP requests per second against the runtime's server (read 10 holding
    registers, one synchronous pymodbus client on loopback). Baseline: the same pymodbus
    server serving its own plain simulator datastore, no process image behind it.
-3. Scan execution time with 10, 100 and 1000 vehicles on the virtual bus (126 vehicles per
+4. Scan execution time with 10, 100 and 1000 vehicles on the virtual bus (126 vehicles per
    bus, so 1000 vehicles are 8 buses and 8 drivers), every vehicle reporting every 100 ms;
    the fleet is simulated between scans, outside the measured time. Baseline: the same
    runtime and program without drivers.
 
+The full run takes about 1 minute. ``--quick`` sends a tenth of the frames, requests and
+scans and leaves out the 1000-vehicle row (whose fleet alone takes ~10 s to set up and
+simulate): about 5 s, the same ratios with fewer samples behind them.
+
     .venv/bin/python bench/io_throughput.py [--frames 20000] [--scans 500] [--requests 3000]
+        [--vehicles 10 100 1000] [--quick]
 """
 
 from __future__ import annotations
@@ -32,22 +40,90 @@ import can
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from io_drivers.can_driver import CanDriver  # noqa: E402
-from io_drivers.protocol import NO_NODE, Codec, Status  # noqa: E402
+from io_drivers.e2e import CounterCheck  # noqa: E402
+from io_drivers.protocol import (  # noqa: E402
+    DBC_PATH,
+    ID_SPAN,
+    MAX_VEHICLE_ID,
+    NO_NODE,
+    STATES,
+    STATUS,
+    Codec,
+    MalformedFrame,
+    Status,
+)
 from plc_runtime import FunctionBlock, ProcessImage, Runtime, VirtualClock  # noqa: E402
 from topology import grid  # noqa: E402
 from vehicles.fleet import Fleet  # noqa: E402
 
 _channels = itertools.count()
+# --quick lowers these defaults; options given on the command line still win.
+QUICK = {"frames": 2000, "scans": 50, "requests": 300, "vehicles": [10, 100]}
 
 
 def status_frames(n: int, vehicles: int) -> list[can.Message]:
+    """n status frames, round robin over the vehicles, each vehicle's counter in sequence."""
     codec = Codec()
     frames = []
     for k in range(n):
-        v = k % vehicles + 1
-        frame_id, data = codec.encode(Status(v, k % 1000, NO_NODE, "DRIVING", 80, 0.5, k % 16))
+        v, counter = k % vehicles + 1, (k // vehicles + 1) % 16
+        frame_id, data = codec.encode(Status(v, v, NO_NODE, "DRIVING", 0.5, counter))
         frames.append(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
     return frames
+
+
+def cantools_decoder():
+    """The unprotected baseline: cantools decodes the frame at run time, then the same
+    range checks and the same Status as the protected path (no CRC, no counter)."""
+    import cantools
+
+    message = cantools.database.load_file(str(DBC_PATH)).get_message_by_frame_id(STATUS)
+
+    def decode(frame_id: int, data: bytes) -> Status:
+        sender = frame_id & (ID_SPAN - 1)
+        if len(data) != message.length:
+            raise MalformedFrame(f"0x{frame_id:03X}: {len(data)} data bytes")
+        s = message.decode(data, decode_choices=False, scaling=True)
+        if s["state"] >= len(STATES) or not 1 <= sender <= MAX_VEHICLE_ID:
+            raise MalformedFrame(f"0x{frame_id:03X}: out-of-range status {s}")
+        return Status(
+            sender,
+            s["current_node"],
+            s["next_node"],
+            STATES[s["state"]],
+            s["speed"],
+            s["counter"],
+            s["fault"] == 1,
+            s["clear"] == 1,
+            s["route_ack"],
+        )
+
+    return decode
+
+
+def decode_costs(n: int, repeats: int = 5) -> tuple[float, float]:
+    """(protected us per frame, unprotected cantools us per frame): best of ``repeats``."""
+    frames = [(m.arbitration_id, bytes(m.data)) for m in status_frames(n, 100)]
+    codec, baseline = Codec(), cantools_decoder()
+
+    def protected() -> None:
+        decode, check = codec.decode, CounterCheck().check
+        for frame_id, data in frames:
+            check(frame_id, decode(frame_id, data).counter)
+
+    def unprotected() -> None:
+        for frame_id, data in frames:
+            baseline(frame_id, data)
+
+    best = []
+    for run in (protected, unprotected):
+        times = []
+        for _ in range(repeats):
+            begin = time.perf_counter()
+            run()
+            times.append(time.perf_counter() - begin)
+        best.append(min(times) / n * 1e6)
+    return best[0], best[1]
 
 
 def frame_rates(interface: str, channel: str, n: int) -> tuple[float, float]:
@@ -240,11 +316,21 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20_000)
     parser.add_argument("--scans", type=int, default=500)
     parser.add_argument("--requests", type=int, default=3000)
+    parser.add_argument("--vehicles", type=int, nargs="+", default=[10, 100, 1000])
     parser.add_argument("--udp-only", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="reduced run: --frames 2000 --scans 50 --requests 300 --vehicles 10 100",
+    )
     args = parser.parse_args()
+    if args.quick:
+        parser.set_defaults(**QUICK)
+        args = parser.parse_args()
     if args.udp_only:
         print(json.dumps(frame_rates("udp_multicast", "239.74.163.9", min(args.frames, 5000))))
         return
+    begin = time.perf_counter()
     print(f"Bus I/O, Python {sys.version.split()[0]}")
     print()
     print("### CAN frames per second through the driver")
@@ -257,6 +343,17 @@ def main() -> None:
     print(f"| virtual | {driver:,.0f} | {bare:,.0f} | {driver / bare:.2f} | |")
     for row in udp_rows(args.frames):
         print(row)
+    print()
+    print("### Decode cost per status frame")
+    print()
+    print("| path | us per frame | / unprotected |")
+    print("|---|---:|---:|")
+    protected, unprotected = decode_costs(args.frames)
+    print(
+        f"| protected: compiled from the DBC + CRC-8 + counter check | {protected:.2f} "
+        f"| {protected / unprotected:.2f} |"
+    )
+    print(f"| unprotected: cantools decode at run time (baseline) | {unprotected:.2f} | 1 |")
     print()
     print("### Modbus TCP requests per second (read 10 holding registers, loopback)")
     print()
@@ -274,12 +371,13 @@ def main() -> None:
         "| vehicles | buses | scan p50 us | p99 us | without drivers p50 us | p99 us | p50 ratio |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|")
-    for n in (10, 100, 1000):
+    for n in args.vehicles:
         p50, p99, b50, b99 = scan_times(n, args.scans)
         print(
             f"| {n} | {(n + 124) // 125} | {p50:,.1f} | {p99:,.1f} | {b50:,.1f} | {b99:,.1f} | {p50 / b50:.1f} |"
         )
     print()
+    print(f"wall time {time.perf_counter() - begin:.1f} s")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from functools import partial
 
 from io_drivers.modbus_server import ModbusServer
 from plc_runtime.cli import (
@@ -23,7 +24,8 @@ from plc_runtime.errors import PlcError
 from topology import TopologyError
 
 from . import demo_program
-from .commands import plant, vehicles
+from .commands import plant, tags, vehicles
+from .commands import run as fleet_run
 
 PROGRAMS = {"demo": demo_program.build}
 """Programs other than the fleet that ``run --program`` offers."""
@@ -53,15 +55,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve the process image over Modbus TCP (e.g. 127.0.0.1:5020)",
     )
     run.add_argument(
-        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
+        "--modbus-writable",
+        metavar="NAMES",
+        help="with --modbus: let clients also write these, comma-separated: tag names, "
+        "%%M addresses, %%MW ranges (e.g. setpoint,%%MW200..%%MW209); docs/security.md",
     )
-    run.add_argument(
-        "--bus",
-        metavar="INTERFACE:CHANNEL",
-        help="fleet: the vehicles' CAN bus (e.g. socketcan:vcan0); default: the configuration's",
-    )
+    fleet_run.add_options(run)
     plant.add_parsers(sub, positive)
     vehicles.add_parsers(sub, positive)
+    tags.add_parsers(sub)
     return parser
 
 
@@ -74,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         "plant": plant.plant_command,
         "route": plant.route_command,
         "vehicles": vehicles.vehicles_command,
+        "tags": tags.tags_command,
     }
     try:
         return commands[args.command](args)
@@ -87,24 +90,25 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if not args.realtime and (args.rt or args.spin):
-        raise CliError("--rt and --spin only apply with --realtime")
+    if args.modbus_writable is not None and not args.modbus:
+        raise CliError("--modbus-writable opens writes of the server --modbus HOST:PORT starts")
     if args.program == "fleet":
-        from .commands import run
-
-        return run.run(args, modbus_server)
+        return fleet_run.run(args, partial(modbus_server, writable=args.modbus_writable))
     if args.config:
         raise CliError(f"a configuration file is for the fleet program, not {args.program!r}")
-    drivers = [modbus_server(args.modbus)] if args.modbus else []
+    if args.bus or args.vehicles != "simulated":
+        raise CliError(f"--bus and --vehicles are for the fleet program, not {args.program!r}")
+    drivers = [modbus_server(args.modbus, args.modbus_writable)] if args.modbus else []
     return run_program(args, args.program, PROGRAMS[args.program], drivers)
 
 
-def modbus_server(spec: str) -> ModbusServer:
-    """The Modbus TCP server of ``--modbus HOST:PORT``."""
+def modbus_server(spec: str, writable: str | None = None) -> ModbusServer:
+    """The Modbus TCP server of ``--modbus HOST:PORT`` (``--modbus-writable NAMES``)."""
     host, sep, port = spec.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
-    return ModbusServer(host=host, port=int(port))
+    extra = [] if writable is None else [name.strip() for name in writable.split(",")]
+    return ModbusServer(host=host, port=int(port), writable_extra=extra)
 
 
 if __name__ == "__main__":

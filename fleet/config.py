@@ -17,9 +17,24 @@ from typing import Any
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
+from vehicles.fleet import Faults
+
+from .liveness import standing_steps
 
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
 VEHICLES_PER_BUS = 126
+MODBUS = "modbus"  # the bus "interface" that means one Modbus TCP server per vehicle
+
+
+def modbus_endpoint(channel: str) -> tuple[str, int]:
+    """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v."""
+    host, sep, port = channel.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535 - VEHICLES_PER_BUS:
+        raise ConfigError(
+            f"modbus vehicle link {channel!r}: expected HOST:BASE_PORT with a base port in "
+            f"1..{65535 - VEHICLES_PER_BUS}, e.g. 127.0.0.1:5100 (vehicle v serves on BASE_PORT + v)"
+        )
+    return host, int(port)
 
 
 @dataclass(frozen=True)
@@ -55,6 +70,8 @@ class FleetConfig:
     status_period_s: float = 0.1
     stale_after_s: float = 0.5
     blockades: list[Blockade] = field(default_factory=list)
+    # fault injection into the simulated vehicles' links (a commissioning test): vehicle -> faults
+    faults: dict[int, Faults] = field(default_factory=dict)
 
     @property
     def level(self) -> str:
@@ -192,12 +209,21 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         stale_after_s=bus.number("stale_after_s", 0.5, 0.01, 300.0),
         blockades=_blockades(source, top.get("blockades", list, []), plant),
     )
+    cfg.faults = _faults(_Reader(source, top.get("faults", dict, {}), "faults."), cfg.starts)
     if cfg.strategy not in STRATEGIES:
         raise stations.fail(
             "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
         )
     for reader in (runtime, routing, stations, sequencer, bus, top):
         reader.finish()
+    if cfg.bus_interface == MODBUS:
+        try:
+            modbus_endpoint(cfg.bus_channel)
+        except ConfigError as exc:
+            raise bus.fail("channel", str(exc)) from None
+    problems = standing_steps(cfg)
+    if problems:
+        raise ConfigError(f"{source}: vehicles: {problems[0]}")
     return cfg
 
 
@@ -306,6 +332,42 @@ def _vehicles(
         starts[vid] = start
         chosen[vid] = list(own)
     return starts, chosen
+
+
+def _faults(reader: _Reader, starts: dict[int, int]) -> dict[int, Faults]:
+    """``[faults]``: link rates for every vehicle, and ``[[faults.vehicles]]`` entries that
+    override them or make one vehicle die, stall or lose its battery at a given time."""
+    rates = {
+        key: reader.number(key, 0.0, 0.0, 1.0)
+        for key in ("drop_rate", "corrupt_rate", "spoof_rate")
+    }
+    items = reader.get("vehicles", list, [])
+    reader.finish()
+    if not any(rates.values()) and not items:
+        return {}
+    faults = {v: Faults(**rates) for v in starts}
+    for k, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise ConfigError(f"{reader.source}: faults.vehicles[{k}]: expected a table")
+        r = _Reader(reader.source, item, f"faults.vehicles[{k}].")
+        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
+        if vid not in starts:
+            raise r.fail("id", f"no vehicle {vid} in [[vehicles]]")
+        own = {key: r.number(key, rates[key], 0.0, 1.0) for key in rates}
+        times = {
+            name: r.get(key, float, None)
+            for key, name in (
+                ("dead_after_s", "dead_after"),
+                ("stall_after_s", "stall_after"),
+                ("battery_failure_after_s", "battery_failure_after"),
+            )
+        }
+        r.finish()
+        for key, value in times.items():
+            if value is not None and value < 0:
+                raise r.fail(f"{key}_s", f"must be >= 0, got {value}")
+        faults[vid] = Faults(**own, **times)
+    return faults
 
 
 def _blockades(source: str, items: list, plant: Plant) -> list[Blockade]:

@@ -2,16 +2,19 @@
 
 One runtime, one task ``fleet`` at the configured cycle time:
 
-    driver copy-in (CAN: every vehicle's status into its input record)
+    driver copy-in (every vehicle's status into its input record, from CAN or Modbus TCP)
       -> blockade schedule (level 3: segments closing and reopening)
+      -> FleetCommands (an operator's blockade command and vehicle holds, fleet/tags.py)
       -> per vehicle: RecipeSequencer -> VehicleControl (verify, replan, release)
-      -> ReservationMatrix -> DeadlockResolver -> FleetRecorder
-    -> driver copy-out (released routes as RouteCommand frames)
+      -> ReservationMatrix -> DeadlockResolver -> FleetRecorder -> EventLog
+      -> FleetStatus (the tags' words: every vehicle's status, counters, lifetime totals)
+    -> driver copy-out (released routes as route commands)
 
 With ``cosimulate`` the vehicles are simulated in the same process, in a task ``plant``
 after the program in every tick, on the same virtual CAN bus (the runtime still talks to
 them only through frames); an independent ConflictMonitor watches their true positions.
-Without it (``--realtime``), the vehicles run in their own process on a shared bus.
+Without it, the vehicles are elsewhere: simulated in their own process on a shared bus,
+or real vehicles; the program talks to them the same way.
 """
 
 from __future__ import annotations
@@ -28,13 +31,16 @@ from blocks.traffic.records import RECORD, STATES, RecordArea, VehicleRecordsVie
 from blocks.traffic.reservation import ReservationMatrix
 from blocks.traffic.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver
+from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
 
-from .config import VEHICLES_PER_BUS, Blockade, FleetConfig
+from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, modbus_endpoint
+from .events import EventLog
+from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
 
 AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
 
@@ -72,10 +78,16 @@ class FleetCycle(FunctionBlock):
 
     ready = Output(False, doc="every vehicle's position is known")
 
-    def __init__(self, pairs: list[tuple[RecipeSequencer, VehicleControl]], grace_s: float) -> None:
+    def __init__(
+        self,
+        pairs: list[tuple[RecipeSequencer, VehicleControl]],
+        grace_s: float,
+        held: set[int] | None = None,
+    ) -> None:
         super().__init__()
         self.pairs = pairs
         self.grace_ns = round(grace_s * 1e9)
+        self.held = held if held is not None else set()  # vehicles an operator holds
 
     def cycle(self, ctx: CycleContext) -> None:
         if not self.ready:
@@ -88,7 +100,7 @@ class FleetCycle(FunctionBlock):
                 ctx,
                 target=seq.target,
                 fixed_route=seq.fixed_route,
-                hold=seq.hold or not self.ready,
+                hold=seq.hold or not self.ready or control.vehicle in self.held,
             )
 
 
@@ -115,6 +127,7 @@ class FleetProgram:
         clock: VirtualClock | WallClock | None = None,
         cosimulate: bool = True,
         bus: tuple[str, str] | None = None,
+        retain_file: str | None = None,
     ) -> None:
         self.cfg = cfg
         plant = cfg.plant
@@ -126,7 +139,13 @@ class FleetProgram:
             cycle_time=cfg.cycle_time,
             clock=clock,
             watchdog=cfg.watchdog,
-            image_sizes={"I": AREA_BYTES * (n_buses + 1), "Q": AREA_BYTES * (n_buses + 1)},
+            retain_file=retain_file,
+            image_sizes={
+                "I": AREA_BYTES * (n_buses + 1),
+                "Q": AREA_BYTES * (n_buses + 1),
+                "M": marker_bytes(vehicles),  # the tags' words (fleet/tags.py)
+            },
+            tags=fleet_tags(vehicles),
         )
         areas, placement = [], {}
         for k in range(n_buses):
@@ -136,17 +155,7 @@ class FleetProgram:
             for lv in local:
                 placement[lv + k * VEHICLES_PER_BUS] = (k, lv)
             if local:
-                self.rt.add_driver(
-                    CanDriver(
-                        local,
-                        interface=interface,
-                        channel=channel if k == 0 else f"{channel}{k}",
-                        input_base=base,
-                        output_base=base,
-                        stale_after=cfg.stale_after_s,
-                        name=f"can{k}" if n_buses > 1 else "can",
-                    )
-                )
+                self.rt.add_driver(self._vehicle_link(interface, channel, k, n_buses, local, base))
         assert all(RECORD * (a.max_vehicle + 1) <= AREA_BYTES for a in areas)
         self.records = VehicleRecordsView(areas, placement)
         targets = sorted({s for stations in cfg.clusters.values() for s in stations})
@@ -190,17 +199,25 @@ class FleetProgram:
             plant, self.controls, self.reservation, self.blockades, self._priority, self.table
         )
         self.recorder = FleetRecorder(self.controls)
+        self.events = EventLog(self.controls, self.sequencers, self.resolver, self.blockades)
+        self.commands = FleetCommands(plant, self.blockades, vehicles, self._acknowledge)
+        self.status = FleetStatus(self, self.commands)
         self.rt.add_task(
             "fleet",
             [
                 _Startup(self.table, self.records),
                 self.schedule,
+                self.commands,
                 FleetCycle(
-                    [(self.sequencers[v], self.controls[v]) for v in vehicles], cfg.stale_after_s
+                    [(self.sequencers[v], self.controls[v]) for v in vehicles],
+                    cfg.stale_after_s,
+                    self.commands.held,
                 ),
                 self.reservation,
                 self.resolver,
                 self.recorder,
+                self.events,
+                self.status,
             ],
             interval=cfg.cycle_time,
             priority=0,
@@ -210,6 +227,32 @@ class FleetProgram:
         self._sim_buses: list[can.BusABC] = []
         if cosimulate:
             self._add_simulation(interface, channel, n_buses)
+
+    def _vehicle_link(
+        self, interface: str, channel: str, k: int, n_buses: int, local: list[int], base: int
+    ) -> CanDriver | ModbusVehicleLink:
+        """Bus ``k``'s link: CAN frames, or a Modbus TCP client per vehicle (``modbus``:
+        vehicle ``v`` serves on the base port + ``v``)."""
+        suffix = str(k) if n_buses > 1 else ""
+        if interface == "modbus":
+            host, base_port = modbus_endpoint(channel)
+            offset = k * VEHICLES_PER_BUS
+            return ModbusVehicleLink(
+                {lv: (host, base_port + lv + offset) for lv in local},
+                stale_after=self.cfg.stale_after_s,
+                input_base=base,
+                output_base=base,
+                name=f"modbus-vehicles{suffix}",
+            )
+        return CanDriver(
+            local,
+            interface=interface,
+            channel=channel if k == 0 else f"{channel}{k}",
+            input_base=base,
+            output_base=base,
+            stale_after=self.cfg.stale_after_s,
+            name=f"can{suffix}",
+        )
 
     def _add_simulation(self, interface: str, channel: str, n_buses: int) -> None:
         if interface != "virtual":
@@ -231,7 +274,18 @@ class FleetProgram:
             )
             self._sim_buses.append(bus)
             fleets.append(
-                Fleet(cfg.plant, starts, bus, status_period=cfg.status_period_s, seed=cfg.seed + k)
+                Fleet(
+                    cfg.plant,
+                    starts,
+                    bus,
+                    status_period=cfg.status_period_s,
+                    faults={
+                        v - k * VEHICLES_PER_BUS: f
+                        for v, f in cfg.faults.items()
+                        if (v - 1) // VEHICLES_PER_BUS == k
+                    },
+                    seed=cfg.seed + k,
+                )
             )
             offsets.append(k * VEHICLES_PER_BUS)
         self.fleets = fleets
@@ -245,6 +299,8 @@ class FleetProgram:
             ],
             interval=cfg.cycle_time,
             priority=1,
+            # the vehicles' physics must not lose time when a scan is late on the wall clock
+            overrun="catch_up",
         )
 
     def _taken_by_other(self, vehicle: int):
@@ -256,6 +312,18 @@ class FleetProgram:
             return any(s.target == station for v, s in self.sequencers.items() if v != vehicle)
 
         return taken
+
+    def _acknowledge(self, ctx: CycleContext, vehicle: int) -> str | None:
+        """An operator's acknowledge of a suspect vehicle (the ``agvN.ack`` tag), logged."""
+        control = self.controls[vehicle]
+        reason = control.suspect_reason
+        why = control.acknowledge(ctx)
+        if why is None:
+            text = f"acknowledged at node {control.current} (was: {reason})"
+            self.events.add(ctx.time, "recovered", vehicle, text)
+        else:
+            self.events.add(ctx.time, "vehicle", vehicle, f"acknowledge refused: {why}")
+        return why
 
     def _priority(self, vehicle: int) -> tuple[int, int]:
         return (self.sequencers[vehicle].priority_ns, vehicle)

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 from typing import Any
 
-from topology.draw import draw
+from plc_runtime.cli import clock_kind, clock_speed
+from plc_runtime.errors import ConfigError
 
 from .program import FleetProgram
 
@@ -51,6 +53,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             "replans": row["replans"],
             "plans": controls[row["vehicle"]].plans,
             "no_route": controls[row["vehicle"]].no_routes,
+            "suspect_reason": controls[row["vehicle"]].suspect_reason or None,
         }
         for row in program.vehicle_rows()
     }
@@ -64,7 +67,9 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "omitted": stats["omitted"],
         "state": state or rt.state,
         "fault_reason": stats["fault_reason"],
-        "clock": "virtual" if rt.clock.is_virtual else "wall",
+        "clock": clock_kind(rt.clock),
+        "speed": clock_speed(rt.clock) if clock_kind(rt.clock) == "paced" else None,
+        "interrupted": False,
         "sim_time_s": sim,
         "wall_time_s": round(wall_s, 3),
         "real_time_factor": round(sim / wall_s, 2) if wall_s > 0 else None,
@@ -93,20 +98,45 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "conflict_monitor": "simulated positions"
         if monitor
         else "not available (vehicles in another process)",
-        "reservation_takeovers": program.reservation.forced_takeovers,
+        "refused_reports": program.reservation.refused_reports,
+        "suspect_vehicles": {
+            str(v): c.suspect_reason for v, c in program.controls.items() if c.suspect
+        },
+        "suspect_events": sum(c.suspect_events for c in program.controls.values()),
         "blockades": [
             {"time_s": round(t, 3), "event": what, "segment": [a, b]}
             for t, what, a, b in program.schedule.log
         ],
+        "faults": faults(program, stats.get("drivers", {})),
+        "events": [e.to_dict() for e in program.events.recent(EVENTS_IN_SUMMARY)],
+        "event_counts": dict(sorted(program.events.counts.items())),
         "station_utilisation": program.chooser.utilisation(sim),
         "heuristic_table": {
             "build_ms": round(program.table.build_time_s * 1e3, 3),
             "bytes": program.table.nbytes,
         },
+        "tags": {tag.name: rt.image.read(tag.name) for tag in rt.image.tags},
         "drivers": stats.get("drivers", {}),
         "scan": stats["scan"],
         "tasks": stats["tasks"],
     }
+
+
+INJECTED = ("dropped", "corrupted", "spoofed")
+DETECTED = ("crc_errors", "malformed", "repeated", "out_of_sequence", "resyncs", "unconfirmed")
+
+
+def faults(program: FleetProgram, drivers: dict[str, Any]) -> dict[str, Any]:
+    """Faults injected into the simulated vehicles' frames (``[faults]``; None where the
+    vehicles are not simulated here) and what the controller's side detected: frames
+    dropped by the CRC, counter and confirmation checks, and reports refused as implausible."""
+    injected = None
+    if program.fleet is not None:
+        injected = {k: sum(f.counters.get(k, 0) for f in program.fleets) for k in INJECTED}
+    detected = {k: sum(int(d.get(k, 0)) for d in drivers.values()) for k in DETECTED}
+    detected["refused_reports"] = program.reservation.refused_reports
+    detected["suspect_events"] = sum(c.suspect_events for c in program.controls.values())
+    return {"injected": injected, "detected": detected}
 
 
 def write_csv(program: FleetProgram, path: Path) -> Path:
@@ -137,27 +167,59 @@ def _t(value: float | None) -> str:
     return "" if value is None else f"{value:.3f}"
 
 
-def write_drawing(program: FleetProgram, path: Path, last_nodes: int = 40) -> Path:
-    """The plant with each vehicle's driven route (its last ``last_nodes`` nodes, so laps
-    do not paint the whole plant) and the route it still plans, and the blockades in force."""
+def write_drawing(program: FleetProgram, path: Path) -> Path:
+    """The plant with every vehicle's driven route, the route it still plans and where it
+    is now (a heat map of segment usage for a large fleet, see ``topology.draw``), the
+    blockades in force and those lifted during the run.
+
+    The whole driven route is handed over: the drawing emphasises the newest segments
+    itself, and the heat map counts them all."""
     vehicles = {}
     for v in program.vehicles:
-        driven = program.recorder.driven[v][-last_nodes:]
         control = program.controls[v]
         planned = ([control.current] if control.current is not None else []) + list(control.planned)
-        vehicles[f"AGV {v}"] = (driven, planned)
+        vehicles[f"AGV {v}"] = (program.recorder.driven[v], planned)
+    lifted = [(a, b) for _t, what, a, b in program.schedule.log if what == "reopened"]
     stats = program.rt.stats.to_dict()
     title = (
-        f"{program.cfg.plant.name}: {len(program.vehicles)} AGVs, {len(program.completed)} recipes "
-        f"in {stats['clock_time_s']:.0f} s (driven: last {last_nodes} nodes, planned: dashed)"
+        f"{program.cfg.plant.name}: {len(program.vehicles)} AGVs, "
+        f"{len(program.completed)} recipes in {stats['clock_time_s']:.0f} s"
     )
+    # matplotlib costs a second of start-up: only commands that draw pay for it
+    from topology.draw import draw
+
     return draw(
         program.cfg.plant,
         path,
         title=title,
         blocked=program.blockades.blocked_segments(),
-        vehicles=vehicles if len(vehicles) <= 20 else None,
+        lifted=lifted,
+        vehicles=vehicles,
     )
+
+
+EVENTS_IN_SUMMARY = 200  # the newest events; event_counts counts them all
+OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png")
+
+
+def check_out_dir(out_dir: Path) -> None:
+    """Make sure the results can be written before a run starts, not after it finished.
+
+    Creates the folder and tries a file in it; an existing output file that is not a
+    writable file (a folder of that name, no permission) is refused too."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / ".plc-runtime-write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(
+            f"--out {out_dir}: cannot write results there: {exc.strerror or exc}"
+        ) from None
+    for name in OUTPUT_FILES:
+        path = out_dir / name
+        if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
+            raise ConfigError(f"--out {out_dir}: {name} exists and cannot be overwritten")
 
 
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:

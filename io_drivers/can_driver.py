@@ -5,24 +5,35 @@ per vehicle v an 8-byte record at input byte ``input_base + 8 * v``:
 
     +0 WORD current node      +2 WORD next node (65535: none)
     +4 BYTE state code        +5 BYTE battery %        +6 BYTE speed cm/s
-    +7 BYTE flags: bit 0 online, bit 1 stale (no status for ``stale_after`` s: treat the
-            vehicle as an obstacle where it was last seen), bit 2 fault reported
+    +7 BYTE flags: bit 0 online, bit 1 stale (no confirmed status for ``stale_after`` s:
+            treat the vehicle as an obstacle where it was last seen), bit 2 fault reported,
+            bit 3 clear of the current node, bit 4 suspect link (its counter jumped)
 
 Outputs (read after copy-out): per vehicle v an 8-byte record at output byte
 ``output_base + 8 * v``:
 
-    +0/+2/+4 WORD next nodes 1..3 (the released route)    +6 BYTE bits 0-1 count, bit 7 go
+    +0/+2/+4 WORD next nodes 1..3 (the released route)
+    +6 BYTE bits 0-1 count, bit 6 suspect acknowledge (rising edge), bit 7 go
     +7 BYTE sequence: a new value sends the RouteCommand; go changes send StopGo
 
 All-zero outputs mean "every vehicle stopped", so the runtime's safe state (outputs 0 on
-STOP and FAULT) really stops the fleet; closing the driver also broadcasts a stop. Bad
-frames (wrong length, out-of-range values, unknown ids) are counted and dropped; nothing a
-frame contains can raise out of the scan. Per tick at most ``max_frames`` frames are read,
-so a flooded bus cannot stretch the scan (the rest waits for the next tick).
+STOP and FAULT) really stops the fleet; closing the driver also broadcasts a stop. StopGo
+is also repeated every ``go_refresh`` seconds, so a lost one is made good and a vehicle
+resynchronises to a restarted controller's counter.
+
+Every frame is end-to-end protected (io_drivers/e2e.py). A frame that fails a check is
+counted and dropped, never applied: wrong length or out-of-range values (``malformed``), a
+CRC mismatch (``crc_errors``), an id outside the plan (``unknown_id``), a repeated or
+out-of-sequence counter (``repeated``, ``out_of_sequence``; ``lost`` counts the frames a
+counter step skipped, ``resyncs`` the senders whose counter jumped). What passes goes to
+the vehicle records, which confirm positions (``unconfirmed``: positions never repeated).
+Nothing a frame contains can raise out of the scan. Per tick at most ``max_frames`` frames
+are read, so a flooded bus cannot stretch the scan (the rest waits for the next tick).
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Iterable
 from typing import Any
 
@@ -30,19 +41,34 @@ import can
 
 from plc_runtime import ConfigError, ProcessImage
 
+from .e2e import ACCEPTED, RESYNC, CounterCheck
 from .protocol import (
     ALL_VEHICLES,
     CONTROLLER,
+    HEARTBEAT,
     MAX_VEHICLE_ID,
+    STOP_GO,
     Codec,
+    CorruptFrame,
     Heartbeat,
+    Info,
     MalformedFrame,
     RouteCommand,
     Status,
     StopGo,
     UnknownFrame,
 )
-from .vehicle_records import FAULT, GO_BIT, ONLINE, RECORD, STALE, VehicleRecords  # noqa: F401 - the record API
+from .vehicle_records import (  # noqa: F401 - the record API
+    CLEAR,
+    FAULT,
+    GO_BIT,
+    ONLINE,
+    RECORD,
+    STALE,
+    SUSPECT_ACK,
+    SUSPECT_LINK,
+    VehicleRecords,
+)
 
 
 class CanDriver:
@@ -55,6 +81,7 @@ class CanDriver:
         output_base: int = 1024,
         stale_after: float = 0.5,
         heartbeat_period: float = 0.1,
+        go_refresh: float = 1.0,
         max_frames: int = 2000,
         name: str = "can",
         **bus_kwargs: Any,
@@ -68,6 +95,7 @@ class CanDriver:
         self.input_base, self.output_base = input_base, output_base
         self.stale_after_ns = round(stale_after * 1e9)
         self.heartbeat_ns = round(heartbeat_period * 1e9)
+        self.go_refresh_ns = round(go_refresh * 1e9)
         self.max_frames = max_frames
         self.codec = Codec()
         self.bus: can.BusABC | None = None
@@ -76,6 +104,7 @@ class CanDriver:
                 "frames_in",
                 "frames_out",
                 "malformed",
+                "crc_errors",
                 "unknown_id",
                 "unknown_vehicle",
                 "send_errors",
@@ -84,6 +113,7 @@ class CanDriver:
             ),
             0,
         )
+        self.checks = CounterCheck(self.counters)  # repeated, lost, out_of_sequence, resyncs
 
     # ----- lifecycle ------------------------------------------------------------------------
     def open(self, image: ProcessImage) -> None:
@@ -108,20 +138,28 @@ class CanDriver:
             ) from None
         self._sent_sequence: dict[int, int] = {}
         self._sent_go: dict[int, bool] = {}
+        # vehicle -> when its StopGo was last sent, oldest first: the next to refresh
+        self._go_sent_ns: OrderedDict[int, int] = OrderedDict()
+        self._counter: dict[int, int] = {}  # frame id -> the counter of its last frame sent
         self._next_heartbeat = 0
         self._retry: set[int] = set()  # vehicles whose last send failed: look again next tick
-        self._alive = 0
 
     def close(self) -> None:
         if self.bus is None:
             return
-        self._send(StopGo(ALL_VEHICLES, False))  # the controller goes away: everyone stops
+        # the controller goes away: everyone stops
+        self._send(StopGo(ALL_VEHICLES, False, self._next_counter(STOP_GO + ALL_VEHICLES)))
         self.bus.shutdown()
         self.bus = None
 
     def stats(self) -> dict[str, object]:
         stale = self.records.stale() if self.bus else []
-        return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
+        return {
+            **self.counters,
+            **self.records.counters,
+            "online": len(self.records.vehicles) - len(stale),
+            "stale": stale,
+        }
 
     # ----- the scan -------------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
@@ -138,8 +176,12 @@ class CanDriver:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             self.counters["unknown_id"] += 1
             return
+        frame_id = msg.arbitration_id
         try:
-            decoded = self.codec.decode(msg.arbitration_id, msg.data)
+            decoded = self.codec.decode(frame_id, msg.data)
+        except CorruptFrame:
+            self.counters["crc_errors"] += 1
+            return
         except UnknownFrame:
             self.counters["unknown_id"] += 1
             return
@@ -147,22 +189,26 @@ class CanDriver:
             self.counters["malformed"] += 1
             return
         self.counters["frames_in"] += 1
-        if not isinstance(decoded, Status):
+        kind = type(decoded)
+        if kind is not Status and kind is not Info:
             return  # other controllers' commands and heartbeats: not ours to act on
         if decoded.vehicle not in self.records:
             self.counters["unknown_vehicle"] += 1
             return
-        self.records.received(decoded, now_ns)
+        verdict = self.checks.check(frame_id, decoded.counter)
+        if verdict is not ACCEPTED and verdict is not RESYNC:
+            return
+        if kind is Status:
+            self.records.received(decoded, now_ns, verdict is RESYNC)
+        else:
+            self.records.received_info(decoded, verdict is RESYNC)
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         todo, self._retry = set(self.records.changed()) | self._retry, set()
         for v in sorted(todo):
             go, sequence, nodes = self.records.command(v)
             if self._sent_go.get(v) != go:
-                if self._send(StopGo(v, go)):
-                    self._sent_go[v] = go
-                else:
-                    self._retry.add(v)
+                self._send_go(v, go, now_ns)
             if sequence != self._sent_sequence.get(
                 v, 0
             ):  # outputs start at 0: 0 is "no command yet"
@@ -173,10 +219,28 @@ class CanDriver:
                     self._sent_sequence[v] = sequence
                 else:
                     self._retry.add(v)
+        refresh = self._go_sent_ns
+        while refresh and now_ns - next(iter(refresh.values())) >= self.go_refresh_ns:
+            v = next(iter(refresh))
+            self._send_go(v, self._sent_go[v], now_ns)
         if now_ns >= self._next_heartbeat:
             self._next_heartbeat = now_ns + self.heartbeat_ns
-            self._alive = (self._alive + 1) % 256
-            self._send(Heartbeat(CONTROLLER, self._alive))
+            self._send(Heartbeat(CONTROLLER, self._next_counter(HEARTBEAT + CONTROLLER)))
+
+    def _send_go(self, v: int, go: bool, now_ns: int) -> None:
+        """StopGo for vehicle v, a new counter each time; a failed send is retried next tick."""
+        if self._send(StopGo(v, go, self._next_counter(STOP_GO + v))):
+            self._sent_go[v] = go
+            self._go_sent_ns[v] = now_ns
+            self._go_sent_ns.move_to_end(v)
+        else:  # not sent: nothing is known to be sent, so the next tick sends it again
+            self._retry.add(v)
+            self._sent_go.pop(v, None)
+            self._go_sent_ns.pop(v, None)
+
+    def _next_counter(self, frame_id: int) -> int:
+        counter = self._counter[frame_id] = (self._counter.get(frame_id, 0) + 1) % 16
+        return counter
 
     def _send(self, message: Any) -> bool:
         frame_id, data = self.codec.encode(message)

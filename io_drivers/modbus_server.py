@@ -15,29 +15,60 @@ never mid-scan. Addresses beyond the map get exception 2, function codes other t
 eight above exception 1, a failing callback exception 4; the read-only areas have no write
 function at all. Binds 127.0.0.1 unless told otherwise. Any unit id is answered.
 
-pymodbus' own register memory is only a scratch buffer: its documented SimDevice ``action``
-hook fills it from the image before a reply is built and receives every write. (Checked
-against pymodbus 3.16.1, whose simulator API is marked experimental; re-check on upgrade.)
+Modbus/TCP has no authentication (docs/security.md), so the server is closed by default:
+
+- Writes go through an allow-list. The input and output images (coils and holding
+  registers 0..1023, i.e. %QX and %QW; %IX and %IW have no write function) can never be
+  written: the field and the program own them, and the vehicles' route commands and
+  stop/go bits are %QW. Naming one of them in an allow-list is a configuration error. In
+  the marker area a client may write the tags the program declares ``writable`` (or the
+  ``writable`` list given instead) plus what ``writable_extra`` opens: tags, %M addresses,
+  %MW ranges. A range over a read-only tag is an error: opening what the program publishes
+  takes naming the tag. A request touching anything else is refused whole with exception
+  2 (illegal data address) and nothing of it is applied.
+- At most ``max_connections`` clients (16) at once, the next one is closed at once; a
+  connection that sends no request for ``idle_timeout`` seconds (60) is closed.
+- Every refused request or connection is one log line (a warning), never a traceback.
+- Listening on anything but a loopback address warns (a RuntimeWarning, on stderr).
+
+pymodbus 3.16.1 has neither a connection limit nor an idle timeout: both live in the
+connection handler this module gives pymodbus' server (``_Connection``). The handler also
+keeps per-request state (the function code received, an invalid coil value, why a request
+was refused) with its connection, because requests of different clients interleave on the
+loop. pymodbus' own register memory is only a scratch buffer: its documented SimDevice
+``action`` hook fills it from the image before a reply is built and receives every write.
+(Checked against pymodbus 3.16.1, whose simulator API is marked experimental and whose
+request handler is internal; re-check on upgrade.)
 """
 
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import logging
+import re
+import socket
 import threading
-from collections.abc import Callable, Sequence
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from contextvars import ContextVar
+from dataclasses import dataclass
 
+import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from plc_runtime import ConfigError, PlcError, ProcessImage
+from plc_runtime import Address, ConfigError, PlcError, ProcessImage, parse_address
 
 log = logging.getLogger(__name__)
 
 ReadFn = Callable[[str, int, int], Sequence[int] | Sequence[bool]]
 WriteFn = Callable[[str, int, list], "ExcCodes | None"]
+Part = tuple[str, int, int]  # (area "coil" | "hr" | "mw", first address in it, count)
+AllowFn = Callable[[list[Part]], "str | None"]  # None: allowed; else why it is refused
 
 N_COILS = 8192
 N_DISCRETE = 8192
@@ -45,6 +76,60 @@ N_INPUT_REGS = 1024
 N_HOLDING = 2048  # 0..1023 "hr" (%QW), 1024..2047 "mw" (%MW)
 MW_BASE = 1024
 SUPPORTED_FCS = frozenset({1, 2, 3, 4, 5, 6, 15, 16})
+REGISTER_BYTES = 2 * N_INPUT_REGS  # bytes of %I, %Q and %M served as registers (1024 each)
+BIT_BYTES = N_COILS // 8  # bytes of %I and %Q also served bit by bit (8192 bits each)
+MAX_CONNECTIONS = 16
+IDLE_TIMEOUT = 60.0  # seconds without a request before a connection is closed
+_DEFAULT_REASONS = {
+    ExcCodes.ILLEGAL_FUNCTION: "function code not served",
+    ExcCodes.ILLEGAL_ADDRESS: "address outside the served map",
+    ExcCodes.ILLEGAL_VALUE: "count or value out of range",
+    ExcCodes.DEVICE_FAILURE: "server failure",
+}
+
+
+@dataclass(frozen=True)
+class MapEntry:
+    """Where an image location is served: a Modbus table, its first element and how many."""
+
+    table: str  # "coil" | "discrete input" | "input register" | "holding register"
+    first: int
+    count: int
+    bits: tuple[int, int] | None = None  # part of one register (a bit or a byte): lowest, highest
+
+    def __str__(self) -> str:
+        """Short: ``HR 1088``, ``HR 1024..1025``, ``HR 1034 bit 8``, ``coil 33``, ``DI 8``, ``IR 3``."""
+        short = {"holding register": "HR", "input register": "IR", "discrete input": "DI"}
+        last = self.first + self.count - 1
+        text = f"{short.get(self.table, self.table)} {self.first}"
+        text += f"..{last}" if last > self.first else ""
+        if self.bits is not None:
+            lo, hi = self.bits
+            text += f" bit {lo}" if lo == hi else f" bits {lo}-{hi}"
+        return text
+
+
+def map_entry(address: Address) -> MapEntry | None:
+    """Where ``address`` is served in the map above, None if it is not served.
+
+    Bits of %I and %Q are discrete inputs and coils; every other size is served as
+    registers (a %MD is two holding registers, low word first; a bit or a byte of %M is
+    part of one)."""
+    a = address
+    if a.is_bit and a.area != "M":
+        if a.byte_offset >= BIT_BYTES:
+            return None
+        table = "discrete input" if a.area == "I" else "coil"
+        return MapEntry(table, a.byte_offset * 8 + a.bit, 1)
+    if a.byte_offset + a.nbytes > REGISTER_BYTES:
+        return None
+    table = "input register" if a.area == "I" else "holding register"
+    bits = None
+    if a.nbytes == 1:
+        lo = (a.byte_offset % 2) * 8
+        bits = (lo + a.bit, lo + a.bit) if a.is_bit else (lo, lo + 7)
+    first = (MW_BASE if a.area == "M" else 0) + a.byte_offset // 2
+    return MapEntry(table, first, max(1, a.nbytes // 2), bits)
 
 
 def _bits_to_regs(bits: Sequence[bool]) -> list[int]:
@@ -74,26 +159,249 @@ def _make_unsupported_pdu(fc: int) -> type[ModbusPDU]:
 
 
 # Every function code 1..127 except the 8 supported ones. Overrides pymodbus' built-in
-# FC7/8/11/12/17/20/21/22/23/24/43 handlers and the unknown-FC path (see notes in report).
+# FC7/8/11/12/17/20/21/22/23/24/43 handlers and the unknown-FC path: FC22 (mask write) and
+# FC23 (read/write) would be two more ways to write, so they are not served at all.
 _UNSUPPORTED_PDUS = [_make_unsupported_pdu(fc) for fc in range(1, 128) if fc not in SUPPORTED_FCS]
 
 
-class _ModbusThread:
-    """The pymodbus TCP server in a thread with its own event loop; start()/stop() from sync code."""
+def check_limits(name: str, max_connections: int, idle_timeout: float | None) -> None:
+    """The connection cap and the idle timeout must make sense (ConfigError naming them)."""
+    if isinstance(max_connections, bool) or not isinstance(max_connections, int):
+        raise ConfigError(
+            f"{name}: max_connections must be a whole number, not {max_connections!r}"
+        )
+    if max_connections < 1:
+        raise ConfigError(f"{name}: max_connections must be 1 or more, not {max_connections}")
+    if idle_timeout is not None and not (
+        isinstance(idle_timeout, (int, float)) and idle_timeout > 0
+    ):
+        raise ConfigError(f"{name}: idle_timeout must be positive or None, not {idle_timeout!r}")
 
-    def __init__(self, read: ReadFn, write: WriteFn, host: str = "127.0.0.1", port: int = 502):
+
+def is_loopback(host: str) -> bool:
+    """Whether listening on ``host`` keeps the server on this machine: every address it
+    resolves to is a loopback address. The wildcard ("", 0.0.0.0, ::) is not."""
+    if not host:
+        return False
+    try:
+        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
+    except OSError:
+        return False  # binding will fail and say why
+    return all(ipaddress.ip_address(str(info[4][0]).split("%")[0]).is_loopback for info in infos)
+
+
+# The connection whose request is being handled: set in its request task, read by the
+# SimDevice action (which pymodbus calls without saying for which connection).
+_CONNECTION: ContextVar[_Connection | None] = ContextVar("modbus_connection", default=None)
+
+
+class _QuietWhileServing(logging.Filter):
+    """pymodbus logs some refusals itself (an undecodable frame, a failing request), some
+    with frame dumps or a traceback. While one of our connections handles a request, the
+    connection's own line replaces them. pymodbus' debug output and the logging of its
+    clients (the vehicle link) are left alone."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno < logging.WARNING or _CONNECTION.get() is None
+
+
+logging.getLogger("pymodbus.logging").addFilter(_QuietWhileServing())
+
+
+class _Connection(ServerRequestHandler):
+    """One client connection: counted against the cap, closed when idle, refusals logged."""
+
+    def __init__(self, owner: ModbusTcpServer, guard: _ModbusThread) -> None:
+        super().__init__(owner, self._trace, None, None)
+        self.guard = guard
+        self.peer = "?"
+        self.rx_fc = 0  # function code of the last request received
+        self.bad_coil_value = False  # that request is an FC5 with a value other than on/off
+        self.reason: str | None = None  # why the request being handled is refused
+        self._last_request = 0.0
+        self._idle: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = transport.get_extra_info("peername")
+        if peer:
+            host = str(peer[0])
+            self.peer = f"[{host}]:{peer[1]}" if ":" in host else f"{host}:{peer[1]}"
+        if not self.guard.admit(self):
+            self.close()  # unregisters it from pymodbus' listener (it has no transport yet)
+            transport.close()
+            return
+        super().connection_made(transport)
+        self._last_request = self.loop.time()
+        timeout = self.guard.idle_timeout
+        if timeout is not None:
+            self._idle = self.loop.call_later(timeout, self._check_idle, timeout)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.guard.release(self)
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        super().connection_lost(exc)
+
+    def _check_idle(self, timeout: float) -> None:
+        quiet = self.loop.time() - self._last_request
+        if quiet < timeout:
+            self._idle = self.loop.call_later(timeout - quiet, self._check_idle, timeout)
+            return
+        self._idle = None
+        self.guard.idle_closed(self)
+        self.close()
+
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        if len(data) >= 4 and data[2:4] != b"\x00\x00":
+            # pymodbus would keep the frame, unanswered, in front of every later one
+            pid = int.from_bytes(data[2:4], "big")
+            self.guard.dropped(self, f"protocol id {pid}, not Modbus/TCP's 0")
+            self.close()
+            return len(data)
+        token = _CONNECTION.set(self)  # also inherited by the request task it schedules
+        try:
+            return super().callback_data(data, addr)
+        finally:
+            _CONNECTION.reset(token)
+
+    async def handle_request(self) -> None:
+        _CONNECTION.set(self)  # this request's task only
+        await super().handle_request()
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        """pymodbus' packet hook: note what arrives; fix, time and log what is sent.
+
+        pymodbus 3.16 answers a request it cannot decode (count out of range, e.g. FC1
+        count=0/2001, FC3 count=126) with function code 0x80 + code 01 instead of
+        (fc | 0x80) + code 03. That reply is sent inside the receive callback, so the
+        function code received last on this connection is the request's."""
+        if not sending:
+            if len(data) >= 8:
+                self.rx_fc = data[7]  # MBAP (7 bytes) + function code
+            # FC5 allows only 0xFF00 (on) and 0x0000 (off); pymodbus takes any other value
+            # as "on": remember it so the action can refuse the write with exception 3.
+            self.bad_coil_value = (
+                len(data) >= 12 and data[7] == 5 and data[10:12] not in (b"\xff\x00", b"\x00\x00")
+            )
+            return data
+        if len(data) == 9 and data[7] == 0x80 and 0 < self.rx_fc < 0x80:
+            fc = self.rx_fc
+            code = ExcCodes.ILLEGAL_VALUE if fc in SUPPORTED_FCS else ExcCodes.ILLEGAL_FUNCTION
+            data = data[:7] + bytes((fc | 0x80, code))
+        self._last_request = self.loop.time()  # a request was answered: not idle
+        if len(data) >= 9 and data[7] & 0x80:
+            self.guard.refused(self, data[7] & 0x7F, data[8])
+        return data
+
+
+class _TcpServer(ModbusTcpServer):
+    """pymodbus' TCP server, with ``_Connection`` as the handler of each client."""
+
+    def __init__(self, guard: _ModbusThread, *args, **kwargs) -> None:
+        self._guard = guard
+        super().__init__(*args, **kwargs)
+
+    def callback_new_connection(self) -> _Connection:
+        return _Connection(self, self._guard)
+
+
+class _ModbusThread:
+    """The pymodbus TCP server in a thread with its own event loop; start()/stop() from sync code.
+
+    ``allow`` vets every write request before anything of it is written (None: every write
+    in the map goes to ``write``). ``max_connections`` clients at once; ``idle_timeout``
+    seconds without a request close a connection (None: never)."""
+
+    def __init__(
+        self,
+        read: ReadFn,
+        write: WriteFn,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        allow: AllowFn | None = None,
+        *,
+        name: str = "modbus",
+        max_connections: int = MAX_CONNECTIONS,
+        idle_timeout: float | None = IDLE_TIMEOUT,
+    ):
+        check_limits(name, max_connections, idle_timeout)
         self._read = read
         self._write = write
+        self._allow = allow
+        self.name = name
         self.host = host
         self.requested_port = port
         self.port: int | None = None  # actual bound port after start()
+        self.max_connections = max_connections
+        self.idle_timeout = idle_timeout
+        self.counters = {"connections_refused": 0, "idle_closed": 0, "exceptions": 0}
+        self._open: set[_Connection] = set()  # touched in the server thread only
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop_evt: asyncio.Event | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._last_rx_fc = 0
-        self._bad_coil_value = False
+
+    # ---------------------------------------------------------------- connections
+    @property
+    def connections(self) -> int:
+        """Clients connected now."""
+        return len(self._open)
+
+    def _where(self) -> str:
+        return f"{self.name} {self.host}:{self.port}"
+
+    def admit(self, conn: _Connection) -> bool:
+        """Count a new connection in, unless the cap is reached (then log it)."""
+        if len(self._open) >= self.max_connections:
+            self.counters["connections_refused"] += 1
+            log.warning(
+                "%s: refused connection from %s: %d connections open (the limit)",
+                self._where(),
+                conn.peer,
+                len(self._open),
+            )
+            return False
+        self._open.add(conn)
+        return True
+
+    def release(self, conn: _Connection) -> None:
+        self._open.discard(conn)
+
+    def idle_closed(self, conn: _Connection) -> None:
+        self.counters["idle_closed"] += 1
+        log.info(
+            "%s: closed connection from %s: no request for %g s",
+            self._where(),
+            conn.peer,
+            self.idle_timeout,
+        )
+
+    def dropped(self, conn: _Connection, why: str) -> None:
+        log.warning("%s: closed connection from %s: %s", self._where(), conn.peer, why)
+
+    def refused(self, conn: _Connection, fc: int, code: int) -> None:
+        """One line per request answered with an exception: who, what, why."""
+        self.counters["exceptions"] += 1
+        reason = conn.reason or _DEFAULT_REASONS.get(code, "refused")
+        conn.reason = None
+        log.warning(
+            "%s: refused FC%d from %s: exception %02d, %s",
+            self._where(),
+            fc,
+            conn.peer,
+            code,
+            reason,
+        )
+
+    @staticmethod
+    def _refuse(code: ExcCodes, reason: str) -> ExcCodes:
+        """Answer the current request with ``code``; its log line says ``reason``."""
+        conn = _CONNECTION.get()
+        if conn is not None:
+            conn.reason = reason
+        return code
 
     # ---------------------------------------------------------------- callbacks
     def _read_bits(self, area: str, address: int, count: int) -> list[bool]:
@@ -102,18 +410,21 @@ class _ModbusThread:
             raise ValueError(f"read({area!r}, {address}, {count}) returned {len(vals)} values")
         return vals
 
+    @staticmethod
+    def _holding_parts(address: int, count: int) -> list[Part]:
+        """Holding registers ``address`` .. ``address + count - 1``: %QW below MW_BASE, %MW from it."""
+        end = address + count
+        parts = []
+        if address < MW_BASE:
+            parts.append(("hr", address, min(end, MW_BASE) - address))
+        if end > MW_BASE:
+            lo = max(address, MW_BASE)
+            parts.append(("mw", lo - MW_BASE, end - lo))
+        return parts
+
     def _read_regs(self, address: int, count: int, fc: int) -> list[int]:
         """Read holding (fc 3) or input (fc 4) registers, splitting hr/mw for holding."""
-        if fc == 4:
-            parts = [("ir", address, count)]
-        else:
-            end = address + count
-            parts = []
-            if address < MW_BASE:
-                parts.append(("hr", address, min(end, MW_BASE) - address))
-            if end > MW_BASE:
-                lo = max(address, MW_BASE)
-                parts.append(("mw", lo - MW_BASE, end - lo))
+        parts = [("ir", address, count)] if fc == 4 else self._holding_parts(address, count)
         out: list[int] = []
         for area, addr, cnt in parts:
             vals = [int(v) for v in self._read(area, addr, cnt)]
@@ -123,14 +434,11 @@ class _ModbusThread:
         return out
 
     def _write_regs(self, address: int, values: list[int]) -> ExcCodes | None:
-        end = address + len(values)
-        if address < MW_BASE:
-            n = min(end, MW_BASE) - address
-            if rc := self._write("hr", address, values[:n]):
+        done = 0
+        for area, first, count in self._holding_parts(address, len(values)):
+            if rc := self._write(area, first, values[done : done + count]):
                 return rc
-        if end > MW_BASE:
-            lo = max(address, MW_BASE)
-            return self._write("mw", lo - MW_BASE, values[lo - address :])
+            done += count
         return None
 
     async def _action(
@@ -150,10 +458,21 @@ class _ModbusThread:
         """
         try:
             if set_values is not None:  # FC5/FC15/FC6/FC16 write
-                if fc == 5 and self._bad_coil_value:
-                    return ExcCodes.ILLEGAL_VALUE
+                conn = _CONNECTION.get()
+                if fc == 5 and conn is not None and conn.bad_coil_value:
+                    return self._refuse(
+                        ExcCodes.ILLEGAL_VALUE, "a coil value must be 0xFF00 (on) or 0x0000 (off)"
+                    )
                 vals = list(set_values)
-                if fc in (5, 15):
+                coils = fc in (5, 15)
+                parts = (
+                    [("coil", address, len(vals))]
+                    if coils
+                    else self._holding_parts(address, len(vals))
+                )
+                if self._allow is not None and (why := self._allow(parts)) is not None:
+                    return self._refuse(ExcCodes.ILLEGAL_ADDRESS, why)  # nothing of it applied
+                if coils:
                     return self._write("coil", address, [bool(v) for v in vals])
                 return self._write_regs(address, [int(v) for v in vals])
             if fc in (5, 6):
@@ -171,31 +490,12 @@ class _ModbusThread:
                 i = address - start_address
                 registers[i : i + count] = self._read_regs(address, count, fc)
             return None
-        except Exception:  # pylint: disable=broad-except
-            log.exception("modbus callback failed (fc=%s address=%s)", fc, address)
-            return ExcCodes.DEVICE_FAILURE
-
-    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """trace_packet hook: fix pymodbus' reply to undecodable requests.
-
-        pymodbus 3.16 answers a request it cannot decode (count out of range, e.g.
-        FC1 count=0/2001, FC3 count=126) with function code 0x80 + code 01 instead of
-        (fc | 0x80) + code 03. The reply is sent synchronously inside the same receive
-        callback, so the last received function code belongs to that request.
-        """
-        if not sending:
-            if len(data) >= 8:
-                self._last_rx_fc = data[7]  # MBAP(7 bytes) + function code
-            # FC5 allows only 0xFF00 (on) and 0x0000 (off); pymodbus takes any other value as
-            # "on": remember it so the action can refuse the write with exception 3.
-            self._bad_coil_value = (
-                len(data) >= 12 and data[7] == 5 and data[10:12] not in (b"\xff\x00", b"\x00\x00")
+        except Exception as exc:  # pylint: disable=broad-except
+            # one line in the refusal log, no traceback: what failed and with what
+            return self._refuse(
+                ExcCodes.DEVICE_FAILURE,
+                f"server failure at address {address}: {type(exc).__name__}: {exc}",
             )
-        elif len(data) == 9 and data[7] == 0x80 and 0 < self._last_rx_fc < 0x80:
-            fc = self._last_rx_fc
-            code = ExcCodes.ILLEGAL_VALUE if fc in SUPPORTED_FCS else ExcCodes.ILLEGAL_FUNCTION
-            data = data[:7] + bytes((fc | 0x80, code))
-        return data
 
     # ---------------------------------------------------------------- device
     def _build_device(self) -> SimDevice:
@@ -214,9 +514,20 @@ class _ModbusThread:
 
     # ---------------------------------------------------------------- thread
     def start(self, timeout: float = 5.0) -> int:
-        """Start the server thread; returns the bound port once listening."""
+        """Start the server thread; returns the bound port once listening.
+
+        Warns before binding an address other people can reach."""
         if self._thread is not None:
             raise RuntimeError("already started")
+        if not is_loopback(self.host):
+            warnings.warn(
+                f"{self.name}: Modbus TCP server on {self.host or '*'}:{self.requested_port}, "
+                "not a loopback address: Modbus has no authentication, anyone who reaches "
+                "it can read the image and write what is writable; keep that network "
+                "isolated (docs/security.md)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         self._ready.clear()
         self._error = None
         self._thread = threading.Thread(target=self._thread_main, name="modbus-tcp", daemon=True)
@@ -257,11 +568,11 @@ class _ModbusThread:
     async def _serve(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop_evt = asyncio.Event()
-        server = ModbusTcpServer(  # must be created inside the running loop
+        server = _TcpServer(  # must be created inside the running loop
+            self,
             self._build_device(),
             address=(self.host, self.requested_port),
             custom_pdu=_UNSUPPORTED_PDUS,
-            trace_packet=self._trace_packet,
         )
         # background=True: returns once listening; raises RuntimeError if bind fails
         await server.serve_forever(background=True)
@@ -275,17 +586,90 @@ class _ModbusThread:
             await listener.wait_closed()
             for _ in range(3):  # let transports' close callbacks run
                 await asyncio.sleep(0)
+            self._open.clear()
+
+
+# %MW<first>..%MW<last>: a range of marker words for writable_extra
+_RANGE_RE = re.compile(r"^%MW(\d+)\.\.%MW(\d+)$")
+_AREA_NAMES = {"I": "the input image (%I)", "Q": "the output image (%Q)"}
+_MW_BITS = REGISTER_BYTES * 8  # bits of %M served as holding registers 1024..2047
+
+
+def _nbits(address: Address) -> int:
+    return 1 if address.is_bit else address.nbytes * 8
+
+
+def _check_area(where: str, address: Address) -> None:
+    """%I and %Q can never be opened: a configuration error naming ``where``."""
+    if address.area in _AREA_NAMES:
+        raise ConfigError(
+            f"{where}: {_AREA_NAMES[address.area]} is never writable over Modbus; only markers "
+            f"can be opened (%MW0..%MW1023, holding registers {MW_BASE}..{N_HOLDING - 1})"
+        )
+
+
+def _address_span(where: str, address: Address) -> tuple[int, int]:
+    """The bits of %M an address covers (first, count), which must be served."""
+    _check_area(where, address)
+    return _marker_span(where, address.byte_offset * 8 + max(address.bit, 0), _nbits(address))
+
+
+def _marker_span(where: str, first: int, nbits: int) -> tuple[int, int]:
+    if first + nbits > _MW_BITS:
+        raise ConfigError(
+            f"{where}: beyond the Modbus map (%MW0..%MW{_MW_BITS // 16 - 1}, "
+            f"holding registers {MW_BASE}..{N_HOLDING - 1})"
+        )
+    return first, nbits
 
 
 class ModbusServer:
-    """An IoDriver that serves the image over Modbus TCP while the runtime runs."""
+    """An IoDriver that serves the image over Modbus TCP while the runtime runs.
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, name: str = "modbus") -> None:
+    What a client may write (only ever in the marker area, holding registers 1024..2047):
+
+    ``writable``: tag names or %M addresses; None (the default) means the tags the image's
+    tag table declares writable (those beyond the map stay unreachable). An empty list
+    makes the server read-only.
+    ``writable_extra``: opened in addition (an HMI set-point): tag names, %M addresses and
+    ranges ``%MW200..%MW209``. Naming a read-only tag opens it; a range or address over a
+    read-only tag is an error naming the tag, so nothing the program publishes is opened
+    by accident.
+
+    A %I or %Q location in either list, or a writable tag there, is a configuration error
+    naming it: the input and output images are never writable over Modbus. Addresses are
+    checked here, tag names when the runtime starts.
+
+    ``max_connections`` clients at once (16); ``idle_timeout`` seconds without a request
+    close a connection (60; None: never)."""
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        name: str = "modbus",
+        writable: Iterable[str] | None = None,
+        writable_extra: Iterable[str] = (),
+        *,
+        max_connections: int = MAX_CONNECTIONS,
+        idle_timeout: float | None = IDLE_TIMEOUT,
+    ) -> None:
         self.name = name
         self.host, self.requested_port = host, port
         self.port: int | None = None
         self._server: _ModbusThread | None = None
-        self.counters = {"reads": 0, "writes": 0, "failures": 0}
+        self.writable = None if writable is None else list(writable)
+        self.writable_extra = list(writable_extra)
+        for ref in [*(self.writable or ()), *self.writable_extra]:
+            self._span(ref)  # addresses and ranges fail now, before anything runs
+        check_limits(name, max_connections, idle_timeout)
+        self.max_connections, self.idle_timeout = max_connections, idle_timeout
+        self.counters = {"reads": 0, "writes": 0, "refused": 0, "failures": 0}
+        self._link_counters: dict[str, int] = {}  # connections and refusals, from the thread
+        self.served_port: int | None = None  # the port it listened on, also after close()
+        self._allowed = np.zeros(_MW_BITS, dtype=bool)  # per bit of %M: a client may write it
+        self._writable_regs = np.zeros(N_HOLDING - MW_BASE, dtype=bool)  # every bit of %MWn
+        self._owners: dict[int, str] = {}  # %MW index -> the read-only tag in it
 
     def open(self, image: ProcessImage) -> None:
         for area, needed in (("I", 2048), ("Q", 2048), ("M", 2048)):
@@ -300,9 +684,20 @@ class ModbusServer:
             "mw": image.markers.view("<u2"),
         }
         self._bits = {"coil": image.published_outputs.bytes, "di": image.inputs.bytes}
-        server = _ModbusThread(self._read, self._write, self.host, self.requested_port)
+        self._allow_list(image)
+        server = _ModbusThread(
+            self._read,
+            self._write,
+            self.host,
+            self.requested_port,
+            allow=self._allow,
+            name=self.name,
+            max_connections=self.max_connections,
+            idle_timeout=self.idle_timeout,
+        )
+        self._link_counters = server.counters
         try:
-            self.port = server.start()
+            self.port = self.served_port = server.start()
         except (RuntimeError, TimeoutError, OSError) as exc:
             raise ConfigError(
                 f"Modbus server on {self.host}:{self.requested_port}: {exc}"
@@ -321,10 +716,119 @@ class ModbusServer:
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         pass
 
+    @property
+    def connections(self) -> int:
+        """Clients connected now."""
+        return self._server.connections if self._server is not None else 0
+
     def stats(self) -> dict[str, object]:
-        return {**self.counters, "address": f"{self.host}:{self.port}"}
+        return {
+            **self.counters,
+            **self._link_counters,
+            "address": f"{self.host}:{self.served_port}",
+        }
+
+    # ----- the allow-list --------------------------------------------------------------
+    def _span(self, ref: str) -> tuple[int, int] | None:
+        """The bits of %M (first, count) an address or a range names; None for a tag name.
+
+        Raises ConfigError for what can never be opened: %I and %Q, and %M beyond the map."""
+        where = f"{self.name}: writable {ref!r}"
+        if not isinstance(ref, str) or not ref.strip():
+            raise ConfigError(f"{where}: expected a tag name, a %M address or %MWa..%MWb")
+        text = ref.strip().upper()
+        if not text.startswith("%"):
+            return None
+        if match := _RANGE_RE.match(text):
+            lo, hi = int(match[1]), int(match[2])
+            if hi < lo:
+                raise ConfigError(f"{where}: the range ends before it starts")
+            return _marker_span(where, lo * 16, (hi - lo + 1) * 16)
+        try:
+            address = parse_address(text)
+        except PlcError as exc:
+            raise ConfigError(f"{where}: {exc}; a range is %MWa..%MWb") from None
+        return _address_span(where, address)
+
+    def _allow_list(self, image: ProcessImage) -> None:
+        """Resolve the allow-list against the image's tag table (when the runtime starts)."""
+        allowed = np.zeros(_MW_BITS, dtype=bool)
+        owned: dict[int, str] = {}  # bit of %M -> the read-only tag it belongs to (the first)
+        for tag in image.tags:
+            a = tag.address
+            if not tag.writable and a.area == "M":
+                first = a.byte_offset * 8 + max(a.bit, 0)
+                for bit in range(first, min(first + _nbits(a), _MW_BITS)):
+                    owned.setdefault(bit, tag.name)
+        if self.writable is None:
+            for tag in image.tags.writable():
+                a = tag.address
+                _check_area(f"{self.name}: writable tag {tag.name!r} ({a.text})", a)
+                first = a.byte_offset * 8 + max(a.bit, 0)
+                allowed[first : first + _nbits(a)] = True  # beyond the map: unreachable
+        for ref in [*(self.writable or ()), *self.writable_extra]:
+            first, nbits = self._resolve(ref, image, owned)
+            allowed[first : first + nbits] = True
+        self._allowed = allowed
+        self._writable_regs = allowed.reshape(-1, 16).all(axis=1)
+        self._owners = {}
+        for bit, name in owned.items():
+            self._owners.setdefault(bit // 16, name)
+
+    def _resolve(self, ref: str, image: ProcessImage, owned: dict[int, str]) -> tuple[int, int]:
+        """The bits ``ref`` opens. A tag named opens, whatever its flag; an address or a
+        range must not cover a read-only tag."""
+        where = f"{self.name}: writable {ref!r}"
+        span = self._span(ref)
+        if span is None:
+            try:
+                address = image.tags.get(ref.strip()).address
+            except PlcError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            return _address_span(f"{where} ({address.text})", address)
+        first, nbits = span
+        for bit in range(first, first + nbits):
+            if bit in owned:
+                raise ConfigError(
+                    f"{where}: covers the read-only tag {owned[bit]!r}, which the program "
+                    "writes; name the tag to open it"
+                )
+        return span
 
     # ----- called in the server thread -----------------------------------------------
+    def _allow(self, parts: list[Part]) -> str | None:
+        """None if every bit a write request touches may be written, else why not (counted)."""
+        for area, first, count in parts:
+            why = self._closed(area, first, count)
+            if why is not None:
+                self.counters["refused"] += 1
+                return why
+        return None
+
+    def _closed(self, area: str, first: int, count: int) -> str | None:
+        """Why a part of a write request may not be written; None if it may."""
+        last = first + count - 1
+        if area == "coil":
+            return (
+                f"coils {first}..{last} are %QX{first >> 3}.{first & 7}..%QX{last >> 3}.{last & 7}"
+                ", the output image: never writable over Modbus"
+            )
+        if area == "hr":
+            return (
+                f"holding registers {first}..{last} are %QW{first}..%QW{last}"
+                ", the output image: never writable over Modbus"
+            )
+        closed = np.flatnonzero(~self._writable_regs[first : first + count])
+        if not len(closed):
+            return None
+        n = first + int(closed[0])
+        why = f"holding register {MW_BASE + n} (%MW{n}) "
+        if n in self._owners:
+            return why + f"is the read-only tag {self._owners[n]!r}"
+        if self._allowed[16 * n : 16 * n + 16].any():
+            return why + "is only partly writable (a writable bit or byte tag in it)"
+        return why + "is not on the write allow-list"
+
     def _read(self, area: str, address: int, count: int) -> list:
         self.counters["reads"] += 1
         with self._image._lock:  # the same lock that guards copy-in and copy-out
@@ -337,12 +841,11 @@ class ModbusServer:
             return self._words[area][address : address + count].tolist()
 
     def _write(self, area: str, address: int, values: list) -> ExcCodes | None:
+        """Queue an allowed write of marker words for the quiet point."""
+        if area != "mw":  # _allow refused it already; a last line of defence for the outputs
+            return ExcCodes.ILLEGAL_ADDRESS
         self.counters["writes"] += 1
-        if area == "coil":
-            refs = {f"%QX{a >> 3}.{a & 7}": bool(v) for a, v in enumerate(values, start=address)}
-        else:
-            prefix = "%QW" if area == "hr" else "%MW"
-            refs = {f"{prefix}{a}": int(v) for a, v in enumerate(values, start=address)}
+        refs = {f"%MW{a}": int(v) for a, v in enumerate(values, start=address)}
         try:
             self._image.write_many(refs)  # applied together at the next quiet point
         except PlcError:

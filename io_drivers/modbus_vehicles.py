@@ -1,17 +1,25 @@
 """ModbusVehicleLink: the runtime exchanges with every vehicle's Modbus TCP server.
 
-The alternative to the CAN link (vehicles/modbus_endpoint.py has the register map). The scan
-never waits for the network: an asyncio worker thread polls all vehicles concurrently every
-``poll_period`` (read the status registers, write a changed command block with one FC16),
-each request bounded by ``timeout``; the scan and the worker meet in a double buffer:
+The alternative to the CAN link (vehicles/modbus_endpoint.py has the register map: the CAN
+message set's payloads, one byte per register, with the same end-to-end protection). The
+scan never waits for the network: an asyncio worker thread polls all vehicles concurrently
+every ``poll_period`` (read the status and info registers, write changed command frames
+with one FC16), each request bounded by ``timeout``; the scan and the worker meet in a
+double buffer:
 
-* ``read_inputs`` (quiet point) takes the newest statuses the worker has collected and
-  writes them into the vehicle records of the image (docs/protocol.md), flags included:
-  a vehicle with no fresh status for ``stale_after`` seconds is stale.
-* ``write_outputs`` (after copy-out) hands changed command records to the worker.
+* the worker checks every new register block as the CAN driver checks a frame (CRC over
+  the CAN frame id and the payload, counter; a block unchanged since the last poll is no
+  new frame) and queues what passes;
+* ``read_inputs`` (quiet point) hands the queued frames, in order, to the vehicle records
+  of the image (docs/protocol.md), which confirm positions and keep the flags: a vehicle
+  with no confirmed status for ``stale_after`` seconds is stale;
+* ``write_outputs`` (after copy-out) encodes changed command records as frames for the
+  worker; StopGo is repeated every ``go_refresh`` seconds, as on CAN.
 
 A vehicle that does not answer, refuses, or drops its connection is counted and retried
-at the next poll; nothing of that reaches the scan except its stale flag.
+at the next poll; nothing of that reaches the scan except its stale flag. Counts:
+``crc_errors``, ``malformed``, ``repeated``, ``out_of_sequence``, ``resyncs``, ``lost``
+(frames the vehicle produced that no poll saw, or lost on the way), ``unconfirmed``.
 """
 
 from __future__ import annotations
@@ -20,16 +28,30 @@ import asyncio
 import logging
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Mapping
 
 from pymodbus.client import AsyncModbusTcpClient
 
 from plc_runtime import ConfigError, ProcessImage
 
-from .protocol import STATES, Status
+from .e2e import ACCEPTED, RESYNC, CounterCheck
+from .protocol import (
+    INFO,
+    STATUS,
+    Codec,
+    CorruptFrame,
+    Info,
+    MalformedFrame,
+    RouteCommand,
+    Status,
+    StopGo,
+    UnknownFrame,
+)
 from .vehicle_records import VehicleRecords
 
-STATUS_REGISTERS, COMMAND_REGISTERS = 8, 6
+STATUS_REGISTERS, INFO_REGISTERS = 8, 3  # input registers 0..7 and 8..10
+ROUTE_REGISTERS, STOP_GO_REGISTERS = 8, 2  # holding registers 0..7 and 8..9
 
 
 class ModbusVehicleLink:
@@ -41,14 +63,21 @@ class ModbusVehicleLink:
         stale_after: float = 0.5,
         input_base: int = 1024,
         output_base: int = 1024,
+        go_refresh: float = 1.0,
         name: str = "modbus-vehicles",
     ) -> None:
         self.name = name
         self.addresses = dict(vehicles)
         self.poll_period, self.timeout = poll_period, timeout
         self.stale_after_ns = round(stale_after * 1e9)
+        self.go_refresh_ns = round(go_refresh * 1e9)
         self.input_base, self.output_base = input_base, output_base
-        self.counters = {"polls": 0, "reads": 0, "writes": 0, "failures": 0, "bad_status": 0}
+        self.codec = Codec()
+        self.counters = dict.fromkeys(
+            ("polls", "reads", "writes", "failures", "malformed", "crc_errors", "bad_commands"),
+            0,
+        )
+        self.checks = CounterCheck(self.counters)  # in the worker thread only
         self._thread: threading.Thread | None = None
 
     # ----- lifecycle (scan thread) ----------------------------------------------------
@@ -57,10 +86,16 @@ class ModbusVehicleLink:
             image, self.addresses, self.input_base, self.output_base, self.stale_after_ns
         )
         self._lock = threading.Lock()
-        self._fresh: dict[int, Status] = {}  # written by the worker, taken by read_inputs
-        self._commands: dict[int, list[int]] = {}  # written by write_outputs, taken by the worker
+        # written by the worker, taken by read_inputs: accepted frames and whether the
+        # counter check resynchronised to them
+        self._fresh: dict[int, list[tuple[Status | Info, bool]]] = {}
+        # written by write_outputs, taken by the worker: "route" / "stop_go" register values
+        self._commands: dict[int, dict[str, list[int]]] = {}
+        self._last_block: dict[int, list[int]] = {}  # worker: frame id -> registers last read
         self._sent_go: dict[int, bool] = {}
         self._sent_sequence: dict[int, int] = {}
+        self._go_sent_ns: OrderedDict[int, int] = OrderedDict()  # oldest first
+        self._counter: dict[int, int] = {}
         self._ready = threading.Event()
         self._thread = threading.Thread(
             target=lambda: asyncio.run(self._worker()), name=self.name, daemon=True
@@ -78,33 +113,53 @@ class ModbusVehicleLink:
 
     def stats(self) -> dict[str, object]:
         stale = self.records.stale() if self._thread else []
-        return {**self.counters, "online": len(self.records.vehicles) - len(stale), "stale": stale}
+        return {
+            **self.counters,
+            **self.records.counters,
+            "online": len(self.records.vehicles) - len(stale),
+            "stale": stale,
+        }
 
     # ----- the scan ---------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
         with self._lock:
             fresh, self._fresh = self._fresh, {}
-        for status in fresh.values():
-            self.records.received(status, now_ns)
+        for frames in fresh.values():
+            for message, resync in frames:
+                if type(message) is Status:
+                    self.records.received(message, now_ns, resync)
+                else:
+                    self.records.received_info(message, resync)
         self.records.refresh_flags(now_ns)
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         for v in self.records.changed():
             go, sequence, nodes = self.records.command(v)
-            new_route = sequence != self._sent_sequence.get(v, 0) and nodes is not None
-            if not new_route and self._sent_go.get(v) == go:
-                continue
-            with self._lock:
-                pending = self._commands.get(v)
-                if not new_route and pending is not None and pending[3] > 0:
-                    pending[4] = int(
-                        go
-                    )  # go changed while a route waits: keep the route, update go
+            if sequence != self._sent_sequence.get(v, 0):  # 0 is "no command yet"
+                self._sent_sequence[v] = sequence
+                if nodes is None:
+                    self.counters["bad_commands"] += 1  # not sendable: wait for the next
                 else:
-                    nodes = nodes if new_route else ()
-                    # count 0 (go only) leaves the vehicle's released route alone
-                    self._commands[v] = [*nodes, 0, 0, 0][:3] + [len(nodes), int(go), sequence % 16]
-            self._sent_go[v], self._sent_sequence[v] = go, sequence
+                    route = RouteCommand(v, sequence % 16, nodes)
+                    self._queue(v, "route", self.codec.encode(route)[1])
+            if self._sent_go.get(v) != go:
+                self._queue_go(v, go, now_ns)
+        refresh = self._go_sent_ns
+        while refresh and now_ns - next(iter(refresh.values())) >= self.go_refresh_ns:
+            v = next(iter(refresh))
+            self._queue_go(v, self._sent_go[v], now_ns)
+
+    def _queue_go(self, v: int, go: bool, now_ns: int) -> None:
+        counter = self._counter[v] = (self._counter.get(v, 0) + 1) % 16
+        self._queue(v, "stop_go", self.codec.encode(StopGo(v, go, counter))[1])
+        self._sent_go[v] = go
+        self._go_sent_ns[v] = now_ns
+        self._go_sent_ns.move_to_end(v)
+
+    def _queue(self, v: int, part: str, payload: bytes) -> None:
+        """The newest frame of each kind waits for the worker (it replaces an unsent one)."""
+        with self._lock:
+            self._commands.setdefault(v, {})[part] = list(payload)
 
     # ----- the worker thread --------------------------------------------------------------
     async def _worker(self) -> None:
@@ -135,47 +190,61 @@ class ModbusVehicleLink:
             client.close()
 
     async def _exchange(self, v: int, client: AsyncModbusTcpClient) -> None:
-        block, sent = None, False
+        pending, sent = None, False
         try:
             if not client.connected and not await client.connect():
                 self.counters["failures"] += 1
                 return
             with self._lock:
-                block = self._commands.pop(v, None)
-            if block is not None:
-                reply = await client.write_registers(0, block, device_id=1)
+                pending = self._commands.pop(v, None)
+            if pending:
+                route, stop_go = pending.get("route"), pending.get("stop_go")
+                address = 0 if route else ROUTE_REGISTERS
+                values = (route or []) + (stop_go or [])
+                reply = await client.write_registers(address, values, device_id=1)
                 if reply.isError():
                     self.counters["failures"] += 1
-                    with self._lock:
-                        self._commands.setdefault(v, block)  # retry at the next poll
+                    self._requeue(v, pending)  # retry at the next poll
                 else:
                     sent = True
                     self.counters["writes"] += 1
-            reply = await client.read_input_registers(0, count=STATUS_REGISTERS, device_id=1)
+            reply = await client.read_input_registers(
+                0, count=STATUS_REGISTERS + INFO_REGISTERS, device_id=1
+            )
             if reply.isError():
                 self.counters["failures"] += 1
                 return
-            current, nxt, state, battery, speed, alive, fault, clear = reply.registers
-            if state >= len(STATES) or battery > 100:
-                self.counters["bad_status"] += 1
-                return
-            status = Status(
-                v,
-                current,
-                nxt,
-                STATES[state],
-                battery,
-                speed / 100,
-                alive,
-                bool(fault),
-                bool(clear),
-            )
             self.counters["reads"] += 1
-            with self._lock:
-                self._fresh[v] = status
+            registers = reply.registers
+            self._check(v, STATUS + v, registers[:STATUS_REGISTERS])
+            self._check(v, INFO + v, registers[STATUS_REGISTERS:])
         except Exception:  # connection lost, timeout: counted; the next poll tries again
             self.counters["failures"] += 1
-            if block is not None and not sent:
-                with self._lock:
-                    self._commands.setdefault(v, block)  # not delivered: send it again next poll
+            if pending and not sent:
+                self._requeue(v, pending)  # not delivered: send it again next poll
             client.close()
+
+    def _requeue(self, v: int, pending: dict[str, list[int]]) -> None:
+        with self._lock:
+            waiting = self._commands.setdefault(v, {})
+            for part, values in pending.items():
+                waiting.setdefault(part, values)  # a newer frame of that kind wins
+
+    def _check(self, v: int, frame_id: int, block: list[int]) -> None:
+        """One register block read: the same checks as a CAN frame. A block unchanged since
+        the last poll is the same frame again, not a new (repeated) one."""
+        if block == self._last_block.get(frame_id):
+            return
+        self._last_block[frame_id] = block
+        try:
+            message = self.codec.decode(frame_id, bytes(block))
+        except CorruptFrame:
+            self.counters["crc_errors"] += 1
+            return
+        except (MalformedFrame, UnknownFrame, ValueError):  # ValueError: a register > 255
+            self.counters["malformed"] += 1
+            return
+        verdict = self.checks.check(frame_id, message.counter)
+        if verdict is ACCEPTED or verdict is RESYNC:
+            with self._lock:
+                self._fresh.setdefault(v, []).append((message, verdict is RESYNC))

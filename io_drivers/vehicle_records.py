@@ -1,11 +1,22 @@
 """The per-vehicle records in the process image (docs/protocol.md), shared by every vehicle
-link (CAN, Modbus): one layout, whatever bus carries it.
+link (CAN, Modbus): one layout, and one rule for what a frame may change, whatever bus
+carries it.
 
 Inputs at ``input_base + 8 * v``: WORD current node, WORD next node, BYTE state, BYTE
-battery %, BYTE speed cm/s, BYTE flags (online, stale, fault, clear of the current node). Outputs at
-``output_base + 8 * v``: WORD next nodes 1..3, BYTE count (bits 0-1) | go (bit 7), BYTE
-sequence. Input writes happen in the scan thread at the quiet point; outputs are read
-after copy-out, and only records that changed since the last tick are looked at.
+battery %, BYTE speed cm/s, BYTE flags (online, stale, fault, clear of the current node,
+suspect link). Outputs at ``output_base + 8 * v``: WORD next nodes 1..3, BYTE count (bits
+0-1) | suspect acknowledge (bit 6) | go (bit 7), BYTE sequence. Input writes happen in the
+scan thread at the quiet point; outputs are read after copy-out, and only records that
+changed since the last tick are looked at.
+
+Only frames that passed the CRC and counter checks arrive here. Even so, a single frame may
+not move a vehicle: its position (current node, next node, clear bit) changes only when two
+consecutive status frames (accepted, and consecutive as sent: their counters differ by one)
+agree on (current node, clear). The vehicles send every event twice, so this costs one
+step of latency (one status period when a frame is lost), and a single well-formed but
+false frame (a spoofing node, a corruption the CRC missed) can never take a node from
+another vehicle or free one a vehicle still stands on. State, fault, speed and battery are
+taken at once: a fault reported is the safe direction.
 """
 
 from __future__ import annotations
@@ -16,11 +27,12 @@ import numpy as np
 
 from plc_runtime import ConfigError, ProcessImage
 
-from .protocol import MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Status
+from .e2e import COUNTER_MODULO
+from .protocol import MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Info, Status
 
 RECORD = 8
-ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
-GO_BIT, COUNT_MASK = 0x80, 0x03
+ONLINE, STALE, FAULT, CLEAR, SUSPECT_LINK = 0x01, 0x02, 0x04, 0x08, 0x10
+GO_BIT, SUSPECT_ACK, COUNT_MASK = 0x80, 0x40, 0x03
 
 
 class VehicleRecords:
@@ -55,10 +67,16 @@ class VehicleRecords:
         )  # differs from every byte: first tick sees all
         self._flags: dict[int, int] = {}
         self.stale_after_ns = stale_after_ns
-        self.status: dict[int, Status] = {}  # the last status of each vehicle that reported
-        self._last_seen: dict[int, int] = {}
+        self.status: dict[int, Status] = {}  # the last accepted status of each vehicle
+        # ((current, clear), counter) of that status
+        self._candidate: dict[int, tuple[tuple[int, bool], int]] = {}
+        self._position: dict[int, tuple[int, bool]] = {}  # the confirmed (current, clear)
+        self._suspect: set[int] = set()
+        self._acknowledged: dict[int, bool] = {}  # the SUSPECT_ACK bit last seen
+        self._last_seen: dict[int, int] = {}  # the last confirmed position's tick
         self._first_ns: int | None = None
         self._now_ns = 0
+        self.counters = {"unconfirmed": 0}
 
     @staticmethod
     def _input_writers(image: ProcessImage, base: int) -> dict:
@@ -82,26 +100,65 @@ class VehicleRecords:
     def __contains__(self, vehicle: int) -> bool:
         return vehicle in self._in
 
-    # ----- liveness -------------------------------------------------------------------------
-    def received(self, status: Status, now_ns: int) -> None:
-        """A fresh status arrived (in the tick at ``now_ns``): write it into the record."""
-        self.status[status.vehicle] = status
-        self._last_seen[status.vehicle] = now_ns
-        self.write_status(status)
+    # ----- frames that passed the checks --------------------------------------------------------
+    def received(self, status: Status, now_ns: int, resync: bool = False) -> None:
+        """An accepted status (in the tick at ``now_ns``); ``resync``: the link resynchronised
+        to this vehicle's counter, so the vehicle is flagged SUSPECT_LINK."""
+        v = status.vehicle
+        if resync:
+            self._suspect.add(v)
+        self.status[v] = status
+        w = self._in[v]
+        w["state"](STATE_CODE[status.state])
+        w["speed"](min(255, round(status.speed * 100)))
+        position = (status.current_node, status.clear)
+        candidate = self._candidate.get(v)
+        self._candidate[v] = (position, status.counter)
+        if candidate is None:
+            return
+        if candidate[0] == position:
+            if status.counter == (candidate[1] + 1) % COUNTER_MODULO:
+                self._position[v] = position
+                self._last_seen[v] = now_ns
+                w["current"](status.current_node)
+                w["next"](status.next_node)
+        elif candidate[0] != self._position.get(v):
+            self.counters["unconfirmed"] += 1  # a position nobody repeated: never applied
 
+    def received_info(self, info: Info, resync: bool = False) -> None:
+        """An accepted info frame: the battery is taken at once."""
+        if resync:
+            self._suspect.add(info.vehicle)
+        self._in[info.vehicle]["battery"](info.battery)
+
+    def clear_suspect(self, vehicle: int) -> None:
+        """The controller has seen the SUSPECT_LINK flag: it is off from the next tick."""
+        self._suspect.discard(vehicle)
+
+    # ----- liveness -------------------------------------------------------------------------
     def refresh_flags(self, now_ns: int) -> None:
-        """Once per tick, after the statuses: online/stale/fault flags of every vehicle. A vehicle
-        that never reported goes stale ``stale_after`` after the first tick."""
+        """Once per tick, after the frames: the flags of every vehicle. A vehicle is online
+        once its position is confirmed, and stale when no position was confirmed for
+        ``stale_after``; a vehicle that never reported goes stale ``stale_after`` after the
+        first tick."""
         self._now_ns = now_ns
         if self._first_ns is None:
             self._first_ns = now_ns
         for v in self.vehicles:
-            status = self.status.get(v)
+            position = self._position.get(v)
             stale = self.is_stale(v)
-            if status is not None or stale:
-                self.write_flags(
-                    v, stale, bool(status and status.fault), bool(status and status.clear)
-                )
+            if position is None and not stale:
+                continue  # never heard of: the record holds no position, flags stay 0
+            status = self.status.get(v)
+            flags = (
+                (STALE if stale else ONLINE)
+                | (FAULT if status is not None and status.fault else 0)
+                | (CLEAR if position is not None and position[1] else 0)
+                | (SUSPECT_LINK if v in self._suspect else 0)
+            )
+            if self._flags.get(v) != flags:
+                self._flags[v] = flags
+                self._in[v]["flags"](flags)
 
     def is_stale(self, vehicle: int) -> bool:
         last = self._last_seen.get(
@@ -112,26 +169,19 @@ class VehicleRecords:
     def stale(self) -> list[int]:
         return [v for v in self.vehicles if self.is_stale(v)]
 
-    # ----- the records ------------------------------------------------------------------------
-    def write_status(self, status: Status) -> None:
-        w = self._in[status.vehicle]
-        w["current"](min(status.current_node, NO_NODE))
-        w["next"](status.next_node)
-        w["state"](STATE_CODE[status.state])
-        w["battery"](status.battery)
-        w["speed"](min(255, round(status.speed * 100)))
-
-    def write_flags(self, vehicle: int, stale: bool, fault: bool, clear: bool = False) -> None:
-        flags = (STALE if stale else ONLINE) | (FAULT if fault else 0) | (CLEAR if clear else 0)
-        if self._flags.get(vehicle) != flags:
-            self._flags[vehicle] = flags
-            self._in[vehicle]["flags"](flags)
-
+    # ----- the commands -----------------------------------------------------------------------
     def changed(self) -> list[int]:
-        """Vehicles whose output record changed since the last call (all on the first)."""
+        """Vehicles whose output record changed since the last call (all on the first). A
+        rising SUSPECT_ACK bit among them clears that vehicle's SUSPECT_LINK flag."""
         rows = np.flatnonzero((self._block != self._last).any(axis=1)).tolist()
         self._last[...] = self._block
-        return [v for r in rows if (v := self._row_vehicle[r]) is not None]
+        vehicles = [v for r in rows if (v := self._row_vehicle[r]) is not None]
+        for v in vehicles:
+            ack = bool(self._out[v]["control"]() & SUSPECT_ACK)
+            if ack and not self._acknowledged.get(v, False):
+                self.clear_suspect(v)
+            self._acknowledged[v] = ack
+        return vehicles
 
     def command(self, vehicle: int) -> tuple[bool, int, tuple[int, ...] | None]:
         """(go, sequence, nodes) of a vehicle's output record; nodes None if not sendable."""

@@ -7,7 +7,7 @@ memory. Step it one cycle at a time on the ``VirtualClock`` in tests, or run it 
 """
 
 from .address import Address, parse_address
-from .clock import VirtualClock, WallClock
+from .clock import PacedClock, VirtualClock, WallClock
 from .context import CycleContext
 from .errors import (
     AddressError,
@@ -48,6 +48,7 @@ __all__ = [
     "Tag",
     "TagTable",
     "ValueRangeError",
+    "PacedClock",
     "VirtualClock",
     "WallClock",
     "parse_address",

@@ -2,7 +2,8 @@
 
 A program is a function that builds a :class:`Runtime` from a clock, a cycle time, a
 watchdog and a retain file. :func:`run_program` runs it headless: on the virtual clock as
-fast as it can (the default), or on the wall clock with ``--realtime``. On a terminal it
+fast as it can (the default), paced for people to watch with ``--speed X``, or on the wall
+clock with ``--realtime``. On a terminal it
 shows a live status screen; at the end it prints a summary (``--json``: one JSON object on
 stdout). Errors are one line on stderr and a non-zero exit code. An application adds its
 own commands and programs around this.
@@ -23,7 +24,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from .clock import VirtualClock, WallClock
+from .clock import PacedClock, VirtualClock, WallClock
 from .io import IoDriver
 from .runtime import Runtime
 
@@ -72,8 +73,16 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
         type=positive(float),
         help="seconds to run (simulated; wall-clock with --realtime)",
     )
-    run.add_argument(
+    clock = run.add_mutually_exclusive_group()
+    clock.add_argument(
         "--realtime", action="store_true", help="run on the wall clock instead of the virtual clock"
+    )
+    clock.add_argument(
+        "--speed",
+        type=positive(float),
+        metavar="X",
+        help="simulate at X simulated seconds per wall second (1 = real time) instead of as "
+        "fast as possible; the run is the same as on the virtual clock, only paced",
     )
     run.add_argument(
         "--cycle-time",
@@ -120,12 +129,8 @@ def run_program(
     """Run a program built by ``build`` as the options in ``args`` say; the exit code."""
     if not args.realtime and (args.rt or args.spin):
         raise CliError("--rt and --spin only apply with --realtime")
-    if args.realtime:
-        clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
-    else:
-        clock = VirtualClock()
     rt = build(
-        clock=clock,
+        clock=make_clock(args),
         cycle_time=args.cycle_time if args.cycle_time is not None else cycle_time,
         watchdog=(args.watchdog if args.watchdog is not None else watchdog_ms) / 1e3,
         retain_file=args.retain,
@@ -165,6 +170,29 @@ def run_program(
     return EXIT_FAULT if final_state == "FAULT" else 0
 
 
+def make_clock(args: argparse.Namespace) -> VirtualClock | WallClock:
+    """The clock the options ask for: wall (``--realtime``), paced (``--speed``) or virtual."""
+    if args.realtime:
+        return WallClock(spin=args.spin / 1e3, rt=args.rt)
+    if args.speed is not None:
+        return PacedClock(args.speed)
+    return VirtualClock()
+
+
+def clock_kind(clock: VirtualClock | WallClock) -> str:
+    """``virtual`` (as fast as possible), ``paced`` (simulated, at a speed) or ``wall``."""
+    return str(clock.status()["clock"])
+
+
+def clock_speed(clock: VirtualClock | WallClock) -> float:
+    """Simulated seconds per wall second of a clock that keeps pace with the wall."""
+    return float(getattr(clock, "speed", 1.0))
+
+
+def _paced(rt: Runtime) -> bool:
+    return clock_kind(rt.clock) != "virtual"
+
+
 def _interrupt(rt: Runtime) -> None:
     """First Ctrl-C: finish the current cycle and stop cleanly; a second one aborts."""
     rt.request_stop()
@@ -182,7 +210,7 @@ def drive(
 
     ``announce`` goes to stderr once the first chunk has run, so a supervising process
     knows the program is in its cyclic phase."""
-    chunk = max(1, round(0.1 / rt.cycle_time)) if not rt.clock.is_virtual else 2000
+    chunk = max(1, round(0.1 * clock_speed(rt.clock) / rt.cycle_time)) if _paced(rt) else 2000
     done = 0
     # No auto-refresh: rich would redraw from a background thread, and a second Python
     # thread in the scan's process costs milliseconds of lateness (GIL hand-over). The
@@ -275,7 +303,8 @@ def summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any
         "omitted": stats["omitted"],
         "state": state,
         "fault_reason": stats["fault_reason"],
-        "clock": "virtual" if rt.clock.is_virtual else "wall",
+        "clock": clock_kind(rt.clock),
+        "speed": clock_speed(rt.clock) if _paced(rt) else None,
         "sim_time_s": stats["clock_time_s"],
         "wall_time_s": round(wall, 3),
         "scans_per_s": round(stats["cycles"] / wall, 1) if wall > 0 else None,

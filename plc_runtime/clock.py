@@ -9,6 +9,11 @@ the watchdog are caught in tests; with ``charge_execution=True`` the measured ti
 added to simulated time, so an overrunning scan makes the following ticks late exactly as
 it would on a plant.
 
+``PacedClock`` is the virtual clock slowed down for people to watch: simulated time still
+advances exactly one tick per step (the same run, bit for bit, as on the virtual clock), but
+each step waits until the wall clock has caught up with ``speed`` simulated seconds per wall
+second. A machine too slow for the speed just runs slower; it never drops ticks.
+
 ``WallClock`` sleeps to the deadline (``time.sleep`` uses an absolute monotonic deadline
 since Python 3.11), optionally spinning the last part, and optionally in "rt" mode:
 SCHED_FIFO, 1 ns timer slack, ``gc.freeze()`` after startup and garbage collection only in
@@ -74,6 +79,45 @@ class VirtualClock:
 
     def status(self) -> dict[str, object]:
         return {"clock": "virtual", "charge_execution": self.charge_execution}
+
+
+class PacedClock(VirtualClock):
+    """Simulated time, paced against the wall clock at ``speed`` simulated seconds per wall second.
+
+    ``speed=1`` is real time. When a step takes longer than its share of wall time the clock
+    falls behind; once it is more than ``max_lag`` wall seconds behind it takes the present
+    as its new reference instead of racing to catch up, so a pause (a busy machine, a
+    debugger) is not followed by a burst of fast-forward.
+    """
+
+    def __init__(self, speed: float = 1.0, start: float = 0.0, max_lag: float = 0.5) -> None:
+        if not (isinstance(speed, int | float) and math.isfinite(speed) and speed > 0):
+            raise ConfigError(f"PacedClock speed must be a finite number > 0, got {speed!r}")
+        super().__init__(start)
+        self.speed = float(speed)
+        self.max_lag_ns = round(max_lag * 1e9)
+        self.resyncs = 0
+        self._anchor: tuple[int, int] | None = None  # (wall ns, simulated ns) pacing reference
+
+    def wait_until(self, deadline_ns: int) -> None:
+        super().wait_until(deadline_ns)
+        now = time.monotonic_ns()
+        if self._anchor is None:
+            self._anchor = (now, self._now_ns)
+            return
+        wall0, sim0 = self._anchor
+        due = wall0 + round((self._now_ns - sim0) / self.speed)
+        if due > now:
+            time.sleep((due - now) / 1e9)
+        elif now - due > self.max_lag_ns:
+            self._anchor = (now, self._now_ns)
+            self.resyncs += 1
+
+    def enter_run(self) -> None:
+        self._anchor = None  # the startup phase is not paced: the cyclic phase starts now
+
+    def status(self) -> dict[str, object]:
+        return {"clock": "paced", "speed": self.speed, "resyncs": self.resyncs}
 
 
 class WallClock:

@@ -95,9 +95,19 @@ class RetainFile:
             raise RetainError(
                 f"{self.path}: retain file version {version} is not supported (expected {VERSION})"
             )
-        if not length.isdigit() or int(length) != len(body):
+        if not (length.isascii() and length.isdigit()):
             raise RetainError(
-                f"{self.path}: truncated retain file ({len(body)} of {length} body bytes)"
+                f"{self.path}: not a retain file (bad header: body length {length!r})"
+            )
+        expected = int(length)
+        if len(body) < expected:
+            raise RetainError(
+                f"{self.path}: truncated retain file ({len(body)} of {expected} body bytes)"
+            )
+        if len(body) > expected:
+            raise RetainError(
+                f"{self.path}: wrong length: {len(body) - expected} trailing byte(s) after the "
+                f"{expected}-byte body the header declares"
             )
         if f"{zlib.crc32(body):08x}" != crc:
             raise RetainError(f"{self.path}: retain file is corrupted (CRC mismatch)")
@@ -114,11 +124,28 @@ class RetainFile:
             raise RetainError(f"{self.path}: retain file body is not an object")
         return values
 
+    def set_aside(self) -> Path:
+        """Rename the file to the first free ``<name>.rejected``, ``<name>.rejected.1``, ...:
+        the next save would otherwise overwrite values that may still be wanted (a file of
+        another program version, one damaged in a way a person can repair). OSError if the
+        rename fails."""
+        aside = self.path.with_name(self.path.name + ".rejected")
+        number = 0
+        while aside.exists():
+            number += 1
+            aside = self.path.with_name(f"{self.path.name}.rejected.{number}")
+        os.rename(self.path, aside)
+        return aside
+
 
 class RetainStore:
     """The retentive values of one program: in memory across stop()/start(), and in an
     optional file across processes. Failures to write never stop the PLC: they are
-    recorded in ``error`` and reported with a RuntimeWarning."""
+    recorded in ``error`` and reported with a RuntimeWarning.
+
+    A file that cannot be used is set aside before anything is saved, so nothing that was
+    stored is lost; when it cannot be moved, this store never writes over it (the values
+    then live in memory only, and every save reports why)."""
 
     def __init__(self, path: str | os.PathLike[str] | None) -> None:
         self.file = RetainFile(path) if path is not None else None
@@ -126,6 +153,7 @@ class RetainStore:
         self.layout = ""
         self.start_info: str | None = None
         self.error: str | None = None
+        self.blocked: str | None = None  # why the file must not be written, if it must not
 
     def forget(self) -> None:
         """The program changed: values kept in memory no longer fit it."""
@@ -147,8 +175,11 @@ class RetainStore:
         try:
             loaded = self.file.load(self.layout)
         except RetainError as exc:
-            self.start_info = f"cold: {exc}"
-            warnings.warn(f"retain data not used, cold start: {exc}", RuntimeWarning, stacklevel=4)
+            kept = self._set_aside()
+            self.start_info = f"cold: {exc}; {kept}"
+            warnings.warn(
+                f"retain data not used, cold start: {exc}; {kept}", RuntimeWarning, stacklevel=4
+            )
             return {}
         if loaded is None:
             self.start_info = f"warm ({self.file.path} does not exist yet)"
@@ -156,10 +187,31 @@ class RetainStore:
         self.start_info = f"warm (retain data from {self.file.path})"
         return loaded
 
+    def _set_aside(self) -> str:
+        """Move the rejected file out of the way (or block writing); what became of it."""
+        assert self.file is not None
+        try:
+            aside = self.file.set_aside()
+        except FileNotFoundError:  # gone meanwhile: nothing left to protect
+            self.blocked = None
+            return "the file is gone"
+        except OSError as exc:
+            self.blocked = (
+                f"{self.file.path} was rejected and cannot be moved aside "
+                f"({exc.strerror or exc}); it is not overwritten"
+            )
+            return self.blocked
+        self.blocked = None
+        return f"the file was kept as {aside}"
+
     def save(self, values: dict[str, object]) -> None:
         """Keep ``values`` in memory and write the file; RetainError if the file write fails."""
         self.memory = values
         if self.file is not None:
+            if self.blocked:
+                self._set_aside()  # retried on every save: it may be possible by now
+                if self.blocked:
+                    raise RetainError(self.blocked)
             self.file.save(self.layout, values)
         self.error = None
 

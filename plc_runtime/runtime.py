@@ -59,6 +59,12 @@ def _ticks(value: float, tick: float, what: str) -> int:
     return n
 
 
+def _described(exc: BaseException) -> str:
+    """``ValueError: bad value``, or just ``KeyboardInterrupt`` when there is no message."""
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 class Runtime:
     """A soft PLC: tasks of function blocks scanned against a process image.
 
@@ -266,11 +272,8 @@ class Runtime:
             for i, block in enumerate(task.blocks):
                 try:
                     block.startup(ctx)
-                except Exception as exc:
-                    self.fault_traceback = traceback.format_exc()
-                    self._fault(
-                        f"startup of {task.name}/{i}:{type(block).__name__} raised {type(exc).__name__}: {exc}"
-                    )
+                except BaseException as exc:  # see _fault_on
+                    self._fault_on(f"startup of {task.name}/{i}:{type(block).__name__}", exc)
                     raise StartupError(self.fault_reason) from exc
 
     def stop(self) -> None:
@@ -400,6 +403,10 @@ class Runtime:
                 f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted"
             )
             return
+        except KeyboardInterrupt:
+            if self.state == RUN:  # Ctrl-C landed in the runtime's own code: still a cut scan
+                self._fault(f"scan {k} was interrupted (KeyboardInterrupt)")
+            raise
         finally:
             self._alarm.end_scan()
         if not completed:
@@ -448,11 +455,10 @@ class Runtime:
     ) -> bool:
         try:
             method(self.image, now)
-        except Exception as exc:
-            self.fault_traceback = traceback.format_exc()
-            self._fault(
-                f"driver {driver.name}: {method.__name__} raised {type(exc).__name__}: {exc}"
-            )
+        except WatchdogTimeout:
+            raise
+        except BaseException as exc:  # see _fault_on
+            self._fault_on(f"driver {driver.name}: {method.__name__}", exc)
             return False
         return True
 
@@ -468,12 +474,11 @@ class Runtime:
         try:
             for index, block in enumerate(task.blocks):  # noqa: B007 - index names the failing block
                 block.cycle(ctx)
-        except Exception as exc:
-            self.fault_traceback = traceback.format_exc()
+        except WatchdogTimeout:
+            raise
+        except BaseException as exc:  # see _fault_on
             name = type(task.blocks[index]).__name__
-            self._fault(
-                f"task {task.name}: block {index}:{name} raised {type(exc).__name__}: {exc}"
-            )
+            self._fault_on(f"task {task.name}: block {index}:{name}", exc)
             return False
         elapsed = perf_counter_ns() - start
         self.clock.charge(elapsed)
@@ -493,6 +498,20 @@ class Runtime:
         self.state = FAULT
         self.fault_reason = reason
         self.image.publish_safe_state(self.safe_outputs)
+
+    def _fault_on(self, who: str, exc: BaseException) -> None:
+        """FAULT because ``exc`` escaped a block or a driver, whatever its class.
+
+        ``SystemExit`` and ``KeyboardInterrupt`` fault too: a program cannot end the PLC
+        (``sys.exit()`` in a block stops the PLC like any other error, with the outputs in
+        the safe state). A ``KeyboardInterrupt`` is passed on after the fault, because the
+        operator's second Ctrl-C arrives as one, raised in whatever block was running, and
+        cannot be told apart: the caller's abort still works (the CLI stops and exits 130).
+        """
+        self.fault_traceback = traceback.format_exc()
+        self._fault(f"{who} raised {_described(exc)}")
+        if isinstance(exc, KeyboardInterrupt):
+            raise exc
 
     # ----- instance data and retain -------------------------------------------------------
     def _block_paths(self) -> Iterable[tuple[str, FunctionBlock]]:

@@ -1,8 +1,14 @@
-"""The symbol (tag) table: names for direct addresses, with a data type and a retain flag.
+"""The symbol (tag) table: names for direct addresses, with a data type, a retain flag and
+an access flag.
 
 Programs and HMIs should not hard-code ``%MD4``; they use ``conveyor_speed``. A tag table
 can be built in code or loaded from a TOML file; every problem is reported with the file
 and the tag it is in.
+
+Tags are read-only for clients (an HMI, SCADA) unless declared ``writable``: a server on
+the network accepts writes only to what the program declared it expects a client to set,
+so a status value or an output the program computes cannot be overwritten from outside.
+The program itself, tests and the force table are not restricted by the flag.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ class Tag:
     type: DataType
     retain: bool = False
     comment: str = ""
+    writable: bool = False  # a client such as an HMI may write it
 
 
 class TagTable:
@@ -43,8 +50,12 @@ class TagTable:
         *,
         retain: bool = False,
         comment: str = "",
+        writable: bool = False,
     ) -> Tag:
-        """Declare a tag; the type defaults to the raw type of the address size (BOOL, BYTE, WORD, ...)."""
+        """Declare a tag; the type defaults to the raw type of the address size (BOOL, BYTE, WORD, ...).
+
+        ``writable``: a client (an HMI over Modbus) may write it; every other tag is read-only
+        for clients."""
         if not isinstance(name, str) or not _NAME_RE.match(name) or name.startswith("%"):
             raise ConfigError(f"tag name {name!r} is not a valid identifier")
         if name in self._tags:
@@ -65,7 +76,7 @@ class TagTable:
             raise ConfigError(
                 f"tag {name!r}: only marker (%M) tags can be retentive, {address} is in area {addr.area}"
             )
-        tag = Tag(name, addr, dt, bool(retain), comment)
+        tag = Tag(name, addr, dt, bool(retain), comment, bool(writable))
         self._tags[name] = tag
         return tag
 
@@ -86,9 +97,13 @@ class TagTable:
     def __len__(self) -> int:
         return len(self._tags)
 
+    def writable(self) -> list[Tag]:
+        """The tags a client may write."""
+        return [t for t in self._tags.values() if t.writable]
+
     @classmethod
     def from_toml(cls, path: str | Path) -> TagTable:
-        """Load ``[tags.<name>]`` tables with keys address, type, retain, comment."""
+        """Load ``[tags.<name>]`` tables with keys address, type, retain, writable, comment."""
         path = Path(path)
         try:
             data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -106,13 +121,14 @@ class TagTable:
             where = f"{path}: [tags.{name}]"
             if not isinstance(spec, dict):
                 raise ConfigError(f"{where}: expected a table with at least 'address'")
-            unknown = set(spec) - {"address", "type", "retain", "comment"}
+            unknown = set(spec) - {"address", "type", "retain", "writable", "comment"}
             if unknown:
                 raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
             if "address" not in spec:
                 raise ConfigError(f"{where}: missing 'address'")
-            if not isinstance(spec.get("retain", False), bool):
-                raise ConfigError(f"{where}: 'retain' must be true or false")
+            for flag in ("retain", "writable"):
+                if not isinstance(spec.get(flag, False), bool):
+                    raise ConfigError(f"{where}: '{flag}' must be true or false")
             try:
                 table.add(
                     name,
@@ -120,6 +136,7 @@ class TagTable:
                     spec.get("type"),
                     retain=spec.get("retain", False),
                     comment=str(spec.get("comment", "")),
+                    writable=spec.get("writable", False),
                 )
             except (ConfigError, AddressError) as exc:
                 raise ConfigError(f"{where}: {exc}") from None

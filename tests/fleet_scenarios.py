@@ -49,9 +49,10 @@ def run(program: FleetProgram, seconds: float, check_every_cycle: bool = True) -
             for c in program.controls.values():
                 trace.max_expansions = max(trace.max_expansions, c.astar.expansions_last_cycle)
                 assert c.astar.expansions_last_cycle <= budget
-    # no vehicle was ever found on a node another one held (positions are known before
-    # anything is released, and every move is a granted one)
-    assert program.reservation.forced_takeovers == 0
+    # every report was along the reporting vehicle's holds (positions are known before
+    # anything is released, and every move is a granted one): nobody became suspect
+    assert program.reservation.refused_reports == 0
+    assert not any(c.suspect_events for c in program.controls.values())
     return trace
 
 

@@ -102,9 +102,9 @@ def test_bad_configuration_is_one_line_on_the_cli(tmp_path, capsys):
     assert "cannot read" in capsys.readouterr().err
 
 
-def test_realtime_needs_a_bus_another_process_can_reach(capsys):
-    assert main(["run", "--realtime", "--cycles", "10"]) == 2
-    assert "virtual bus cannot reach" in capsys.readouterr().err
+def test_external_vehicles_need_a_bus_another_process_can_reach(capsys):
+    assert main(["run", "--vehicles", "external", "--cycles", "10"]) == 2
+    assert "cannot reach the in-process virtual bus" in capsys.readouterr().err
 
 
 def test_parse_config_keeps_vehicle_recipes_distinct():

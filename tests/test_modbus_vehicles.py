@@ -73,6 +73,7 @@ def test_runtime_drives_vehicles_over_their_modbus_servers():
             proc.kill()
             proc.wait()
     assert arrived and flags == ONLINE and stats["reads"] > 0 and stats["writes"] >= 2
+    assert stats["crc_errors"] == stats["malformed"] == stats["resyncs"] == 0
     assert stale == STALE
     report = json.loads(out)
     assert report["vehicles"]["1"]["driven"] == [0, 6, 7, 8, 9, 24]
@@ -80,6 +81,7 @@ def test_runtime_drives_vehicles_over_their_modbus_servers():
 
 
 def test_go_change_does_not_overwrite_a_waiting_route():
+    from io_drivers.protocol import ROUTE, STOP_GO, Codec, RouteCommand, StopGo
     from io_drivers.vehicle_records import GO_BIT
     from plc_runtime import ProcessImage
 
@@ -96,7 +98,10 @@ def test_go_change_does_not_overwrite_a_waiting_route():
         image.published_outputs.bytes[base + 6] = 2 | GO_BIT  # next scan: go
         link.write_outputs(image, 10_000_000)
         with link._lock:
-            block = list(link._commands[1])
-        assert block == [6, 7, 0, 2, 1, 1]  # the route is still there, now with go
+            frames = dict(link._commands[1])
+        codec = Codec()
+        # the route is still there, and the newest stop/go frame (go, its counter 2) with it
+        assert codec.decode(ROUTE + 1, bytes(frames["route"])) == RouteCommand(1, 1, (6, 7))
+        assert codec.decode(STOP_GO + 1, bytes(frames["stop_go"])) == StopGo(1, True, 2)
     finally:
         link.close()

@@ -7,7 +7,7 @@ import pytest
 
 from blocks.traffic.records import CLEAR, ONLINE, RecordArea, VehicleRecordsView
 from blocks.traffic.reservation import ReservationMatrix
-from io_drivers.protocol import Status
+from io_drivers.protocol import Info, Status
 from io_drivers.vehicle_records import VehicleRecords
 from plc_runtime import ProcessImage
 from plc_runtime.context import CycleContext
@@ -36,16 +36,29 @@ def test_holds_follow_reports_and_the_clear_bit():
     assert res.segments() == [(8, 9, 1)]
     with pytest.raises(RuntimeError):
         res.claim(2, idx[9])
-    assert res.forced_takeovers == 0
+    assert res.refused_reports == 0
 
 
-def test_a_vehicle_found_on_a_node_it_does_not_hold_is_counted():
+def test_a_report_off_the_vehicles_holds_changes_nothing():
     plant = model_plant()
     idx = plant.index
     res = ReservationMatrix(plant, [1, 2])
-    res.report(1, idx[6])
-    res.report(2, idx[6])
-    assert res.forced_takeovers == 1 and res.holder_of(idx[6]) == 2 and res.held_by(1) == []
+    assert res.report(1, idx[6]) and res.report(2, idx[9])  # start positions: free nodes
+    res.claim(1, idx[7])
+    # a node held by another vehicle: no takeover, nothing freed
+    assert res.plausible(2, idx[6]) == "reports node 6, held by vehicle 1 (holds 9)"
+    assert not res.report(2, idx[6])
+    assert res.held_by(1) == [idx[6], idx[7]] and res.held_by(2) == [idx[9]]
+    # a jump to a free node it was never released
+    assert "never released to it" in res.plausible(2, idx[13])
+    # clear where nothing was released beyond: it cannot have left that node
+    assert "nothing was released beyond" in res.plausible(2, idx[9], clear=True)
+    assert not res.report(2, idx[9], clear=True) and res.held_by(2) == [idx[9]]
+    assert res.refused_reports == 2
+    # an operator who looked moves the holds; a node held by another is refused
+    assert res.relocate(2, idx[7]) == "node 7 is held by vehicle 1"
+    assert res.relocate(2, idx[13]) is None and res.held_by(2) == [idx[13]]
+    assert res.holder_of(idx[9]) is None
 
 
 def test_oncoming_segment_gets_the_very_high_penalty():
@@ -64,7 +77,9 @@ def test_oncoming_segment_gets_the_very_high_penalty():
 def test_record_view_reads_what_the_vehicle_link_writes():
     image = ProcessImage(sizes={"I": 2048, "Q": 2048})
     records = VehicleRecords(image, [3, 126], 1024, 1024, stale_after_ns=10**9)
-    records.received(Status(3, 17, 4, "DRIVING", 88, 0.42, 1, False, True), 0)
+    for counter in (1, 2):  # a position is taken when two consecutive statuses agree
+        records.received(Status(3, 17, 4, "DRIVING", 0.42, counter, False, True), 0)
+    records.received_info(Info(3, 88, 1))
     records.refresh_flags(0)
     image.copy_in()
     view = VehicleRecordsView([RecordArea(1024, 1024, 126)], {3: (0, 3), 126: (0, 126)})

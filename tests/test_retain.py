@@ -100,6 +100,7 @@ def _saved(tmp_path, steps=5):
     [
         (lambda raw: raw[:-3] + bytes([raw[-3] ^ 0x01]) + raw[-2:], "corrupted (CRC mismatch)"),
         (lambda raw: raw[:-5], "truncated retain file"),
+        (lambda raw: raw + b"\n", "wrong length: 1 trailing byte(s) after the"),
         (lambda raw: b"\x00\xff garbage \x13" * 10, "not a retain file"),
         (lambda raw: b"", "not a retain file"),
     ],

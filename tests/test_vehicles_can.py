@@ -6,7 +6,7 @@ import can
 import pytest
 from fleet_helpers import Dispatcher, record
 
-from io_drivers.can_driver import FAULT, GO_BIT, ONLINE, STALE, CanDriver
+from io_drivers.can_driver import FAULT, GO_BIT, ONLINE, STALE, SUSPECT_LINK, CanDriver
 from io_drivers.protocol import NO_NODE, STATE_CODE, Codec, RouteCommand, Status
 from plc_runtime import Runtime, StartupError, VirtualClock
 from topology import model_plant
@@ -149,9 +149,11 @@ def test_lossy_and_corrupting_links_are_survived():
         {1: 0}, {1: [0, 6, 7, 8, 9, 24]}, faults=faults, seed=3, cycles=3000
     )
     assert fleet.counters["dropped"] > 0 and fleet.counters["corrupted"] > 0
-    assert stats["malformed"] > 0  # corrupted frames counted, not applied
+    assert stats["crc_errors"] == fleet.counters["corrupted"]  # every one counted, not applied
+    assert stats["lost"] > 0  # counter steps over dropped and corrupted frames
     assert fleet.vehicles[1].driven == [0, 6, 7, 8, 9, 24]  # the route still completes
-    assert image[1] == [24, ONLINE]
+    # three frames lost in a row look like a counter jump: the link may flag it suspect
+    assert image[1][0] == 24 and image[1][1] & ~SUSPECT_LINK == ONLINE
 
 
 def test_faults_are_reported():
@@ -169,21 +171,27 @@ def test_malformed_frames_and_unknown_ids_are_counted(tmp_path):
     rt.add_task("program", [Dispatcher({})])
     rt.start()
     codec = Codec()
-    good_id, good = codec.encode(Status(1, 5, NO_NODE, "IDLE", 90, 0.0, 1))
+    good_id, good = codec.encode(Status(1, 5, NO_NODE, "IDLE", 0.0, 1))
+    _, again = codec.encode(Status(1, 5, NO_NODE, "IDLE", 0.0, 2))
+    layout = codec.layouts[0x100]
+    state_15 = bytearray(layout.pack(0, 3, 15, 5, NO_NODE, 0, 0, 0, 0.0))  # a valid CRC ...
+    state_15[0] = codec.crc(good_id, state_15)  # ... over an out-of-range state
     frames = [
         (good_id, good[:5]),  # wrong length
-        (good_id, bytes([1, 0, 5, 0, 255, 255, 0x0F, 0])),  # state 15: out of range
+        (good_id, bytes(state_15)),  # state 15: out of range
         (0x300, bytes(8)),  # unknown id
-        (0x105, good),  # id signal 1 in a frame of vehicle 5
-        (0x102, codec.encode(Status(2, 1, 2, "IDLE", 50, 0.0, 1))[1]),  # a vehicle we do not manage
+        (0x105, good),  # vehicle 1's frame under the id of vehicle 5: the CRC's data id differs
+        (0x102, codec.encode(Status(2, 1, 2, "IDLE", 0.0, 1))[1]),  # a vehicle we do not manage
         (good_id, good),
+        (good_id, again),  # the position repeated: confirmed
     ]
     for frame_id, data in frames:
         noise.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
     noise.send(can.Message(arbitration_id=0x1FFFFFF, data=b"x", is_extended_id=True))
     rt.step()
     stats = driver.stats()
-    assert stats["malformed"] == 3 and stats["unknown_id"] == 2 and stats["unknown_vehicle"] == 1
+    assert stats["malformed"] == 2 and stats["unknown_id"] == 2 and stats["unknown_vehicle"] == 1
+    assert stats["crc_errors"] == 1 and stats["frames_in"] == 3
     assert rt.state == "RUN" and rt.image.read(f"%IW{record(1) // 2}") == 5
     rt.stop()
     noise.shutdown()

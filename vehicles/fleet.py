@@ -1,10 +1,18 @@
 """A fleet of simulated AGVs with one bus endpoint, stepped deterministically.
 
 Every step: take the commands that arrived on the bus, move every vehicle, evaluate the
-front sensors, send status frames (periodically and on every tag read). The fleet talks to
-the controller only through frames of the message set; the vehicles' own physics (front
-sensor, turning, battery) is local. Randomness (frame loss and corruption) comes from one
-seeded generator, so the same seed gives the same run, bit for bit.
+front sensors, send status frames (periodically, and on every event: a tag read, or the
+clear bit changing; an event is sent twice, at once and at the next step, because the
+controller applies a position only when two consecutive statuses agree) and info frames
+(battery: every ``info_period`` and on change). The fleet talks to the controller only
+through end-to-end protected frames of the message set; received commands pass the same
+CRC and counter checks as on the controller's side. The vehicles' own physics (front
+sensor, turning, battery) is local.
+
+Fault injection (``Faults``, per vehicle) acts on the frames a vehicle sends: lost,
+corrupted (one byte replaced by another value), or followed by a spoofed frame. Every
+injected fault is counted per kind in ``counters``. Randomness comes from one seeded
+generator, so the same seed gives the same run, bit for bit.
 """
 
 from __future__ import annotations
@@ -15,10 +23,17 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
+from io_drivers.e2e import ACCEPTED, RESYNC, CounterCheck
 from io_drivers.protocol import (
     ALL_VEHICLES,
+    INFO,
+    MAX_VEHICLE_ID,
     NO_NODE,
+    STATES,
+    STATUS,
     Codec,
+    CorruptFrame,
+    Info,
     MalformedFrame,
     RouteCommand,
     Status,
@@ -37,7 +52,10 @@ class Faults:
 
     dead_after: float | None = None  # stops sending anything (a dead vehicle)
     drop_rate: float = 0.0  # fraction of its frames lost
-    corrupt_rate: float = 0.0  # fraction of its frames sent with a flipped byte
+    corrupt_rate: float = 0.0  # fraction of its frames with one byte replaced by another value
+    # per status frame it sends, the chance that a faulty or foreign node sends one too:
+    # well-formed, passing the CRC, of a random vehicle, random nodes, a random counter
+    spoof_rate: float = 0.0
     stall_after: float | None = None  # stops on its segment, reports FAULT
     battery_failure_after: float | None = None
 
@@ -53,49 +71,83 @@ class Fleet:
         status_period: float = 0.1,
         faults: Mapping[int, Faults] | None = None,
         seed: int = 0,
+        info_period: float = 1.0,
     ) -> None:
         for vehicle in starts:
-            if not 1 <= vehicle <= 126:
-                raise ValueError(f"vehicle ids are 1..126, got {vehicle}")
+            if not 1 <= vehicle <= MAX_VEHICLE_ID:
+                raise ValueError(f"vehicle ids are 1..{MAX_VEHICLE_ID}, got {vehicle}")
         self.plant = plant
         self.vehicles = {
             v: AGV(v, plant, node, params, Battery(battery)) for v, node in sorted(starts.items())
         }
         self.bus = bus
         self.codec = Codec()
-        self.status_period = status_period
+        self.status_period, self.info_period = status_period, info_period
         self.faults = dict(faults or {})
         self.rng = np.random.default_rng(seed)
         self.time = 0.0
         # Each vehicle reports on its own phase within the period, as independent vehicles
         # do: the bus and the controller see a steady stream, not a burst every period.
         self._next_status = {v: status_period * (v % 10) / 10 for v in self.vehicles}
-        self._alive = dict.fromkeys(self.vehicles, 0)
-        self._last_sequence: dict[int, int] = {}
+        self._next_info = {v: info_period * (v % 10) / 10 for v in self.vehicles}
+        self._battery_sent: dict[int, int] = {}
+        self._counter: dict[int, int] = {}  # frame id -> the counter of its last frame
+        self._route_ack = dict.fromkeys(self.vehicles, 0)
+        self._repeat: set[int] = set()  # vehicles whose event status goes out again next step
+        self._announced = False
+        self.frames: dict[int, bytes] = {}  # frame id -> the last frame sent (Modbus publishes it)
         self.counters = {
             "sent": 0,
-            "dropped": 0,
-            "corrupted": 0,
+            "dropped": 0,  # injected: lost frames
+            "corrupted": 0,  # injected: one byte replaced
+            "spoofed": 0,  # injected: well-formed frames of a faulty or foreign node
             "received": 0,
-            "ignored": 0,
-            "rejected": 0,
+            "ignored": 0,  # malformed, or an unknown id
+            "crc_errors": 0,
+            "rejected": 0,  # route commands that did not fit where the vehicle was
         }
+        # the vehicles' side of the controller's counters (repeated route commands are
+        # resends of the same command: ignored, not errors)
+        self.checks = CounterCheck(self.counters)
 
     # ----- the simulation step ----------------------------------------------------------
+    def announce(self) -> None:
+        """Power-on, once: every vehicle reports its status (as an event: twice) and its
+        info. Runs by itself before the first step; a Modbus server calls it before serving."""
+        if self._announced:
+            return
+        self._announced = True
+        for vehicle in self.vehicles:
+            self._send_status(vehicle)
+            self._send_info(vehicle)
+        self._repeat = set(self.vehicles)
+
     def step(self, dt: float) -> None:
+        self.announce()
         self._receive()
         self._apply_faults()
         self._front_sensors()
         clear_before = {v: agv.clear for v, agv in self.vehicles.items()}
         reached = [v for v, agv in self.vehicles.items() if agv.step(dt)]
         self.time += dt
+        repeat, self._repeat = self._repeat, set()
+        now = self.time + 1e-12
         for vehicle, agv in self.vehicles.items():
-            periodic = self.time + 1e-12 >= self._next_status[vehicle]
+            periodic = now >= self._next_status[vehicle]
             if periodic:
                 self._next_status[vehicle] += self.status_period
-            # events are reported at once: a tag read, and leaving a node's crossing zone
-            if periodic or vehicle in reached or agv.clear != clear_before[vehicle]:
+            # events are reported at once, and again at the next step: a tag read, and
+            # leaving a node's crossing zone
+            event = vehicle in reached or agv.clear != clear_before[vehicle]
+            if periodic or event or vehicle in repeat:
                 self._send_status(vehicle)
+            if event:
+                self._repeat.add(vehicle)
+            periodic_info = now >= self._next_info[vehicle]
+            if periodic_info:
+                self._next_info[vehicle] += self.info_period
+            if periodic_info or round(agv.battery.percent) != self._battery_sent[vehicle]:
+                self._send_info(vehicle)
 
     def _apply_faults(self) -> None:
         for vehicle, f in self.faults.items():
@@ -143,7 +195,7 @@ class Fleet:
                     break
 
     # ----- the bus --------------------------------------------------------------------------
-    def status(self, vehicle: int) -> Status:
+    def _status(self, vehicle: int) -> Status:
         agv = self.vehicles[vehicle]
         next_node = agv.next_node
         return Status(
@@ -151,36 +203,80 @@ class Fleet:
             agv.node,
             NO_NODE if next_node is None else next_node,
             agv.state,
-            int(round(agv.battery.percent)),
             agv.speed,
-            self._alive[vehicle],
+            self._next_counter(STATUS + vehicle),
             agv.state == "FAULT",
             agv.clear,
+            self._route_ack[vehicle],
         )
 
-    def _send_status(self, vehicle: int) -> None:
+    def _next_counter(self, frame_id: int) -> int:
+        counter = self._counter[frame_id] = (self._counter.get(frame_id, 0) + 1) % 16
+        return counter
+
+    def _silent(self, vehicle: int) -> bool:
         f = self.faults.get(vehicle)
-        if f and f.dead_after is not None and self.time >= f.dead_after:
+        return f is not None and f.dead_after is not None and self.time >= f.dead_after
+
+    def _send_status(self, vehicle: int) -> None:
+        if self._silent(vehicle):
             return
-        self._alive[vehicle] = (self._alive[vehicle] + 1) % 16
-        frame_id, data = self.codec.encode(self.status(vehicle))
+        self._emit(vehicle, *self.codec.encode(self._status(vehicle)))
+        f = self.faults.get(vehicle)
+        if f and f.spoof_rate and self.rng.random() < f.spoof_rate:
+            self._spoof()
+
+    def _send_info(self, vehicle: int) -> None:
+        battery = round(self.vehicles[vehicle].battery.percent)
+        self._battery_sent[vehicle] = battery
+        if self._silent(vehicle):
+            return
+        info = Info(vehicle, battery, self._next_counter(INFO + vehicle))
+        self._emit(vehicle, *self.codec.encode(info))
+
+    def _emit(self, vehicle: int, frame_id: int, data: bytes) -> None:
+        """A vehicle's frame onto the link, through its injected faults."""
+        f = self.faults.get(vehicle)
         if f and f.drop_rate and self.rng.random() < f.drop_rate:
             self.counters["dropped"] += 1
             return
         if f and f.corrupt_rate and self.rng.random() < f.corrupt_rate:
-            data = bytearray(data)
-            data[int(self.rng.integers(len(data)))] ^= 0xFF
+            corrupt = bytearray(data)
+            at = int(self.rng.integers(len(corrupt)))
+            corrupt[at] = (corrupt[at] + int(self.rng.integers(1, 256))) % 256
+            data = bytes(corrupt)
             self.counters["corrupted"] += 1
-        self._send(frame_id, bytes(data))
+        self._send(frame_id, data)
+
+    def _spoof(self) -> None:
+        """A faulty or foreign node's status frame: well-formed and with a valid CRC, for a
+        random vehicle of the fleet, with random nodes of the plant and a random counter."""
+        rng, ids = self.rng, self.plant.ids
+        vehicle = int(rng.choice(list(self.vehicles)))
+        state = STATES[int(rng.integers(len(STATES)))]
+        status = Status(
+            vehicle,
+            int(ids[rng.integers(len(ids))]),
+            int(ids[rng.integers(len(ids))]),
+            state,
+            float(rng.integers(0, 256)) / 100,
+            int(rng.integers(16)),
+            state == "FAULT",
+            bool(rng.integers(2)),
+            int(rng.integers(16)),
+        )
+        self.counters["spoofed"] += 1
+        self._send(*self.codec.encode(status))
 
     def _send(self, frame_id: int, data: bytes) -> None:
-        if self.bus is None:
-            return
-        try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
-            self.counters["sent"] += 1
-        except can.CanError:
-            self.counters["dropped"] += 1
+        self.frames[frame_id] = data
+        if self.bus is not None:
+            try:
+                self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+            except can.CanError:
+                self.counters["dropped"] += 1
+                return
+        self.counters["sent"] += 1
 
     def _receive(self) -> None:
         if self.bus is None:
@@ -189,23 +285,32 @@ class Fleet:
             if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
                 self.counters["ignored"] += 1
                 continue
-            try:
-                decoded = self.codec.decode(msg.arbitration_id, msg.data)
-            except (MalformedFrame, UnknownFrame):
-                self.counters["ignored"] += 1
-                continue
-            self.counters["received"] += 1
-            self.apply(decoded)
+            self.receive(msg.arbitration_id, bytes(msg.data))
 
-    def apply(self, message: object) -> None:
-        """A command from the controller, whatever link carried it (CAN frame, Modbus write)."""
+    def receive(self, frame_id: int, data: bytes) -> None:
+        """A frame from the controller, whatever link carried it (CAN frame, Modbus write):
+        checked (CRC, counter) and applied. A route command repeating the last one's
+        counter is a resend of it, not a new route. A stop that passes the CRC is obeyed
+        whatever its counter (the safe direction); a go must pass the counter check too."""
+        try:
+            message = self.codec.decode(frame_id, data)
+        except CorruptFrame:
+            self.counters["crc_errors"] += 1
+            return
+        except (MalformedFrame, UnknownFrame):
+            self.counters["ignored"] += 1
+            return
+        self.counters["received"] += 1
         if isinstance(message, RouteCommand) and message.vehicle in self.vehicles:
-            if self._last_sequence.get(message.vehicle) == message.sequence:
-                return  # a repetition, not a new route
-            self._last_sequence[message.vehicle] = message.sequence
-            if not self.vehicles[message.vehicle].command(message.nodes):
-                self.counters["rejected"] += 1
+            verdict = self.checks.check(frame_id, message.sequence)
+            if verdict is ACCEPTED or verdict is RESYNC:
+                self._route_ack[message.vehicle] = message.sequence
+                if not self.vehicles[message.vehicle].command(message.nodes):
+                    self.counters["rejected"] += 1
         elif isinstance(message, StopGo):
+            verdict = self.checks.check(frame_id, message.counter)
+            if message.go and verdict is not ACCEPTED and verdict is not RESYNC:
+                return
             for vehicle, agv in self.vehicles.items():
                 if message.vehicle in (vehicle, ALL_VEHICLES):
                     agv.go = message.go

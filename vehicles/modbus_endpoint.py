@@ -1,15 +1,18 @@
 """Each simulated AGV as a Modbus TCP server: the alternative vehicle link to CAN.
 
-Register map of one vehicle (all other addresses answer 0; writes elsewhere are refused):
+The registers carry the CAN message set's own payloads, one byte per register, with the same
+end-to-end protection (CRC over the frame id of the vehicle's CAN message and the payload,
+and its counter), so both links share one definition and one check (docs/protocol.md):
 
-    input registers   0 current node   1 next node (65535: none)   2 state code
-                      3 battery %      4 speed cm/s                5 alive counter   6 fault
-                      7 clear of the current node (1/0)
-    holding registers 0..2 next nodes  3 count (1..3)  4 go (0/1)  5 sequence (new value: new route)
+    input registers   0..7   VehicleStatus payload (data id 0x100 + vehicle id)
+                      8..10  VehicleInfo payload (data id 0x600 + vehicle id)
+    holding registers 0..7   RouteCommand payload (data id 0x200 + vehicle id)
+                      8..9   StopGo payload (data id 0x080 + vehicle id)
 
-The controller writes the command block with one FC16 request, so a route never arrives
-half written. Writes are queued and applied at the start of the next simulation step;
-reads are answered from the status published after the last step.
+The input registers hold the last frame of each kind the vehicle produced, faults injected
+and all. A write completing a command frame (0..7, 8..9, or 0..9 with both) queues it; the
+fleet checks and applies it at the start of the next simulation step, as if it had come
+over CAN. Other addresses read 0; writes elsewhere, or of values above 255, are refused.
 """
 
 from __future__ import annotations
@@ -18,12 +21,13 @@ import threading
 from collections import deque
 
 from io_drivers.modbus_server import _ModbusThread
-from io_drivers.protocol import STATE_CODE, RouteCommand, StopGo
+from io_drivers.protocol import INFO, ROUTE, STATUS, STOP_GO
 
 from .fleet import Fleet
 
-STATUS_REGISTERS = 8
-COMMAND_REGISTERS = 6
+STATUS_REGISTERS, INFO_REGISTERS = 8, 3
+ROUTE_REGISTERS, STOP_GO_REGISTERS = 8, 2
+COMMAND_REGISTERS = ROUTE_REGISTERS + STOP_GO_REGISTERS
 
 
 class VehicleModbusEndpoints:
@@ -32,12 +36,15 @@ class VehicleModbusEndpoints:
         self.ports: dict[int, int] = {}
         self._servers: list[_ModbusThread] = []
         self._lock = threading.Lock()
-        self._status = {v: [0] * STATUS_REGISTERS for v in fleet.vehicles}
+        self._status = {v: [0] * (STATUS_REGISTERS + INFO_REGISTERS) for v in fleet.vehicles}
         self._commands = {v: [0] * COMMAND_REGISTERS for v in fleet.vehicles}
-        self._queue: deque[tuple[int, list[int]]] = deque()
+        self._queue: deque[tuple[int, bytes]] = deque()
 
     def start(self) -> dict[int, int]:
-        """Start one server per vehicle (port base_port + vehicle id, or ephemeral with 0)."""
+        """Start one server per vehicle (port base_port + vehicle id, or ephemeral with 0),
+        after the vehicles' power-on reports: no client ever reads an empty register block."""
+        self.fleet.announce()
+        self.publish()
         try:
             for v in self.fleet.vehicles:
                 server = _ModbusThread(
@@ -51,7 +58,6 @@ class VehicleModbusEndpoints:
         except BaseException:
             self.stop()
             raise
-        self.publish()
         return self.ports
 
     def stop(self) -> None:
@@ -60,29 +66,18 @@ class VehicleModbusEndpoints:
         self._servers.clear()
 
     def apply(self) -> None:
-        """Before a simulation step: hand queued command writes to the fleet."""
+        """Before a simulation step: hand the queued command frames to the fleet."""
         while self._queue:
-            v, block = self._queue.popleft()
-            nodes, count, go, sequence = block[0:3], block[3], block[4], block[5]
-            self.fleet.apply(StopGo(v, bool(go)))
-            if 1 <= count <= 3:
-                self.fleet.apply(RouteCommand(v, sequence % 16, tuple(nodes[:count])))
+            self.fleet.receive(*self._queue.popleft())
 
     def publish(self) -> None:
-        """After a simulation step: the status the servers answer with."""
+        """After a simulation step: the frames the servers answer with."""
+        frames = self.fleet.frames
         with self._lock:
             for v in self.fleet.vehicles:
-                s = self.fleet.status(v)
-                self._status[v] = [
-                    s.current_node,
-                    s.next_node,
-                    STATE_CODE[s.state],
-                    s.battery,
-                    min(255, round(s.speed * 100)),
-                    s.alive,
-                    int(s.fault),
-                    int(s.clear),
-                ]
+                status = frames.get(STATUS + v, bytes(STATUS_REGISTERS))
+                info = frames.get(INFO + v, bytes(INFO_REGISTERS))
+                self._status[v] = [*status, *info]
 
     def _reader(self, v: int):
         def read(area: str, address: int, count: int) -> list:
@@ -98,15 +93,18 @@ class VehicleModbusEndpoints:
         from pymodbus.constants import ExcCodes
 
         def write(area: str, address: int, values: list) -> ExcCodes | None:
-            if area != "hr" or address + len(values) > COMMAND_REGISTERS:
+            end = address + len(values)
+            if area != "hr" or end > COMMAND_REGISTERS:
                 return ExcCodes.ILLEGAL_ADDRESS
+            if any(not 0 <= int(x) <= 0xFF for x in values):
+                return ExcCodes.ILLEGAL_VALUE  # every register carries one payload byte
             with self._lock:
-                self._commands[v][address : address + len(values)] = [int(x) for x in values]
-                block = list(self._commands[v])
-            if (
-                address + len(values) == COMMAND_REGISTERS
-            ):  # the block is complete with the sequence
-                self._queue.append((v, block))
+                block = self._commands[v]
+                block[address:end] = [int(x) for x in values]
+                if address == 0 and end >= ROUTE_REGISTERS:
+                    self._queue.append((ROUTE + v, bytes(block[:ROUTE_REGISTERS])))
+                if address <= ROUTE_REGISTERS and end == COMMAND_REGISTERS:
+                    self._queue.append((STOP_GO + v, bytes(block[ROUTE_REGISTERS:])))
             return None
 
         return write

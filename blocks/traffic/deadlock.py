@@ -45,7 +45,7 @@ from .vehicle_control import VehicleControl
 
 MAX_BACK_OFFS = 8  # returns of one cycle without progress: then it is a livelock
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
-WALLS = ("offline", "stale", "fault")
+WALLS = ("offline", "stale", "fault", "suspect")
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,13 @@ A vehicle follows another closely: it may enter a node as soon as the one ahead 
 has left that node's crossing zone (the ``clear`` bit of its status), while that one still
 drives the segment beyond, holding the node at its end. The segment matrix (``segments``: who is on which segment, in
 which direction) and the per-arc penalties for the A* block are derived from the holds.
-Holds follow the reports: a report of a node passes every held node before it, and a
-vehicle found on a node it does not hold (a start position, a vehicle that moved without
-a command) takes it and the event is counted, never hidden.
+Holds follow the reports, but only along what a vehicle was given: a report of a held node
+passes every held node before it. A report of anything else (a jump, a node held by
+another vehicle, ``clear`` where nothing was released beyond) is never applied to any
+vehicle's holds: :meth:`plausible` says why, and the vehicle's control treats the vehicle
+as suspect. A vehicle's first report, while it holds nothing, takes its start node if the
+node is free. Only an operator who has looked can move a suspect vehicle's holds to where
+it really is (:meth:`relocate`).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ FREE = -1
 
 class ReservationMatrix(FunctionBlock):
     occupied_nodes = Output(0, doc="nodes held by a vehicle")
-    forced_takeovers = Output(0, doc="vehicles found on a node held by another (should stay 0)")
+    refused_reports = Output(0, doc="reports not along the reporting vehicle's holds (ignored)")
 
     def __init__(
         self,
@@ -84,30 +88,61 @@ class ReservationMatrix(FunctionBlock):
         self.occupied_nodes = int((self.holder != FREE).sum())
 
     # ----- holds --------------------------------------------------------------------------
-    def report(self, vehicle: int, node: int, clear: bool = False) -> None:
+    def plausible(self, vehicle: int, node: int, clear: bool = False) -> str | None:
+        """Why a report of node index ``node`` cannot be applied, or None if it can: the
+        held node, a node released to it (passing those before), the node it has already
+        left, or, holding nothing yet, a free node (its start position)."""
+        held = self.holds[vehicle]
+        ids = self.plant.ids
+        if node in held:
+            if clear and held.index(node) == len(held) - 1:
+                return f"clear of node {ids[node]}, but nothing was released beyond it"
+            return None
+        if self.cleared[vehicle] == node or (not held and self.holder[node] == FREE):
+            return None
+        other = int(self.holder[node])
+        where = f"holds {', '.join(str(ids[n]) for n in held)}" if held else "holds nothing"
+        if other != FREE:
+            return f"reports node {ids[node]}, held by vehicle {other} ({where})"
+        return f"reports node {ids[node]}, never released to it ({where})"
+
+    def refuse(self) -> None:
+        """A report that was not :meth:`plausible` was seen (and not applied)."""
+        self.refused_reports += 1
+
+    def report(self, vehicle: int, node: int, clear: bool = False) -> bool:
         """The vehicle reported node index ``node`` as its current node (the last one it
         reached); ``clear``: it has left that node's crossing zone, so the node is free for
-        the next vehicle although it is still the one reported."""
+        the next vehicle although it is still the one reported. A report that is not
+        :meth:`plausible` changes nothing, is counted, and returns False."""
+        if self.plausible(vehicle, node, clear) is not None:
+            self.refuse()
+            return False
         held = self.holds[vehicle]
         if node in held:
-            k = held.index(node) + (1 if clear and len(held) > held.index(node) + 1 else 0)
+            k = held.index(node) + (1 if clear else 0)
             for passed in held[:k]:
                 self.holder[passed] = FREE
             del held[:k]
             self.cleared[vehicle] = node if k and held[0] != node else None
-            return
-        if self.cleared[vehicle] == node:
-            return  # left behind already; the holds start at the node it drives to
-        # not a node it holds: physical truth wins (a start position or an unexpected move)
-        self.cleared[vehicle] = None
+        elif not held:
+            held.append(node)  # its start position
+            self.holder[node] = vehicle
+            self.cleared[vehicle] = None
+        return True
+
+    def relocate(self, vehicle: int, node: int) -> str | None:
+        """An operator confirmed the vehicle really stands at node index ``node``: its holds
+        move there if the node is free (or its own). Returns why not, or None when done."""
         other = int(self.holder[node])
         if other != FREE and other != vehicle:
-            self.forced_takeovers += 1
-            self.holds[other].remove(node)
-        for n in held:
+            return f"node {self.plant.ids[node]} is held by vehicle {other}"
+        for n in self.holds[vehicle]:
             self.holder[n] = FREE
-        held[:] = [node]
+        self.holds[vehicle][:] = [node]
         self.holder[node] = vehicle
+        self.cleared[vehicle] = None
+        return None
 
     def holder_of(self, node: int) -> int | None:
         h = int(self.holder[node])

@@ -18,6 +18,15 @@ replans the same way once. Routes come from an IncrementalAStar instance with a 
 expansions per cycle, planned from the last released node while the vehicle drives, and
 replanned whenever a permanent blockade is set or cleared. Released nodes are never taken
 back: the vehicle may already be past the point where it could obey.
+
+Plausibility: a report may only move the vehicle along what it was released (the
+ReservationMatrix decides). A report that claims anything else, or a vehicle link that saw
+the vehicle's message counter jump, makes the vehicle **suspect**: it gets a stop command,
+its holds stay as they are (the others wait or route around it, as for a stale vehicle),
+and nothing of what it reports is applied except moves along its holds. It returns to
+service by itself after reporting a node it holds for ``recover_s`` without a break, or
+when an operator acknowledges it (:meth:`acknowledge`): after looking, the operator
+confirms where it really is, and its holds move there if that node is free.
 """
 
 from __future__ import annotations
@@ -30,12 +39,13 @@ from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
-from .records import CLEAR, FAULT, NO_NODE, ONLINE, STALE, VehicleRecordsView
+from .records import CLEAR, FAULT, NO_NODE, ONLINE, STALE, SUSPECT_LINK, VehicleRecordsView
 from .reservation import ReservationMatrix
 
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
 NO_ROUTE_RETRY_NS = 1_000_000_000
 YIELD_NS = 20_000_000_000  # giving way after a back-off ends after this at the latest
+RECOVER_S = 2.0  # a suspect vehicle reporting a node it holds this long returns to service
 
 
 class VehicleControl(FunctionBlock):
@@ -45,8 +55,12 @@ class VehicleControl(FunctionBlock):
     budget = Input(4, doc="A* expansions per cycle")
 
     state = Output(
-        "offline", doc="offline|idle|planning|driving|waiting|arrived|no_route|stale|fault"
+        "offline",
+        doc="offline|idle|planning|driving|waiting|arrived|no_route|stale|fault|suspect",
     )
+    suspect = Output(False, doc="a report was implausible: stopped, holds kept, see reason")
+    suspect_reason = Output("", doc="why the vehicle is suspect (empty when it is not)")
+    suspect_events = Output(0, doc="times the vehicle became suspect")
     current = Output(None, doc="the node the vehicle last reported")
     arrived = Output(False, doc="standing at its target with nothing left to drive")
     waiting_for = Output(None, doc="the vehicle holding the node this one waits for")
@@ -69,6 +83,9 @@ class VehicleControl(FunctionBlock):
     retry_ns = Static(0)
     wait_node = Static(None)
     wait_replanned = Static(False)
+    consistent_since_ns = Static(None)  # suspect: reporting a held node since then
+    link_ack = Static(False)  # the SUSPECT_LINK flag seen, acknowledged to the link
+    reported = Static(None)  # the last reported node, plausible or not
 
     def __init__(
         self,
@@ -81,6 +98,7 @@ class VehicleControl(FunctionBlock):
         lookahead: int = 2,
         wait_replan_s: float = 5.0,
         priority: Callable[[int], tuple] | None = None,
+        recover_s: float = RECOVER_S,
     ) -> None:
         super().__init__()
         if not 1 <= lookahead <= 3:
@@ -92,6 +110,7 @@ class VehicleControl(FunctionBlock):
         self.blockades = blockades
         self.lookahead = lookahead
         self.wait_replan_ns = round(wait_replan_s * 1e9)
+        self.recover_ns = round(recover_s * 1e9)
         # smaller is more urgent; of two vehicles facing each other only the less urgent one
         # detours, so they cannot both turn away and meet again on the other side for ever
         self.priority = priority or (lambda v: (0, v))
@@ -116,7 +135,26 @@ class VehicleControl(FunctionBlock):
         if current == NO_NODE or current not in self.index:
             self.state = "fault"
             return
-        self._passed(current, bool(flags & CLEAR))
+        self.reported = current
+        clear = bool(flags & CLEAR)
+        link = bool(flags & SUSPECT_LINK)
+        if link and not self.suspect:
+            self._become_suspect(ctx, "link: message counter jumped (restart, or a second sender)")
+        if link != self.link_ack:
+            # seen: the rising edge of the acknowledge bit clears the flag at the link, so a
+            # later jump raises it anew (the suspicion itself stays, with its own recovery)
+            self.link_ack = link
+            self._command(not self.suspect)
+        why = self.reservation.plausible(self.vehicle, self.index[current], clear)
+        if why is not None:
+            self.reservation.refuse()
+            if not self.suspect:
+                self._become_suspect(ctx, why)
+        if self.suspect:
+            fresh = not flags & (STALE | FAULT)
+            self._while_suspect(ctx, current, clear, why is None and fresh)
+            return
+        self._passed(current, clear)
         if flags & STALE or flags & FAULT:
             # an obstacle where it was last seen: its holds stay, nothing more is released
             self.state = "stale" if flags & STALE else "fault"
@@ -134,13 +172,73 @@ class VehicleControl(FunctionBlock):
         self._publish_state()
 
     def _passed(self, current: int, clear: bool) -> None:
+        """A plausible report: the nodes up to ``current`` are passed."""
         if current in self.released:
             del self.released[: self.released.index(current) + 1]
-        elif self.current != current and self.released:
-            # reported a node it was not released to: start over from where it is
-            self.released, self.route = [], []
         self.current = current
         self.reservation.report(self.vehicle, self.index[current], clear)
+
+    # ----- suspect vehicles ----------------------------------------------------------------
+    def _become_suspect(self, ctx: CycleContext, why: str) -> None:
+        self.suspect, self.suspect_reason = True, why
+        self.suspect_events += 1
+        self.consistent_since_ns = None
+        self.state = "suspect"
+        self._stop(ctx)
+
+    def _while_suspect(self, ctx: CycleContext, current: int, clear: bool, plausible: bool) -> None:
+        """Stopped, holds kept: only moves along its holds are applied (it may still roll to
+        the next released node). Fresh reports of a held node for ``recover_ns`` end it."""
+        self.state = "suspect"
+        self._not_waiting()
+        self.reservation.intent[self.vehicle] = None
+        if not plausible:
+            self.consistent_since_ns = None
+            return
+        self._passed(current, clear)
+        if self.consistent_since_ns is None:
+            self.consistent_since_ns = ctx.time_ns
+        elif ctx.time_ns - self.consistent_since_ns >= self.recover_ns:
+            self._return_to_service(ctx)
+
+    def _return_to_service(self, ctx: CycleContext) -> None:
+        self.suspect, self.suspect_reason = False, ""
+        self.consistent_since_ns = None
+        # what it was released may be gone or behind it: plan again from where it is
+        self.released = [
+            n for n in self.released if self.index[n] in self.reservation.holds[self.vehicle]
+        ]
+        self.route, self.planning = [], False
+        self.retry_ns = ctx.time_ns
+        self._send(ctx)  # go again, with what it still holds ahead
+        self._publish_state()
+
+    def acknowledge(self, ctx: CycleContext) -> str | None:
+        """An operator has checked the vehicle: it stands where it reports. Its holds move
+        there (if that node is free) and it returns to service. Returns why not, or None."""
+        if not self.suspect:
+            return "not suspect"
+        if self.reported is None:
+            return "no position reported"
+        node = self.index[self.reported]
+        if node not in self.reservation.holds[self.vehicle]:
+            why = self.reservation.relocate(self.vehicle, node)
+            if why is not None:
+                return why
+            self.released = []
+        self.current = self.reported
+        self._return_to_service(ctx)
+        return None
+
+    def _stop(self, ctx: CycleContext) -> None:
+        """The go bit off (a stop command); the route command itself stays as it was."""
+        self._command(go=False)
+
+    def _command(self, go: bool) -> None:
+        """Write the command record: the released nodes, the go bit, the acknowledge bit."""
+        self.records.write_command(
+            self.vehicle, tuple(self.released[:3]), go, self.sequence, ack=self.link_ack
+        )
 
     @property
     def frontier(self) -> int:
@@ -257,7 +355,7 @@ class VehicleControl(FunctionBlock):
     def request(self, ctx: CycleContext) -> int | None:
         """The node (id) a vehicle standing at a node wants to start to, or None: nothing to
         drive, planning, on hold, giving way, or the next segment closed (it replans)."""
-        if self.released or self.planning or self.hold or not self.route:
+        if self.released or self.planning or self.hold or self.suspect or not self.route:
             return None
         here, there = self.current, self.route[0]
         withheld, giving_way_to = self._step_withheld(ctx, here, there)
@@ -335,13 +433,14 @@ class VehicleControl(FunctionBlock):
     def _send(self, ctx: CycleContext) -> None:
         self.sequence = self.sequence % 255 + 1  # 0 means "no command yet"
         self.sent_ns = ctx.time_ns
-        self.records.write_command(self.vehicle, tuple(self.released[:3]), True, self.sequence)
+        self._command(go=True)
 
     def _resend_if_lost(self, ctx: CycleContext, reported_next: int) -> None:
         """A vehicle standing still with released nodes has not got the command (a lost
         frame, or it passed a node before the command arrived and refused it): repeat it."""
         if (
             self.released
+            and not self.suspect
             and reported_next == NO_NODE
             and ctx.time_ns - self.sent_ns >= RESEND_AFTER_NS
         ):

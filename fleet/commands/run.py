@@ -1,14 +1,22 @@
 """``plc-runtime run [CONFIG]`` for the fleet program: the main job.
 
-On the virtual clock (the default) the vehicles are simulated in this process over the
-in-process virtual CAN bus, faster than real time. With ``--realtime`` the scan runs on the
-wall clock and the vehicles run in their own process (``plc-runtime vehicles``), on a bus
-both processes reach (SocketCAN ``vcan0``, or UDP multicast in a private network
-namespace); their conflict monitor reports back through a file when they stop.
+Where the vehicles are decides the clock:
 
-A live dashboard (rich) shows cycle statistics and every vehicle; at the end the summary
-is printed (``--json``: one JSON object) and written with the CSV of recipes and the PNG
-of the routes into the output folder.
+* simulated in this process (the default, on the in-process virtual bus): the virtual
+  clock as fast as possible, ``--speed X`` to watch it at X simulated seconds per wall
+  second (the same run, only paced), or ``--realtime`` on the wall clock;
+* simulated in their own process (``--realtime`` with a bus another process reaches:
+  SocketCAN, UDP multicast, or ``modbus:HOST:BASE_PORT``): the wall clock; their conflict
+  monitor reports back through a file when they stop;
+* elsewhere (``--vehicles external``: started with ``plc-runtime vehicles`` or real
+  AGVs): the wall clock, and nothing is started here.
+
+A combination in which the vehicles could never answer (the virtual clock with vehicles
+outside this process) is refused before anything runs, and so is an output folder that
+cannot be written. A live dashboard (rich) shows the cycle statistics, every vehicle and
+the event log, fitted to the terminal's width; at the end the summary is printed
+(``--json``: one JSON object) and written with the CSV of recipes and the PNG of the routes
+into the output folder.
 """
 
 from __future__ import annotations
@@ -20,25 +28,61 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console, Group
-from rich.table import Table
+from rich.console import Console
 
-from plc_runtime.cli import drive, task_table
-from plc_runtime.clock import VirtualClock, WallClock
+from plc_runtime.cli import CliError, drive
+from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 
-from ..config import DEFAULT_CONFIG, load_config
+from .. import liveness
+from ..config import DEFAULT_CONFIG, MODBUS, FleetConfig, load_config, modbus_endpoint
+from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
-from ..report import summary, write_all
+from ..report import check_out_dir, summary, write_all
 
 VEHICLES_READY_TIMEOUT = 20.0
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 class FleetRunError(ConfigError):
     """The fleet run could not be set up (bus, vehicle process)."""
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Where the vehicles are and which clock that needs."""
+
+    bus: tuple[str, str]
+    clock: VirtualClock | WallClock
+    cosimulate: bool  # the vehicles are simulated in this process
+    spawn: bool  # the vehicles are simulated in a child process
+
+
+def add_options(run: argparse.ArgumentParser) -> None:
+    """The fleet's own options of ``run``."""
+    run.add_argument(
+        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
+    )
+    run.add_argument(
+        "--bus",
+        metavar="INTERFACE:CHANNEL",
+        help="fleet: the vehicle link, overriding the configuration's: virtual:agv (in this "
+        "process), socketcan:vcan0, udp_multicast:239.74.163.2, or modbus:HOST:BASE_PORT "
+        "(vehicle v serves Modbus TCP on BASE_PORT + v)",
+    )
+    run.add_argument(
+        "--vehicles",
+        choices=("simulated", "external"),
+        default="simulated",
+        help="fleet: simulated (default: in this process, or in a child process with "
+        "--realtime and a shared bus) or external (attach to vehicles started elsewhere; "
+        "implies the wall clock)",
+    )
 
 
 def run(args: argparse.Namespace, modbus: Any) -> int:
@@ -47,15 +91,24 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         cfg.cycle_time = args.cycle_time
     if args.watchdog is not None:
         cfg.watchdog = args.watchdog / 1e3
-    bus = _parse_bus(args.bus) if args.bus else (cfg.bus_interface, cfg.bus_channel)
-    if args.realtime and bus[0] == "virtual":
-        raise FleetRunError(
-            "--realtime runs the vehicles in their own process, which the in-process virtual "
-            "bus cannot reach: give a shared bus, e.g. --bus socketcan:vcan0 or "
-            "--bus udp_multicast:239.74.163.2 (docs/fleet-config.md)"
+    setup = plan(args, cfg)
+    out = Path(args.out)
+    check_out_dir(out)
+    broken = liveness.violations(cfg)
+    if broken:
+        warnings.warn(
+            f"{cfg.source} does not meet the liveness condition (docs/fleet-config.md): "
+            f"{'; '.join(broken)}. No conflict can occur, but vehicles may wait without bound.",
+            UserWarning,
+            stacklevel=1,
         )
-    clock = WallClock(spin=args.spin / 1e3, rt=args.rt) if args.realtime else VirtualClock()
-    program = FleetProgram(cfg, clock=clock, cosimulate=not args.realtime, bus=bus)
+    program = FleetProgram(
+        cfg,
+        clock=setup.clock,
+        cosimulate=setup.cosimulate,
+        bus=setup.bus,
+        retain_file=args.retain,
+    )
     if args.modbus:
         program.rt.add_driver(modbus(args.modbus))
     total = (
@@ -64,16 +117,28 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         else round((args.duration or cfg.duration_s) / cfg.cycle_time)
     )
     vehicles_proc, monitor_file = None, None
-    if args.realtime:
+    if setup.spawn:
         monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
-        vehicles_proc = _start_vehicles(args.config, bus, monitor_file)
+        try:
+            vehicles_proc = start_vehicles(args.config, setup.bus, monitor_file)
+        except BaseException:
+            monitor_file.unlink(missing_ok=True)
+            program.close()
+            raise
     live = sys.stdout.isatty() and not args.json
     interrupted = False
-    previous = signal.signal(signal.SIGINT, lambda *_: program.rt.request_stop())
+
+    def on_sigint(*_: object) -> None:
+        nonlocal interrupted
+        interrupted = True
+        program.rt.request_stop()
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
     wall_start = time.monotonic()
     try:
         program.rt.start()
-        drive(program.rt, total, live, None, render=lambda: _dashboard(program, total))
+        drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -81,32 +146,96 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         wall = time.monotonic() - wall_start
         state = program.rt.state
         program.close()
-        monitor = _stop_vehicles(vehicles_proc, monitor_file)
+        monitor = stop_vehicles(vehicles_proc, monitor_file)
     result = summary(program, wall, state)
+    result["interrupted"] = interrupted
+    result["vehicles_mode"] = (
+        "in this process" if setup.cosimulate else "child process" if setup.spawn else "external"
+    )
     if monitor is not None:
         result["head_on_conflicts"] = monitor.get("head_on_conflicts")
         result["node_conflicts"] = monitor.get("node_conflicts")
         result["conflict_monitor"] = "simulated positions, in the vehicles' process"
-    write_all(program, Path(args.out), result)
+        result["faults"]["injected"] = monitor.get("faults_injected")
+    write_all(program, out, result)
     if args.json:
         print(json.dumps(result))
     else:
-        Console().print(_final_tables(result))
+        Console().print(final_tables(result))
     if interrupted:
+        print(
+            f"plc-runtime: interrupted at {result['sim_time_s']:.1f} s; results written",
+            file=sys.stderr,
+        )
         return 130
     return 1 if state == "FAULT" else 0
 
 
-def _parse_bus(spec: str) -> tuple[str, str]:
+def plan(args: argparse.Namespace, cfg: FleetConfig) -> Setup:
+    """Decide the bus, the clock and where the vehicles run; refuse what cannot work."""
+    if not args.realtime and (args.rt or args.spin):
+        raise CliError("--rt and --spin only apply with --realtime")
+    bus = parse_bus(args.bus) if args.bus else (cfg.bus_interface, cfg.bus_channel)
+    where = "--bus" if args.bus else f"{cfg.source}: bus.interface"
+    in_process = bus[0] == "virtual"
+    if args.vehicles == "external":
+        if in_process:
+            raise FleetRunError(
+                f"--vehicles external: vehicles elsewhere cannot reach the in-process virtual bus "
+                f"({where} {bus[0]}:{bus[1]}): give their bus, e.g. --bus socketcan:vcan0 or "
+                "--bus modbus:127.0.0.1:5100"
+            )
+        if args.speed is not None:
+            raise FleetRunError(
+                "--vehicles external: vehicles elsewhere run in real time, so --speed cannot "
+                "apply (the wall clock is used)"
+            )
+        return Setup(bus, WallClock(spin=args.spin / 1e3, rt=args.rt), False, False)
+    if in_process:
+        if args.realtime:
+            clock: VirtualClock | WallClock = WallClock(spin=args.spin / 1e3, rt=args.rt)
+        elif args.speed is not None:
+            clock = PacedClock(args.speed)
+        else:
+            clock = VirtualClock()
+        return Setup(bus, clock, True, False)
+    if not args.realtime:
+        how = f"--speed {args.speed:g}" if args.speed is not None else "the virtual clock"
+        raise FleetRunError(
+            f"{where} {bus[0]}:{bus[1]} reaches vehicles outside this process, which run in "
+            f"real time and could never answer on {how}: add --realtime (simulated vehicles "
+            "are then started in their own process), or use --bus virtual:agv to simulate "
+            "them here"
+        )
+    if bus[0] == MODBUS and modbus_endpoint(bus[1])[0] not in LOOPBACK:
+        raise FleetRunError(
+            f"{where} {bus[0]}:{bus[1]}: simulated vehicles serve Modbus on 127.0.0.1 only; "
+            "for vehicles on another host use --vehicles external"
+        )
+    return Setup(bus, WallClock(spin=args.spin / 1e3, rt=args.rt), False, True)
+
+
+def parse_bus(spec: str) -> tuple[str, str]:
     interface, sep, channel = spec.partition(":")
     if not sep or not interface or not channel:
         raise FleetRunError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
+    if interface == MODBUS:
+        modbus_endpoint(channel)
     return interface, channel
 
 
-def _start_vehicles(
+def start_vehicles(
     config: str | None, bus: tuple[str, str], monitor_file: Path
 ) -> subprocess.Popen:
+    """``plc-runtime vehicles`` in a child process; returns once it says it is ready.
+
+    Its stderr goes to a file (never a pipe nobody drains), so if it fails, its own error
+    is shown, not only that it did not start."""
+    link = (
+        ["--modbus-base-port", str(modbus_endpoint(bus[1])[1])]
+        if bus[0] == MODBUS
+        else ["--bus", f"{bus[0]}:{bus[1]}"]
+    )
     cmd = [
         sys.executable,
         "-m",
@@ -114,26 +243,35 @@ def _start_vehicles(
         "vehicles",
         "--config",
         str(config or DEFAULT_CONFIG),
-        "--bus",
-        f"{bus[0]}:{bus[1]}",
+        *link,
         "--monitor-out",
         str(monitor_file),
     ]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    log = tempfile.TemporaryFile(mode="w+", prefix="plc-fleet-vehicles-")
+    proc = subprocess.Popen(cmd, stderr=log, stdout=subprocess.DEVNULL, text=True)
     deadline = time.monotonic() + VEHICLES_READY_TIMEOUT
-    line = ""
+    text = ""
     while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        if "ready" in line or not line:
+        log.seek(0)
+        text = log.read()
+        if "ready" in text or proc.poll() is not None:
             break
-    if "ready" not in line:
+        time.sleep(0.05)
+    if "ready" in text and proc.poll() is None:
+        return proc
+    if proc.poll() is None:
         proc.kill()
-        proc.wait()
-        raise FleetRunError(f"the vehicle process did not start: {line.strip() or 'no output'}")
-    return proc
+    code = proc.wait()
+    log.seek(0)
+    lines = [line.strip() for line in log.read().splitlines() if line.strip()]
+    log.close()
+    reason = lines[-1] if lines else "no output"
+    reason = reason.removeprefix("plc-runtime: error: ")
+    status = f"exit code {code}" if code >= 0 else f"killed after {VEHICLES_READY_TIMEOUT:.0f} s"
+    raise FleetRunError(f"the vehicle process did not start ({status}): {reason}")
 
 
-def _stop_vehicles(proc: subprocess.Popen | None, monitor_file: Path | None) -> dict | None:
+def stop_vehicles(proc: subprocess.Popen | None, monitor_file: Path | None) -> dict | None:
     if proc is None:
         return None
     proc.send_signal(signal.SIGTERM)
@@ -149,84 +287,3 @@ def _stop_vehicles(proc: subprocess.Popen | None, monitor_file: Path | None) -> 
     finally:
         if monitor_file:
             monitor_file.unlink(missing_ok=True)
-
-
-# ----- the dashboard -------------------------------------------------------------------------
-VEHICLE_COLUMNS = (
-    "vehicle",
-    "state",
-    "reported",
-    "node",
-    "target",
-    "recipe",
-    "step",
-    "phase",
-    "battery",
-    "rounds",
-    "waits",
-    "replans",
-)
-
-
-def _vehicle_table(program: FleetProgram, limit: int = 30) -> Table:
-    table = Table(title="vehicles")
-    for col in VEHICLE_COLUMNS:
-        table.add_column(
-            col, justify="right" if col not in ("state", "reported", "recipe", "phase") else "left"
-        )
-    rows = program.vehicle_rows()
-    for row in rows[:limit]:
-        table.add_row(*("-" if row[c] is None else str(row[c]) for c in VEHICLE_COLUMNS))
-    if len(rows) > limit:
-        table.caption = f"... and {len(rows) - limit} more"
-    return table
-
-
-def _dashboard(program: FleetProgram, total: int | None) -> Group:
-    rt = program.rt
-    title = (
-        f"fleet ({program.cfg.source})  state {rt.state}  cycle {rt.ticks}/{total}  "
-        f"clock {rt.clock_time:.1f} s  recipes completed {len(program.completed)}  "
-        f"deadlocks resolved {program.resolver.resolved}"
-    )
-    rows = {name: s.to_dict() for name, s in rt.stats.tasks.items()}
-    return Group(task_table(title, rows, live=True), _vehicle_table(program))
-
-
-def _final_tables(result: dict[str, Any]) -> Group:
-    title = (
-        f"fleet: {result['state']} after {result['cycles']} cycles, {result['sim_time_s']:.1f} s "
-        f"on the {result['clock']} clock, {result['wall_time_s']:.2f} s of wall time"
-    )
-    tasks = task_table(title, {**result["tasks"], "(scan)": result["scan"]}, live=False)
-    fleet = Table(title="fleet")
-    fleet.add_column("measure")
-    fleet.add_column("value", justify="right")
-    for key in (
-        "level",
-        "recipes_completed",
-        "stations_visited",
-        "replans",
-        "waits",
-        "deadlocks_detected",
-        "deadlocks_resolved",
-        "deadlocks_unresolved",
-        "head_on_conflicts",
-        "node_conflicts",
-    ):
-        fleet.add_row(key, str(result[key]))
-    util = Table(title="station utilisation")
-    for col in ("station", "assigned", "visits", "busy s", "utilisation"):
-        util.add_column(col, justify="right")
-    for station, u in result["station_utilisation"].items():
-        util.add_row(
-            station,
-            str(u["assigned"]),
-            str(u["visits"]),
-            f"{u['busy_s']:.0f}",
-            f"{u['utilisation']:.1%}",
-        )
-    files = "  ".join(f"{k}: {v}" for k, v in result.get("files", {}).items())
-    if result["fault_reason"]:
-        fleet.caption = f"FAULT: {result['fault_reason']}"
-    return Group(tasks, fleet, util, f"written: {files}")

@@ -56,16 +56,20 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     )
 
 
+INJECTED = ("dropped", "corrupted", "spoofed")  # the simulator's counters of injected faults
+
+
 def vehicles_command(args: argparse.Namespace) -> int:
     from vehicles.monitor import ConflictMonitor
     from vehicles.runner import default_starts, parse_bus, run_fleet
 
-    status_period = 0.1
+    status_period, faults = 0.1, None
     if args.config:
         from ..config import load_config
 
         cfg = load_config(args.config)
         plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s
+        faults = cfg.faults or None  # the configuration's [faults]: a commissioning test
     else:
         plant = load_plant(args.plant)
     try:
@@ -101,6 +105,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
             on_ready=ready,
             on_step=watch if args.monitor_out else None,
             status_period=status_period,
+            faults=faults,
         )
     except (OSError, ValueError, ImportError, RuntimeError, TimeoutError) as exc:
         raise ConfigError(f"vehicle link: {exc}") from None
@@ -109,6 +114,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
         report = {
             "head_on_conflicts": m.head_on,
             "node_conflicts": m.node,
+            "faults_injected": {k: fleet.counters[k] for k in INJECTED},
             "events": [e.__dict__ for e in m.events[:100]],
         }
         with open(args.monitor_out, "w", encoding="utf-8") as f:

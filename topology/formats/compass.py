@@ -6,62 +6,70 @@
 
 -1 means "not connected". Each record lists the arcs leaving the node; a segment listed
 from both ends with the same distance becomes one two-way edge, otherwise one-way edges.
-Optional key=value tokens: role, name, functions (joined by '+', e.g. 2+3), x, y. Without x/y the
-positions are laid out from the ports (N is up), for drawing only.
+Optional key=value tokens: role, name, functions (joined by '+', e.g. 2+3), x, y, each at
+most once. Without x/y the positions are laid out from the ports (N is up), for drawing only.
+Numbers are ASCII decimal (see numbers.py): ``٣`` is not node 3, ``nan`` is not a distance.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from pathlib import Path
+from typing import TypeVar
 
 from ..errors import TopologyError
-from ..model import Edge, Node, Plant
+from ..model import MAX_NODE_ID, Edge, Node, Plant
+from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
 PORT_ORDER = ("N", "E", "S", "W")
+T = TypeVar("T", int, float)
+OPTIONS = ("role", "name", "functions", "x", "y")
 STEP = {"N": (0.0, -1.0), "E": (1.0, 0.0), "S": (0.0, 1.0), "W": (-1.0, 0.0)}
 
 
-def load_nodes(path: Path) -> Plant:
+def load_nodes(path: str | Path) -> Plant:
+    path = Path(path)
     source = str(path)
-    records: dict[int, tuple[dict[str, object], list[tuple[str, int, float]], int]] = {}
+    records: dict[int, tuple[dict[str, str], list[tuple[str, int, float]], int]] = {}
     for number, raw in enumerate(read_text(path).splitlines(), start=1):
         line = raw.split("#", 1)[0].replace(",", " ").split()
         if not line:
             continue
         where = f"line {number}"
         fields = [t for t in line if "=" not in t]
-        options = dict(t.split("=", 1) for t in line if "=" in t)
         if len(fields) != 9:
             raise TopologyError(
                 f"expected id and 4 x (neighbour, distance), got {len(fields)} fields",
                 source,
                 where,
             )
-        try:
-            node_id = int(fields[0])
-            ports = [
-                (PORT_ORDER[k], int(fields[1 + 2 * k]), float(fields[2 + 2 * k])) for k in range(4)
-            ]
-        except ValueError:
-            raise TopologyError(
-                "ids must be integers and distances numbers", source, where
-            ) from None
+        node_id = _integer(fields[0], "node id", source, where)
+        if not 0 <= node_id <= MAX_NODE_ID:
+            raise TopologyError(f"node id must be 0..{MAX_NODE_ID}, got {node_id}", source, where)
+        ports = []
+        for k, port in enumerate(PORT_ORDER):
+            other = _integer(fields[1 + 2 * k], f"{port} neighbour", source, where)
+            dist = _number(fields[2 + 2 * k], f"{port} distance", source, where)
+            if other == -1:
+                continue  # not connected: the distance is a placeholder
+            if dist < 0:
+                raise TopologyError(f"{port} distance must be >= 0, got {dist:g}", source, where)
+            ports.append((port, other, dist))
         if node_id in records:
             raise TopologyError(
                 f"node {node_id} is listed twice (first on line {records[node_id][2]})",
                 source,
                 where,
             )
-        records[node_id] = (options, [p for p in ports if p[1] != -1], number)
+        records[node_id] = (_options(line, source, where), ports, number)
     nodes = [
         _node(node_id, options, source, f"line {line}")
         for node_id, (options, _p, line) in records.items()
     ]
     edges: list[Edge] = []
     done: set[tuple[int, int, str]] = set()
-    for node_id, (_options, ports, line) in records.items():
+    for node_id, (_given, ports, line) in records.items():
         for port, other, dist in ports:
             if other not in records:
                 raise TopologyError(
@@ -86,24 +94,74 @@ def load_nodes(path: Path) -> Plant:
     return Plant.build(nodes, edges, name=path.stem, source=source)
 
 
-def _node(node_id: int, options: dict[str, object], source: str, where: str) -> Node:
-    unknown = set(options) - {"role", "name", "functions", "x", "y"}
-    if unknown:
-        raise TopologyError(f"unknown option(s): {', '.join(sorted(unknown))}", source, where)
-    try:
-        functions = tuple(int(f) for f in str(options.get("functions", "")).split("+") if f)
-        return Node(
-            node_id,
-            name=str(options.get("name", "")),
-            x=float(options.get("x", 0.0)),
-            y=float(options.get("y", 0.0)),
-            role=str(options.get("role", "transit")),
-            functions=functions,
-        )
-    except ValueError:
+def _integer(text: str, field: str, source: str, where: str) -> int:
+    return _parsed(parse_int(text), text, field, source, where)
+
+
+def _number(text: str, field: str, source: str, where: str) -> float:
+    return _parsed(parse_float(text), text, field, source, where)
+
+
+def _parsed(value: T | None, text: str, field: str, source: str, where: str) -> T:
+    if value is None:
         raise TopologyError(
-            "x, y must be numbers and functions integers joined by '+'", source, where
-        ) from None
+            f"ids must be integers and distances numbers (ASCII digits): {field} is {shown(text)}",
+            source,
+            where,
+        )
+    return value
+
+
+def _options(tokens: list[str], source: str, where: str) -> dict[str, str]:
+    """The key=value tokens of a record; a key given twice is an error, not "the last wins"."""
+    options: dict[str, str] = {}
+    for token in tokens:
+        if "=" not in token:
+            continue
+        key, value = token.split("=", 1)
+        if key not in OPTIONS:
+            raise TopologyError(
+                f"unknown option {shown(key)} (known: {', '.join(OPTIONS)})", source, where
+            )
+        if key in options:
+            raise TopologyError(
+                f"option {key} given twice ({key}={shown(options[key])} and {key}={shown(value)})",
+                source,
+                where,
+            )
+        options[key] = value
+    return options
+
+
+def _node(node_id: int, options: dict[str, str], source: str, where: str) -> Node:
+    functions = []
+    for text in options.get("functions", "").split("+") if options.get("functions") else []:
+        function = parse_int(text)
+        if function is None or function < 0:
+            raise TopologyError(
+                f"functions must be integers >= 0 joined by '+' (ASCII digits), got "
+                f"{shown(options['functions'])}",
+                source,
+                where,
+            )
+        functions.append(function)
+    position = {}
+    for axis in ("x", "y"):
+        text = options.get(axis, "0")
+        value = parse_float(text)
+        if value is None:
+            raise TopologyError(
+                f"{axis} must be a finite number (ASCII digits), got {shown(text)}", source, where
+            )
+        position[axis] = value
+    return Node(
+        node_id,
+        name=options.get("name", ""),
+        x=position["x"],
+        y=position["y"],
+        role=options.get("role", "transit"),
+        functions=tuple(functions),
+    )
 
 
 def _layout(nodes: list[Node], edges: list[Edge]) -> list[Node]:

@@ -5,10 +5,14 @@ A map becomes a 4-connected grid graph: '.' and 'G' are passable, '@', 'O', 'T' 
 blocked (other letters of the full format, S for swamp, are rejected rather than guessed).
 Node id of cell (x, y) is ``y * width + x`` with (0, 0) the top-left cell and x the column,
 so ids match the coordinates in .scen files. Every segment is ``cell_size`` long.
+
+The cells are read as one array (a 1024 x 1024 map is a million cells), and a map with more
+passable cells than a plant may have nodes is refused before any node is made.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,55 +21,99 @@ import numpy as np
 from ..errors import TopologyError
 from ..grid import grid_plant
 from ..model import Plant
+from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
-PASSABLE = set(".G")
-BLOCKED = set("@OTW")
+PASSABLE = ".G"
+BLOCKED = "@OTW"
+HEADER_KEYS = ("type", "height", "width")
+SCENARIO_FIELDS = (
+    "bucket",
+    "map",
+    "width",
+    "height",
+    "start x",
+    "start y",
+    "goal x",
+    "goal y",
+    "optimal length",
+)
 
 
-def load_map(path: Path, cell_size: float = 1.0) -> Plant:
+def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
+    path = Path(path)
     source = str(path)
-    if not (isinstance(cell_size, int | float) and cell_size > 0):
-        raise TopologyError(f"cell size must be > 0, got {cell_size!r}", source)
+    if not (
+        isinstance(cell_size, int | float)
+        and not isinstance(cell_size, bool)
+        and math.isfinite(cell_size)
+        and cell_size > 0
+    ):
+        raise TopologyError(f"cell size must be a finite number > 0, got {cell_size!r}", source)
     lines = read_text(path).splitlines()
-    header: dict[str, str] = {}
-    row = 0
-    for row, line in enumerate(lines):
-        if line.strip() == "map":
-            break
-        parts = line.split()
-        if len(parts) != 2 or parts[0] not in ("type", "height", "width"):
-            raise TopologyError(
-                f"expected 'type', 'height W', 'width W' or 'map', got {line!r}",
-                source,
-                f"line {row + 1}",
-            )
-        header[parts[0]] = parts[1]
-    else:
-        raise TopologyError("no 'map' line: not a MovingAI map", source)
-    try:
-        height, width = int(header["height"]), int(header["width"])
-    except (KeyError, ValueError):
-        raise TopologyError("header needs integer 'height' and 'width'", source, "line 1") from None
-    if height < 1 or width < 1:
-        raise TopologyError(
-            f"height and width must be >= 1, got {height} x {width}", source, "line 1"
-        )
+    header, row = _header(lines, source)
+    height, width = header["height"], header["width"]
     grid = lines[row + 1 : row + 1 + height]
     if len(grid) != height:
         raise TopologyError(
             f"truncated: {len(grid)} of {height} rows", source, f"line {row + 1 + len(grid)}"
         )
-    passable = []
     for y, text in enumerate(grid):
-        where = f"line {row + 2 + y}"
         if len(text) != width:
-            raise TopologyError(f"row has {len(text)} cells, expected {width}", source, where)
-        for x, cell in enumerate(text):
-            if cell not in PASSABLE and cell not in BLOCKED:
-                raise TopologyError(f"unknown cell {cell!r} at column {x + 1}", source, where)
-        passable.append([cell in PASSABLE for cell in text])
-    return grid_plant(np.array(passable, dtype=bool), cell_size, name=path.stem, source=source)
+            raise TopologyError(
+                f"row has {len(text)} cells, expected {width}", source, f"line {row + 2 + y}"
+            )
+    cells = np.frombuffer("".join(grid).encode("utf-32-le"), dtype="<u4").reshape(height, width)
+    passable = np.isin(cells, [ord(c) for c in PASSABLE])
+    known = passable | np.isin(cells, [ord(c) for c in BLOCKED])
+    if not known.all():
+        y, x = np.unravel_index(int(np.argmin(known)), known.shape)
+        raise TopologyError(
+            f"unknown cell {chr(cells[y, x])!r} at column {x + 1}", source, f"line {row + 2 + y}"
+        )
+    return grid_plant(passable, cell_size, name=path.stem, source=source)
+
+
+def _header(lines: list[str], source: str) -> tuple[dict[str, int], int]:
+    """The height and width, and the index of the 'map' line."""
+    header: dict[str, int] = {}
+    seen: dict[str, int] = {}
+    for row, line in enumerate(lines):
+        where = f"line {row + 1}"
+        if line.strip() == "map":
+            missing = [key for key in ("height", "width") if key not in header]
+            if missing:
+                raise TopologyError(
+                    f"header needs integer 'height' and 'width': no {' and no '.join(missing)} "
+                    "line before 'map'",
+                    source,
+                    where,
+                )
+            return header, row
+        parts = line.split()
+        if len(parts) != 2 or parts[0] not in HEADER_KEYS:
+            raise TopologyError(
+                f"expected 'type', 'height H', 'width W' or 'map', got {shown(line)}",
+                source,
+                where,
+            )
+        key, value = parts
+        if key in seen:
+            raise TopologyError(f"'{key}' given twice (first on line {seen[key]})", source, where)
+        seen[key] = row + 1
+        if key == "type":
+            continue
+        number = parse_int(value)
+        if number is None:
+            raise TopologyError(
+                f"header needs integer 'height' and 'width' (ASCII digits), got {key} {shown(value)}",
+                source,
+                where,
+            )
+        if number < 1:
+            raise TopologyError(f"height and width must be >= 1, got {key} {number}", source, where)
+        header[key] = number
+    raise TopologyError("no 'map' line: not a MovingAI map", source)
 
 
 @dataclass(frozen=True)
@@ -75,22 +123,65 @@ class Scenario:
     optimal_octile: float  # the file's optimal length: 8-connected, NOT the 4-connected distance
 
 
-def load_scenarios(path: Path) -> list[Scenario]:
+def load_scenarios(path: str | Path) -> list[Scenario]:
+    """The scenarios of a .scen file; TopologyError naming the file, line and field of any
+    value that is not what the format says (a coordinate outside its map would name another
+    cell: x = 40 on a 32-wide map is a cell of the next row)."""
+    path = Path(path)
     source = str(path)
     lines = read_text(path).splitlines()
     if not lines or not lines[0].startswith("version"):
         raise TopologyError("expected 'version 1' on the first line", source, "line 1")
     scenarios = []
     for number, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue
-        parts = line.split("\t")
-        try:
-            _bucket, _map, width, _height, sx, sy, gx, gy, optimal = parts
-            w = int(width)
-            scenarios.append(Scenario(int(sy) * w + int(sx), int(gy) * w + int(gx), float(optimal)))
-        except ValueError:
-            raise TopologyError(
-                "expected 9 tab-separated fields", source, f"line {number}"
-            ) from None
+        if line.strip():
+            scenarios.append(_scenario(line, source, f"line {number}"))
     return scenarios
+
+
+def _scenario(line: str, source: str, where: str) -> Scenario:
+    parts = line.split("\t")
+    if len(parts) != len(SCENARIO_FIELDS):
+        raise TopologyError(
+            f"expected {len(SCENARIO_FIELDS)} tab-separated fields "
+            f"({', '.join(SCENARIO_FIELDS)}), got {len(parts)}",
+            source,
+            where,
+        )
+    values = dict(zip(SCENARIO_FIELDS, parts, strict=True))
+    if not values["map"].strip():
+        raise TopologyError("map: the map file name is empty", source, where)
+    numbers: dict[str, int] = {}
+    for field in ("bucket", "width", "height"):
+        value = parse_int(values[field])
+        low = 0 if field == "bucket" else 1
+        if value is None or value < low:
+            raise TopologyError(
+                f"{field} must be an integer >= {low}, got {shown(values[field])}", source, where
+            )
+        numbers[field] = value
+    for field, size in (("x", "width"), ("y", "height")):
+        for end in ("start", "goal"):
+            name = f"{end} {field}"
+            value = parse_int(values[name])
+            if value is None or not 0 <= value < numbers[size]:
+                raise TopologyError(
+                    f"{name} must be an integer 0..{numbers[size] - 1} (the map {size} is "
+                    f"{numbers[size]}), got {shown(values[name])}",
+                    source,
+                    where,
+                )
+            numbers[name] = value
+    optimal = parse_float(values["optimal length"].strip())
+    if optimal is None or optimal < 0:
+        raise TopologyError(
+            f"optimal length must be a finite number >= 0, got {shown(values['optimal length'])}",
+            source,
+            where,
+        )
+    width = numbers["width"]
+    return Scenario(
+        numbers["start y"] * width + numbers["start x"],
+        numbers["goal y"] * width + numbers["goal x"],
+        optimal,
+    )

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import TopologyError
+from ..limits import MAX_FILE_BYTES
 from ..model import Edge, Node, Plant
 
 NODE_KEYS = {"id", "name", "x", "y", "role", "functions"}
@@ -37,9 +38,16 @@ TOP_KEYS = {"name", "functions", "nodes", "edges"}
 
 def read_text(path: Path) -> str:
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)  # bounded: a huge file or a device never ends
     except OSError as exc:
         raise TopologyError(f"cannot read plant file: {exc.strerror or exc}", str(path)) from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise TopologyError(
+            f"larger than {MAX_FILE_BYTES:,} bytes, the limit for plant files "
+            "(docs/plant-format.md, Size limits)",
+            str(path),
+        )
     if b"\0" in raw:
         raise TopologyError("binary data, not a plant file", str(path))
     try:

@@ -1,0 +1,109 @@
+"""The fleet's event log: what an operator wants to be told about, in the order it happened.
+
+The log is a function block at the end of the fleet task. It does not ask the other blocks
+to report; it compares what they expose with what it saw in the previous scan (a new
+deadlock record, a replan counter that went up, a segment that became blocked, a vehicle
+whose state became stale), so no block carries logging code and every source is covered
+the same way, whoever caused the change (the blockade schedule, an operator over Modbus).
+Memory is bounded: the newest ``capacity`` events are kept, and a count per kind.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+
+from blocks.jobs.recipe import RecipeSequencer
+from blocks.routing.constraints import RoutingConstraints
+from blocks.traffic.deadlock import DeadlockResolver
+from blocks.traffic.vehicle_control import VehicleControl
+from plc_runtime import CycleContext, FunctionBlock
+
+# vehicle states worth an event when a vehicle enters them
+ALARM_STATES = ("offline", "stale", "fault", "no_route", "suspect")
+KINDS = ("deadlock", "livelock", "replan", "blockade", "reopened", "vehicle", "recovered")
+
+
+@dataclass(frozen=True)
+class Event:
+    time_s: float
+    kind: str  # one of KINDS
+    vehicle: int | None
+    text: str
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+    def line(self) -> str:
+        who = f"agv{self.vehicle} " if self.vehicle is not None else ""
+        return f"{self.time_s:8.1f} s  {self.kind:<8} {who}{self.text}"
+
+
+class EventLog(FunctionBlock):
+    """Turns changes in the fleet's blocks into events (bounded)."""
+
+    def __init__(
+        self,
+        controls: Mapping[int, VehicleControl],
+        sequencers: Mapping[int, RecipeSequencer],
+        resolver: DeadlockResolver,
+        blockades: RoutingConstraints,
+        capacity: int = 1000,
+    ) -> None:
+        super().__init__()
+        self.controls = controls
+        self.sequencers = sequencers
+        self.resolver = resolver
+        self.blockades = blockades
+        self.events: deque[Event] = deque(maxlen=capacity)
+        self.counts: Counter[str] = Counter()
+        self._deadlocks_seen = 0
+        self._replans = {v: 0 for v in controls}
+        self._states = {v: "offline" for v in controls}
+        self._blocked: set[tuple[int, int]] = set()
+        self._started = False
+
+    def add(self, time_s: float, kind: str, vehicle: int | None, text: str) -> None:
+        self.events.append(Event(round(time_s, 3), kind, vehicle, text))
+        self.counts[kind] += 1
+
+    def cycle(self, ctx: CycleContext) -> None:
+        now = ctx.time
+        self._deadlocks(now)
+        for v, control in self.controls.items():
+            if control.replans > self._replans[v]:
+                self._replans[v] = control.replans
+                self.add(now, "replan", v, f"next segment taken at node {control.current}")
+            state, before = control.state, self._states[v]
+            if state != before:
+                self._states[v] = state
+                # every vehicle starts offline until its first status: not news
+                if state in ALARM_STATES and (self._started or state != "offline"):
+                    why = f": {control.suspect_reason}" if state == "suspect" else ""
+                    self.add(now, "vehicle", v, f"{before} -> {state}{why}")
+                elif before in ALARM_STATES and before != "offline":
+                    self.add(now, "recovered", v, f"{before} -> {state}")
+        self._started = True
+        blocked = {(min(a, b), max(a, b)) for a, b in self.blockades.blocked_segments()}
+        for a, b in sorted(blocked - self._blocked):
+            self.add(now, "blockade", None, f"segment {a}-{b} closed")
+        for a, b in sorted(self._blocked - blocked):
+            self.add(now, "reopened", None, f"segment {a}-{b} open again")
+        self._blocked = blocked
+
+    def _deadlocks(self, now: float) -> None:
+        new = self.resolver.events[self._deadlocks_seen :]
+        self._deadlocks_seen = len(self.resolver.events)
+        for e in new:
+            ring = " -> ".join(f"agv{v}" for v in e.vehicles)
+            if e.backed_off is None:
+                self.add(e.time_s, "livelock", None, f"unresolved: {ring} (nobody can give way)")
+            else:
+                self.add(
+                    e.time_s, "deadlock", e.backed_off, f"gives way to node {e.to_node}: {ring}"
+                )
+
+    def recent(self, n: int) -> list[Event]:
+        """The newest ``n`` events, oldest first."""
+        return list(self.events)[-n:] if n > 0 else []

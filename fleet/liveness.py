@@ -1,0 +1,134 @@
+"""Does a fleet configuration meet the documented liveness condition (docs/fleet-config.md)?
+
+Safety holds on every plant; the claim that every recipe completes within a bound is only
+made for configurations that meet the condition. A user whose configuration breaks it
+should hear so at start, clause by clause, rather than find vehicles waiting for ever.
+
+Also here: a vehicle whose next recipe step needs the function of the station it is
+already standing on, where that function has a single station, would "complete" the step
+without moving. That is refused (:func:`standing_steps`), not only warned about.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from topology import Plant
+
+if TYPE_CHECKING:
+    from .config import FleetConfig
+
+MAX_VEHICLE_SHARE = 0.10  # vehicles per node
+
+
+def violations(cfg: FleetConfig) -> list[str]:
+    """The clauses of the liveness condition that ``cfg`` breaks, one sentence each."""
+    plant = cfg.plant
+    out = []
+    one_way = _one_way_segments(plant)
+    if one_way:
+        shown = ", ".join(f"{a}->{b}" for a, b in one_way[:3])
+        more = f" and {len(one_way) - 3} more" if len(one_way) > 3 else ""
+        out.append(f"one-way segments ({shown}{more})")
+    cuts = articulation_points(plant)
+    if cuts:
+        shown = ", ".join(str(n) for n in cuts[:3])
+        more = f" and {len(cuts) - 3} more" if len(cuts) > 3 else ""
+        out.append(f"not 2-connected: losing node {shown}{more} disconnects the plant")
+    n_vehicles = len(cfg.starts)
+    if n_vehicles > MAX_VEHICLE_SHARE * plant.n:
+        out.append(
+            f"{n_vehicles} vehicles on {plant.n} nodes (more than "
+            f"{MAX_VEHICLE_SHARE:.0%}: at most {int(MAX_VEHICLE_SHARE * plant.n)})"
+        )
+    needed = sorted({f for r in cfg.recipes.values() for f in r.functions})
+    single = [f for f in needed if len(cfg.clusters.get(f, ())) < 2]
+    if single:
+        out.append(f"function(s) {', '.join(map(str, single))} offered by one station only")
+    repeats = sorted({f for _v, _k, f in _repeated_functions(cfg)})
+    if repeats:
+        out.append(
+            f"a vehicle's consecutive steps need the same function ({', '.join(map(str, repeats))})"
+        )
+    if any(b.until_s is None for b in cfg.blockades):
+        out.append("a blockade that never reopens")
+    return out
+
+
+def standing_steps(cfg: FleetConfig) -> list[str]:
+    """Recipe steps a vehicle would complete where it stands: the same function twice in a
+    row with a single station offering it. Each is a configuration error."""
+    problems = []
+    for v, k, f in _repeated_functions(cfg):
+        if len(cfg.clusters.get(f, ())) == 1:
+            station = cfg.clusters[f][0]
+            problems.append(
+                f"vehicle {v}: step {k + 1} of its recipe sequence needs function {f} again, "
+                f"and only station {station} offers it: the vehicle would complete the step "
+                "without moving (put another function between the two)"
+            )
+    return problems
+
+
+def _repeated_functions(cfg: FleetConfig) -> Iterator[tuple[int, int, int]]:
+    """(vehicle, step index, function) where a step needs the function of the step before,
+    counting from the last step of a round to the first of the next when rounds repeat."""
+    for v, names in cfg.vehicle_recipes.items():
+        steps = [f for name in names for f in cfg.recipes[name].functions]
+        cyclic = cfg.rounds != 1
+        for k, f in enumerate(steps):
+            if k == 0 and not cyclic:
+                continue
+            if steps[k - 1] == f:  # k == 0: the last step of the round before
+                yield v, k, f
+
+
+def _one_way_segments(plant: Plant) -> list[tuple[int, int]]:
+    arcs = plant.arc_index
+    return sorted((a, b) for (a, b) in arcs if (b, a) not in arcs)
+
+
+def articulation_points(plant: Plant) -> list[int]:
+    """Nodes whose removal disconnects the (undirected) plant graph; iterative Tarjan."""
+    n = plant.n
+    csr = plant.csr
+    adj = csr + csr.T
+    indptr, indices = adj.indptr, adj.indices
+    disc = np.full(n, -1)
+    low = np.zeros(n, dtype=np.int64)
+    cut = np.zeros(n, dtype=bool)
+    timer = 0
+    for root in range(n):
+        if disc[root] >= 0:
+            continue
+        disc[root] = low[root] = timer
+        timer += 1
+        children = 0
+        stack = [(root, -1, int(indptr[root]))]
+        while stack:
+            node, parent, i = stack[-1]
+            if i < indptr[node + 1]:
+                stack[-1] = (node, parent, i + 1)
+                nxt = int(indices[i])
+                if nxt == parent or nxt == node:
+                    continue
+                if disc[nxt] < 0:
+                    disc[nxt] = low[nxt] = timer
+                    timer += 1
+                    if node == root:
+                        children += 1
+                    stack.append((nxt, node, int(indptr[nxt])))
+                else:
+                    low[node] = min(low[node], disc[nxt])
+            else:
+                stack.pop()
+                if parent >= 0:
+                    low[parent] = min(low[parent], low[node])
+                    if parent != root and low[node] >= disc[parent]:
+                        cut[parent] = True
+        if children > 1:
+            cut[root] = True
+    return [int(plant.ids[i]) for i in np.flatnonzero(cut)]

@@ -1,0 +1,112 @@
+"""`make bench-quick` runs every benchmark, reduced, and `make bench` runs every one in full.
+
+The static half checks that each bench/*.py script is listed in both make targets and has a
+--quick option (its --help, in this process: the scripts' imports are shared, so this stays
+cheap); the other half runs the two cheapest quick benchmarks in a subprocess and checks the
+shape of what they print: the table recorded in docs/benchmarks.md (same header), a numeric
+ratio against the baseline in every row, and the script's wall time. Wall-clock values
+themselves are never asserted: the machine may be busy.
+"""
+
+from __future__ import annotations
+
+import math
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPTS = sorted(p.name for p in (ROOT / "bench").glob("*.py"))
+DOCS = (ROOT / "docs" / "benchmarks.md").read_text()
+
+
+def recipe(target: str) -> list[str]:
+    """The command lines of a Makefile target's recipe."""
+    lines = (ROOT / "Makefile").read_text().splitlines()
+    start = lines.index(next(line for line in lines if line.startswith(f"{target}:")))
+    commands = []
+    for line in lines[start + 1 :]:
+        if not line.startswith("\t"):
+            break
+        commands.append(line.strip())
+    return commands
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+
+
+def table(stdout: str) -> tuple[list[str], list[list[str]], str]:
+    """(columns, rows, header line) of the first markdown table in a script's output."""
+    lines = stdout.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| "))
+    assert lines[start + 1].startswith("|---"), lines[start : start + 2]
+
+    def cells(line: str) -> list[str]:
+        return [c.strip() for c in line.strip().strip("|").split("|")]
+
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append(cells(line))
+    return cells(lines[start]), rows, lines[start]
+
+
+def test_bench_scripts_are_found():
+    assert len(SCRIPTS) >= 7, SCRIPTS
+
+
+def test_every_script_is_in_both_make_targets():
+    full, quick = recipe("bench"), recipe("bench-quick")
+    for name in SCRIPTS:
+        assert f"$(BIN)/python bench/{name}" in full, f"make bench does not run {name}"
+        assert f"$(BIN)/python bench/{name} --quick" in quick, (
+            f"make bench-quick does not run {name} --quick"
+        )
+    assert len(quick) == len(SCRIPTS), quick
+
+
+def test_make_bench_states_its_duration_first():
+    first = recipe("bench")[0]
+    assert first.startswith("@echo") and "minutes" in first, first
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_script_accepts_quick(name, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", [name, "--help"])
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the scripts put the repo on the path
+    with pytest.raises(SystemExit) as exit_:
+        runpy.run_path(str(ROOT / "bench" / name), run_name="__main__")
+    assert exit_.value.code == 0
+    assert "--quick" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "ratio_column", "rows"),
+    [
+        (["step_rate.py", "--quick"], "runtime / bare", 4),  # 1, 10, 100, 1000 blocks
+        # an explicit option still wins over --quick's defaults: only the 1e3-node grid
+        (["heuristic_table.py", "--quick", "--max-nodes", "1024"], "networkx / ours", 3),
+    ],
+    ids=["step_rate", "heuristic_table"],
+)
+def test_quick_bench_prints_its_table_with_a_ratio(args, ratio_column, rows):
+    name = args[0]
+    result = run(f"bench/{name}", *args[1:])
+    assert result.returncode == 0, result.stderr
+    columns, body, header = table(result.stdout)
+    assert header in DOCS, f"{name} --quick prints other columns than docs/benchmarks.md"
+    assert len(body) == rows, body
+    at = columns.index(ratio_column)
+    for row in body:
+        assert len(row) == len(columns), row
+        ratio = float(row[at].replace(",", ""))
+        assert math.isfinite(ratio) and ratio > 0, row
+    last = result.stdout.strip().splitlines()[-1]
+    assert last.startswith("wall time ") and last.endswith(" s"), last

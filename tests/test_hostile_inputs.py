@@ -1,0 +1,572 @@
+"""Hostile inputs an independent tester found: a block that tries to end the process, plant
+and scenario files with values that read as something else, files too large to hold, and a
+retain file one byte too long."""
+
+from __future__ import annotations
+
+import gc
+import json
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from plc_runtime import FunctionBlock, Runtime, StartupError, StateError, Static, VirtualClock
+from topology import Edge, Node, Plant, TopologyError, load, load_scenarios
+from topology.formats.movingai import load_map
+from topology.grid import grid_plant
+from topology.limits import MAX_EDGES, MAX_FILE_BYTES, MAX_NODES
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# ----- a block that raises SystemExit or KeyboardInterrupt ---------------------------------
+
+
+class Lamp(FunctionBlock):
+    """Switches the outputs on every scan; raises ``exc`` in scan ``at`` (or in startup)."""
+
+    def __init__(self, exc: BaseException, at: int | None) -> None:
+        super().__init__()
+        self.exc, self.at = exc, at
+
+    def startup(self, ctx) -> None:
+        if self.at is None:
+            raise self.exc
+
+    def cycle(self, ctx) -> None:
+        ctx.image.write("%QX0.0", True)
+        ctx.image.write("%QW2", 7)
+        if ctx.cycle == self.at:
+            raise self.exc
+
+
+def lamp_runtime(exc: BaseException, at: int | None) -> Runtime:
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), safe_outputs={"%QX0.1": True})
+    rt.add_task("main", [FunctionBlock(), Lamp(exc, at)])
+    return rt
+
+
+def assert_faulted_safely(rt: Runtime, reason: str) -> None:
+    assert rt.state == "FAULT" and rt.fault_reason == reason
+    assert rt.fault_traceback.startswith("Traceback")
+    assert rt.image.read("%QX0.0") is False and rt.image.read("%QW2") == 0  # outputs off...
+    assert rt.image.read("%QX0.1") is True  # ...except the declared safe value
+    with pytest.raises(StateError, match="in state FAULT"):
+        rt.step()
+    rt.stop()
+    assert rt.state == "STOP"
+
+
+def test_a_block_calling_sys_exit_faults_the_runtime_instead_of_ending_it():
+    rt = lamp_runtime(SystemExit(3), at=2)
+    rt.start()
+    assert rt.step(5) == 3  # the third scan raised: no further scans
+    assert_faulted_safely(rt, "task main: block 1:Lamp raised SystemExit: 3")
+
+
+def test_a_block_raising_keyboard_interrupt_faults_then_passes_it_on():
+    rt = lamp_runtime(KeyboardInterrupt(), at=2)
+    rt.start()
+    rt.step(2)
+    assert rt.image.read("%QX0.0") is True and rt.image.read("%QW2") == 7
+    with pytest.raises(KeyboardInterrupt):  # the caller's Ctrl-C handling still runs...
+        rt.step(5)
+    assert_faulted_safely(rt, "task main: block 1:Lamp raised KeyboardInterrupt")  # ...safely
+
+
+def test_keyboard_interrupt_ends_run_in_fault():
+    rt = lamp_runtime(KeyboardInterrupt(), at=4)
+    rt.start()
+    with pytest.raises(KeyboardInterrupt):
+        rt.run(cycles=100)
+    assert rt.ticks == 5
+    assert_faulted_safely(rt, "task main: block 1:Lamp raised KeyboardInterrupt")
+
+
+def test_ctrl_c_between_two_blocks_still_faults_the_cut_scan(monkeypatch):
+    rt = lamp_runtime(SystemExit(0), at=99)
+    rt.start()
+    rt.step(2)
+
+    def interrupted() -> None:  # the runtime's own copy-out, where a Ctrl-C may land too
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rt.image, "copy_out", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        rt.step()
+    monkeypatch.undo()
+    assert rt.state == "FAULT" and rt.fault_reason == "scan 2 was interrupted (KeyboardInterrupt)"
+    assert rt.image.read("%QX0.0") is False and rt.image.read("%QX0.1") is True
+    rt.stop()
+
+
+@pytest.mark.parametrize(
+    "exc,reason",
+    [
+        (SystemExit("bye"), "startup of main/1:Lamp raised SystemExit: bye"),
+        (GeneratorExit(), "startup of main/1:Lamp raised GeneratorExit"),
+    ],
+)
+def test_startup_raising_a_base_exception_is_a_startup_error(exc, reason):
+    rt = lamp_runtime(exc, at=None)
+    with pytest.raises(StartupError, match=re.escape(reason)):
+        rt.start()
+    assert rt.state == "FAULT" and rt.fault_reason == reason
+    assert rt.image.read("%QX0.1") is True
+    rt.stop()
+
+
+class ExitingDriver:
+    """An I/O driver whose input read calls sys.exit() in the second tick."""
+
+    name = "bus"
+
+    def __init__(self) -> None:
+        self.reads = 0
+
+    def open(self, image) -> None: ...
+
+    def read_inputs(self, image, now_ns: int) -> None:
+        self.reads += 1
+        if self.reads == 2:
+            raise SystemExit(1)
+
+    def write_outputs(self, image, now_ns: int) -> None: ...
+
+    def close(self) -> None: ...
+
+    def stats(self) -> dict[str, object]:
+        return {}
+
+
+def test_a_driver_calling_sys_exit_faults_the_runtime():
+    rt = lamp_runtime(SystemExit(0), at=99)
+    rt.add_driver(ExitingDriver())
+    rt.start()
+    assert rt.step(3) == 2
+    assert_faulted_safely(rt, "driver bus: read_inputs raised SystemExit: 1")
+
+
+# The operator's second Ctrl-C arrives as a KeyboardInterrupt in whatever block runs. A block
+# that hangs in its first scan (until Ctrl-C) makes that deterministic: it says when the first
+# Ctrl-C has been handled (the CLI then re-installs the default handler), and the test sends
+# the second one only then.
+HANGING_PROGRAM = """
+import json, signal, sys, time
+from plc_runtime import FunctionBlock, Runtime
+from plc_runtime.cli import add_run_options, run_program
+import argparse
+
+class Hang(FunctionBlock):
+    def cycle(self, ctx):
+        ctx.image.write("%QX0.0", True)
+        print("in scan", file=sys.stderr, flush=True)
+        while signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            time.sleep(0.005)  # the first Ctrl-C only asks for a stop after this scan
+        print("stop requested", file=sys.stderr, flush=True)
+        while True:
+            time.sleep(0.005)
+
+built = []
+
+def build(clock, cycle_time, watchdog, retain_file):
+    rt = Runtime(cycle_time, clock, watchdog=6000.0)  # the hang is on purpose
+    rt.add_task("main", [Hang()])
+    built.append(rt)
+    return rt
+
+parser = argparse.ArgumentParser()
+add_run_options(parser)
+code = run_program(parser.parse_args(["--json"]), "hang", build)
+rt = built[0]
+print(json.dumps({"state": rt.state, "fault_reason": rt.fault_reason,
+                  "lamp": rt.image.read("%QX0.0")}))
+sys.exit(code)
+"""
+
+
+def test_second_ctrl_c_in_a_block_faults_safely_and_the_cli_still_exits_130(tmp_path):
+    script = tmp_path / "hang.py"
+    script.write_text(textwrap.dedent(HANGING_PROGRAM))
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr.readline().strip() == "in scan"
+        proc.send_signal(subprocess.signal.SIGINT)
+        assert proc.stderr.readline().strip() == "stop requested"
+        proc.send_signal(subprocess.signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted in cycle 1; runtime stopped" in err and "Traceback" not in err
+    assert json.loads(out) == {
+        "state": "STOP",
+        "fault_reason": "task main: block 0:Hang raised KeyboardInterrupt",
+        "lamp": False,
+    }
+
+
+# ----- .scen files ------------------------------------------------------------------------
+
+
+def scen(tmp_path: Path, *rows: str) -> Path:
+    path = tmp_path / "bad.scen"
+    path.write_text("version 1\n" + "".join(row + "\n" for row in rows))
+    return path
+
+
+GOOD = "0\tm.map\t32\t32\t1\t2\t3\t4\t5.5"
+
+
+def test_scenarios_from_a_string_path(tmp_path):
+    path = scen(tmp_path, GOOD, "", GOOD.replace("\t1\t2\t", "\t31\t31\t"))
+    scenarios = load_scenarios(str(path))
+    assert [(s.start, s.goal, s.optimal_octile) for s in scenarios] == [
+        (2 * 32 + 1, 4 * 32 + 3, 5.5),
+        (31 * 32 + 31, 4 * 32 + 3, 5.5),
+    ]
+
+
+@pytest.mark.parametrize(
+    "row,message",
+    [
+        (
+            "0\tm.map\t32\t32\t40\t2\t3\t4\t5",
+            r"start x must be an integer 0\.\.31 \(the map width is 32\), got '40'",
+        ),
+        ("0\tm.map\t32\t32\t-1\t2\t3\t4\t5", "start x must be an integer 0..31.*got '-1'"),
+        (
+            "0\tm.map\t32\t16\t1\t2\t3\t16\t5",
+            r"goal y must be an integer 0\.\.15 \(the map height is 16\), got '16'",
+        ),
+        ("0\tm.map\t32\t32\t1\t2\t٣\t4\t5", "goal x must be an integer 0..31.*got '٣'"),
+        (
+            "0\tm.map\t32\t32\t1\t2\t3\t4\tnan",
+            "optimal length must be a finite number >= 0, got 'nan'",
+        ),
+        (
+            "0\tm.map\t32\t32\t1\t2\t3\t4\tinf",
+            "optimal length must be a finite number >= 0, got 'inf'",
+        ),
+        ("0\tm.map\t32\t32\t1\t2\t3\t4\t1e999", "optimal length must be a finite number >= 0"),
+        (
+            "0\tm.map\t32\t32\t1\t2\t3\t4\t-2.5",
+            "optimal length must be a finite number >= 0, got '-2.5'",
+        ),
+        ("0\tm.map\t0\t32\t1\t2\t3\t4\t5", "width must be an integer >= 1, got '0'"),
+        ("x\tm.map\t32\t32\t1\t2\t3\t4\t5", "bucket must be an integer >= 0, got 'x'"),
+        ("0\t\t32\t32\t1\t2\t3\t4\t5", "map: the map file name is empty"),
+        ("0\tm.map\t32\t32\t1\t2\t3\t4", "expected 9 tab-separated fields .* got 8"),
+    ],
+)
+def test_scenario_values_outside_the_format_name_file_line_and_field(tmp_path, row, message):
+    path = scen(tmp_path, GOOD, row)
+    with pytest.raises(TopologyError, match=message) as err:
+        load_scenarios(path)
+    assert str(err.value).startswith(f"{path}: line 3: ")
+
+
+# ----- size limits ------------------------------------------------------------------------
+
+
+def movingai(width: int, height: int, row: str | None = None) -> str:
+    return (
+        f"type octile\nheight {height}\nwidth {width}\nmap\n"
+        + ((row or "." * width) + "\n") * height
+    )
+
+
+def test_a_map_with_more_cells_than_a_plant_may_have_nodes_is_refused(tmp_path):
+    path = tmp_path / "huge.map"
+    path.write_text(movingai(1200, 1200))  # 1.4 MB: under the file limit, over the node limit
+    assert path.stat().st_size < MAX_FILE_BYTES
+    with pytest.raises(TopologyError) as err:
+        load(path)
+    assert str(err.value) == (
+        f"{path}: 1,440,000 nodes: a plant may have at most {MAX_NODES:,} nodes "
+        "(docs/plant-format.md, Size limits)"
+    )
+
+
+def test_the_same_map_size_with_enough_obstacles_loads(tmp_path):
+    path = tmp_path / "sparse.map"
+    path.write_text(movingai(1200, 100, "." * 600 + "@" * 600))
+    plant = load(path)
+    assert plant.n == 60_000 and plant.node(599).x == 599.0 and 600 not in plant.index
+
+
+@pytest.mark.parametrize("suffix", [".toml", ".json", ".map", ".nodes", ".scen"])
+def test_files_over_the_size_limit_are_refused_unread(tmp_path, suffix):
+    path = tmp_path / f"big{suffix}"
+    with open(path, "wb") as fh:
+        fh.truncate(MAX_FILE_BYTES + 1)  # sparse: nothing to write, zeros to read
+    reader = load_scenarios if suffix == ".scen" else load
+    with pytest.raises(TopologyError) as err:
+        reader(path)
+    assert str(err.value) == (
+        f"{path}: larger than {MAX_FILE_BYTES:,} bytes, the limit for plant files "
+        "(docs/plant-format.md, Size limits)"
+    )
+
+
+def test_a_file_at_the_size_limit_is_read(tmp_path):
+    path = tmp_path / "padded.nodes"
+    record = "0 -1 0 -1 0 -1 0 -1 0 role=exit\n"
+    path.write_text(record + "#" * (MAX_FILE_BYTES - len(record) - 1) + "\n")
+    assert path.stat().st_size == MAX_FILE_BYTES
+    assert load(path).n == 1
+
+
+def test_plants_built_in_code_have_the_same_limits():
+    with pytest.raises(
+        TopologyError, match=f"1,049,600 nodes: a plant may have at most {MAX_NODES:,}"
+    ):
+        grid_plant(np.ones((1025, 1024), dtype=bool))
+    too_many = [Edge(0, 1, 1.0)] * (MAX_EDGES + 1)  # one object, many times: cheap to hold
+    with pytest.raises(TopologyError, match=f"{MAX_EDGES + 1:,} edges: a plant may have at most"):
+        Plant.build([Node(0), Node(1)], too_many)
+    with pytest.raises(TopologyError, match="a grid needs a 2-D boolean array, got 1-D bool"):
+        grid_plant(np.ones(5, dtype=bool))
+    with pytest.raises(TopologyError, match="a grid needs a 2-D boolean array, got 2-D int64"):
+        grid_plant(np.ones((2, 2), dtype=np.int64))
+
+
+def test_grid_order_positions_and_roles_are_those_of_the_cells():
+    passable = np.array([[1, 1, 0], [1, 1, 1]], dtype=bool)
+    plant = grid_plant(passable, 2.0, roles={4: ("station", (5,)), 2: ("charger", ())})
+    assert [n.id for n in plant.nodes] == [0, 1, 3, 4, 5]
+    assert [(n.x, n.y) for n in plant.nodes] == [(0, 0), (2, 0), (0, 2), (2, 2), (4, 2)]
+    assert plant.node(4).role == "station" and plant.node(4).functions == (5,)
+    assert [(e.source, e.target, e.port_source, e.port_target) for e in plant.edges] == [
+        (0, 1, "E", "W"),
+        (3, 4, "E", "W"),
+        (4, 5, "E", "W"),
+        (0, 3, "S", "N"),
+        (1, 4, "S", "N"),
+    ]
+    assert {e.length for e in plant.edges} == {2.0}
+
+
+def test_building_a_grid_leaves_the_garbage_collector_as_it_was():
+    assert gc.isenabled()
+    grid_plant(np.ones((3, 3), dtype=bool))
+    assert gc.isenabled()
+    gc.disable()  # as the runtime's real-time mode has it while running
+    try:
+        grid_plant(np.ones((3, 3), dtype=bool))
+        assert not gc.isenabled()
+        with pytest.raises(TopologyError):
+            grid_plant(np.zeros((3, 3), dtype=bool))  # no nodes: fails inside the pause
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    with pytest.raises(TopologyError, match="the plant has no nodes"):
+        grid_plant(np.zeros((3, 3), dtype=bool))
+    assert gc.isenabled()
+
+
+# Validation checks every node and edge at once (array masks); the error must still be the
+# one a loop would raise: the first bad item, with the first rule it breaks.
+NODE_DEFECTS = {
+    "id": (lambda n: Node(-5, x=n.x), r"nodes\[{i}\]: node id must be an integer"),
+    "duplicate": (lambda n: Node(0), r"nodes\[{i}\] \(id 0\): duplicate node id 0"),
+    "role": (lambda n: Node(n.id, role="dock"), r"nodes\[{i}\] \(id \d+\): unknown role 'dock'"),
+    "y": (lambda n: Node(n.id, y=float("nan")), r"nodes\[{i}\] \(id \d+\): y must be a finite"),
+}
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.integers(2, 40), st.dictionaries(st.integers(1, 39), st.sampled_from(sorted(NODE_DEFECTS)))
+)
+def test_the_first_bad_node_is_reported(n, defects):
+    nodes = [Node(i, x=float(i)) for i in range(n)]
+    defects = {at: kind for at, kind in defects.items() if at < n}
+    for at, kind in defects.items():
+        nodes[at] = NODE_DEFECTS[kind][0](nodes[at])
+    if not defects:
+        assert Plant.build(nodes, []).n == n
+        return
+    at = min(defects)
+    with pytest.raises(TopologyError, match=NODE_DEFECTS[defects[at]][1].format(i=at)):
+        Plant.build(nodes, [])
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.lists(st.tuples(st.integers(0, 5), st.integers(0, 5), st.sampled_from("NESW")), max_size=12)
+)
+def test_a_port_used_twice_names_the_first_edge_that_used_it(segments):
+    edges = [Edge(a, b, 1.0, port_source=p) for a, b, p in segments if a != b]
+    owner: dict[tuple[int, str], int] = {}
+    expected = None
+    for i, e in enumerate(edges):
+        if (e.source, e.port_source) in owner:
+            expected = (i, owner[(e.source, e.port_source)], e)
+            break
+        owner[(e.source, e.port_source)] = i
+    nodes = [Node(i) for i in range(6)]
+    if expected is None:
+        assert len(Plant.build(nodes, edges).edges) == len(edges)
+        return
+    i, j, e = expected
+    message = (
+        f"edges[{i}] ({e.source} -> {e.target}): port {e.port_source} of node {e.source} "
+        f"is already used by edges[{j}]"
+    )
+    with pytest.raises(TopologyError, match=re.escape(message)):
+        Plant.build(nodes, edges)
+
+
+# ----- .nodes: digits of other scripts, options given twice ----------------------------------
+
+
+@pytest.mark.parametrize(
+    "record,message",
+    [
+        ("٣ -1 0 -1 0 -1 0 -1 0", "node id is '٣'"),
+        ("0 -1 0 ３ 1.0 -1 0 -1 0", "E neighbour is '３'"),
+        ("0 -1 0 -1 ١.٥ -1 0 -1 0", "E distance is '١.٥'"),
+        ("0 -1 0 -1 0 -1 0 -1 0 x=٣", r"x must be a finite number \(ASCII digits\), got '٣'"),
+        ("0 -1 0 -1 0 -1 0 -1 0 role=exit functions=1+٢", "functions must be integers >= 0"),
+        (
+            "0 -1 0 -1 0 -1 0 -1 0 role=exit role=station",
+            r"option role given twice \(role='exit' and role='station'\)",
+        ),
+        ("0 -1 0 -1 0 -1 0 -1 0 x=1 x=2", r"option x given twice \(x='1' and x='2'\)"),
+        ("0 -1 0 -1 0 -1 0 -1 0 1_0=2", "unknown option '1_0'"),
+        ("1_0 -1 0 -1 0 -1 0 -1 0", "node id is '1_0'"),
+        ("0 -1 0 1 nan -1 0 -1 0", "E distance is 'nan'"),
+        ("0 -1 0 1 -2 -1 0 -1 0", "E distance must be >= 0, got -2"),
+    ],
+)
+def test_node_list_refuses_foreign_digits_and_repeated_options(tmp_path, record, message):
+    path = tmp_path / "bad.nodes"
+    path.write_text("# id N d E d S d W d\n1 -1 0 -1 0 -1 0 -1 0 role=entry\n" + record + "\n")
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    assert str(err.value).startswith(f"{path}: line 3: ")
+
+
+def test_map_header_refuses_foreign_digits_and_repeated_keys(tmp_path):
+    path = tmp_path / "bad.map"
+    path.write_text("type octile\nheight ٢\nwidth 2\nmap\n..\n..\n")
+    with pytest.raises(TopologyError, match="line 2: header needs integer 'height' and 'width'"):
+        load_map(str(path))
+    path.write_text("type octile\nheight 2\nwidth 2\nheight 3\nmap\n..\n..\n")
+    with pytest.raises(TopologyError, match=r"line 4: 'height' given twice \(first on line 2\)"):
+        load(path)
+    path.write_text("type octile\nheight 2\nmap\n..\n..\n")
+    with pytest.raises(TopologyError, match="line 3: header needs .*: no width line before 'map'"):
+        load(path)
+
+
+@pytest.mark.parametrize("cell_size", [0, -1.0, float("nan"), float("inf"), True, "1"])
+def test_map_cell_size_must_be_a_finite_positive_number(tmp_path, cell_size):
+    path = tmp_path / "ok.map"
+    path.write_text(movingai(2, 2))
+    with pytest.raises(TopologyError, match="cell size must be a finite number > 0"):
+        load(path, cell_size=cell_size)
+
+
+# ----- a retain file of the wrong length, and what happens to a file that is not used ------
+
+
+class Odometer(FunctionBlock):
+    """Counts scans into a retentive variable."""
+
+    scans = Static(0, retain=True)
+
+    def cycle(self, ctx) -> None:
+        self.scans += 1
+
+
+def odometer(path: Path, name: str = "main") -> tuple[Runtime, Odometer]:
+    rt = Runtime(cycle_time=0.01, clock=VirtualClock(), retain_file=path)
+    block = Odometer()
+    rt.add_task(name, [block])
+    return rt, block
+
+
+def run_and_stop(path: Path, steps: int, name: str = "main") -> Odometer:
+    rt, block = odometer(path, name)
+    rt.start()
+    rt.step(steps)
+    rt.stop()
+    return block
+
+
+def test_a_retain_file_one_byte_too_long_is_not_called_truncated_and_is_kept(tmp_path):
+    path = tmp_path / "plc.retain"
+    run_and_stop(path, 7)
+    good = path.read_bytes()
+    body = len(good.partition(b"\n")[2])
+    path.write_bytes(good + b"x")
+    rt, block = odometer(path)
+    message = f"wrong length: 1 trailing byte(s) after the {body}-byte body the header declares"
+    with pytest.warns(RuntimeWarning, match=re.escape(message)) as caught:
+        rt.start()
+    assert "truncated" not in str(caught[0].message)
+    assert rt.start_info == f"cold: {path}: {message}; the file was kept as {path}.rejected"
+    assert block.scans == 0
+    rt.step(2)
+    rt.stop()  # saves the new values: the old ones are beside them
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == good + b"x"
+    assert run_and_stop(path, 0).scans == 2
+    # what was stored comes back once the file is repaired
+    os.replace(tmp_path / "plc.retain.rejected", path)
+    path.write_bytes(path.read_bytes()[:-1])
+    assert run_and_stop(path, 0).scans == 7
+
+
+def test_every_rejected_file_is_kept(tmp_path):
+    path = tmp_path / "plc.retain"
+    run_and_stop(path, 3, name="old")
+    first = path.read_bytes()
+    with pytest.warns(RuntimeWarning, match="different program layout"):
+        run_and_stop(path, 4, name="new")  # another program: cold start, old file set aside
+    second = path.read_bytes()
+    with pytest.warns(RuntimeWarning, match=f"kept as {re.escape(str(path))}.rejected.1"):
+        assert run_and_stop(path, 0, name="old").scans == 0
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == first
+    assert (tmp_path / "plc.retain.rejected.1").read_bytes() == second
+
+
+def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monkeypatch):
+    path = tmp_path / "plc.retain"
+    run_and_stop(path, 5, name="old")
+    stored = path.read_bytes()
+
+    def refuse(src, dst):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(os, "rename", refuse)
+    rt, block = odometer(path, name="new")
+    with pytest.warns(RuntimeWarning, match="cannot be moved aside \\(Permission denied\\)"):
+        rt.start()
+    rt.step(3)
+    with pytest.warns(RuntimeWarning, match="retain file not saved: .* it is not overwritten"):
+        rt.stop()
+    assert path.read_bytes() == stored and rt.retain_error
+    monkeypatch.undo()  # the rename works again: the next save sets the file aside first
+    rt.start()  # warm, from memory
+    assert block.scans == 3
+    rt.stop()
+    assert rt.retain_error is None
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == stored
+    assert run_and_stop(path, 0, name="new").scans == 3

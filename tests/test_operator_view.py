@@ -1,0 +1,228 @@
+"""What the operator sees: the event log (fed by every source of change), the dashboard at
+80 columns, the liveness warning at start, and recipes refused because a vehicle would
+"complete" a step without moving."""
+
+from __future__ import annotations
+
+import pytest
+from fleet_scenarios import make_config, run
+from rich.console import Console
+from test_fleet_deadlock import corridor
+
+from fleet import liveness
+from fleet.cli import main
+from fleet.config import DEFAULT_CONFIG, load_config, parse_config
+from fleet.dashboard import dashboard
+from fleet.program import FleetProgram
+from plc_runtime.errors import ConfigError
+from topology import grid
+from vehicles.fleet import Faults
+
+
+@pytest.fixture
+def programs():
+    made: list[FleetProgram] = []
+    yield made
+    for p in made:
+        p.close()
+
+
+def default_program(programs) -> FleetProgram:
+    cfg = load_config()
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    programs.append(p)
+    return p
+
+
+def kinds(p: FleetProgram) -> list[str]:
+    return [e.kind for e in p.events.events]
+
+
+def test_blockades_from_any_source_are_events(programs):
+    p = default_program(programs)
+    p.rt.start()
+    p.rt.run(duration=1)
+    p.blockades.block(8, 13)  # as an operator command would
+    p.rt.step()
+    assert kinds(p)[-1] == "blockade" and p.events.events[-1].text == "segment 8-13 closed"
+    p.blockades.unblock(8, 13)
+    p.rt.step()
+    assert kinds(p)[-1] == "reopened"
+    # the configured schedule closes 7-8 at 120 s and reopens it at 300 s
+    p.rt.run(duration=300)
+    texts = [e.text for e in p.events.events if e.kind in ("blockade", "reopened")]
+    assert "segment 7-8 closed" in texts and "segment 7-8 open again" in texts
+    assert p.events.counts["blockade"] == 2 and p.events.counts["reopened"] == 2
+
+
+def test_replans_and_a_silent_vehicle_are_events(programs):
+    p = default_program(programs)
+    p.rt.start()
+    p.rt.run(duration=300)
+    replans = sum(c.replans for c in p.controls.values())
+    assert p.events.counts["replan"] == replans > 0
+    # vehicle 3 stops talking: it goes stale, which the operator is told about
+    p.fleet.faults[3] = Faults(dead_after=p.fleet.time)
+    p.rt.run(duration=3)
+    stale = [e for e in p.events.events if e.kind == "vehicle" and e.vehicle == 3]
+    assert stale and stale[-1].text.endswith("-> stale")
+
+
+def test_deadlocks_and_unbreakable_cycles_are_events(programs):
+    for siding, kind in ((True, "deadlock"), (False, "livelock")):
+        cfg = make_config(
+            corridor(siding),
+            {1: 1, 2: 5},
+            {"to-east": [3], "to-west": [2]},
+            {2: [1], 3: [5]},
+            vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
+            rounds=1,
+        )
+        p = FleetProgram(cfg)
+        try:
+            run(p, 90)
+            assert kind in kinds(p)
+            assert p.events.counts[kind] == sum(
+                1 for e in p.resolver.events if (e.backed_off is None) == (kind == "livelock")
+            )
+        finally:
+            p.close()
+
+
+def test_the_event_log_is_bounded(programs):
+    p = default_program(programs)
+    p.rt.start()
+    for _ in range(3000):
+        p.events.add(0.0, "replan", 1, "x")
+    assert len(p.events.events) == 1000 and p.events.counts["replan"] >= 3000
+
+
+def render(program: FleetProgram, width: int) -> list[str]:
+    console = Console(width=width, record=True, force_terminal=False, color_system=None)
+    console.print(dashboard(program, 100_000, width=width))
+    return console.export_text().splitlines()
+
+
+@pytest.mark.parametrize("width", [80, 120])
+def test_the_dashboard_fits_the_terminal(programs, width):
+    p = default_program(programs)
+    p.rt.start()
+    p.rt.run(duration=150)  # past the blockade at 120 s: the event log has lines
+    lines = render(p, width)
+    assert max(len(line) for line in lines) <= width
+    text = "\n".join(lines)
+    for header in ("agv", "state", "node", "tgt", "step"):
+        assert f" {header} " in text
+    # one line per vehicle: no cell wrapped
+    rows = [line for line in lines if line.startswith("│") and line.split("│")[1].strip() in "1234"]
+    assert len(rows) == 4
+    assert "events (newest last)" in text and "segment 7-8 closed" in text
+
+
+def test_the_dashboard_fits_80_columns_with_many_vehicles(programs):
+    plant = grid(14, 14)
+    ids = [n.id for n in plant.nodes]
+    stations = ids[1::7][:8]
+    cfg = make_config(
+        plant,
+        {v: ids[v * 3] for v in range(1, 31)},
+        {"a": [1, 2]},
+        {1: stations[:4], 2: stations[4:]},
+    )
+    p = FleetProgram(cfg)
+    programs.append(p)
+    p.rt.start()
+    p.rt.run(duration=5)
+    lines = render(p, 80)
+    assert max(len(line) for line in lines) <= 80
+    vehicle_rows = [line for line in lines if line.startswith("│ ") and line[2:5].strip().isdigit()]
+    assert len(vehicle_rows) == 30  # one line each, nothing wrapped
+
+
+def test_a_config_outside_the_liveness_condition_is_warned_about(tmp_path, capsys):
+    assert main(["run", "--duration", "1", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: default.toml does not meet the liveness condition" in err
+    assert "4 vehicles on 25 nodes" in err and "one-way segments" in err
+
+
+def test_a_config_inside_the_liveness_condition_is_not_warned_about(tmp_path, capsys):
+    cfg = tmp_path / "ok.toml"
+    cfg.write_text(
+        """
+[plant]
+sample = "warehouse"
+
+[stations.clusters]
+1 = [46, 91]
+2 = [184, 229]
+
+[[recipes]]
+name = "shuttle"
+functions = [1, 2]
+
+[[vehicles]]
+id = 1
+start = 322
+
+[[vehicles]]
+id = 2
+start = 367
+"""
+    )
+    assert main(["run", str(cfg), "--duration", "1", "--out", str(tmp_path / "o")]) == 0
+    assert "liveness" not in capsys.readouterr().err
+    assert liveness.violations(load_config(cfg)) == []
+
+
+def test_each_clause_of_the_liveness_condition_is_checked():
+    cfg = load_config(DEFAULT_CONFIG)
+    found = liveness.violations(cfg)
+    assert any(v.startswith("one-way segments") for v in found)
+    assert any("not 2-connected: losing node 9" in v for v in found)
+    assert "function(s) 1, 6 offered by one station only" in found
+    cfg.blockades[0] = type(cfg.blockades[0])(7, 8, 10.0, None)
+    assert "a blockade that never reopens" in liveness.violations(cfg)
+
+
+def test_articulation_points_match_an_independent_count():
+    nx = pytest.importorskip("networkx")
+    from topology import model_plant, warehouse
+
+    for plant in (model_plant(), warehouse(), grid(6, 6)):
+        g = nx.Graph()
+        g.add_nodes_from(plant.ids.tolist())
+        src, dst, _ = plant.arcs
+        g.add_edges_from(zip(plant.ids[src].tolist(), plant.ids[dst].tolist(), strict=True))
+        assert liveness.articulation_points(plant) == sorted(nx.articulation_points(g))
+
+
+ONE_STATION = """
+[plant]
+sample = "model-plant"
+
+[stations.clusters]
+3 = [16]
+
+[[recipes]]
+name = "mill"
+functions = [3]
+
+[[vehicles]]
+id = 1
+start = 0
+"""
+
+
+def test_a_step_completed_without_moving_is_refused():
+    with pytest.raises(ConfigError) as err:
+        parse_config(ONE_STATION, "one.toml")
+    text = str(err.value)
+    assert text.startswith("one.toml: vehicles: vehicle 1: step 1")
+    assert "only station 16 offers it" in text and "without moving" in text
+
+
+def test_a_single_round_of_a_one_function_recipe_is_accepted():
+    cfg = parse_config(ONE_STATION + "\n[sequencer]\nrounds = 1\n", "one.toml")
+    assert cfg.rounds == 1

@@ -1,0 +1,138 @@
+"""Plausibility: a vehicle reporting a position it was never given (pushed by hand, a wrong
+tag read, a forged frame that got through) is suspect: stopped, its holds kept, nothing of
+it applied, visible everywhere; it returns to service by the documented rule (reporting a
+node it holds for ``RECOVER_S``) or by an operator's acknowledge through its tag."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from blocks.traffic.vehicle_control import RECOVER_S
+from fleet.config import load_config
+from fleet.dashboard import dashboard
+from fleet.program import FleetProgram
+from fleet.report import summary
+from fleet.tags import ACK_DONE, ACK_REFUSED
+
+
+@pytest.fixture
+def program():
+    cfg = load_config()
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    p.rt.start()
+    yield p
+    p.close()
+
+
+def move_by_hand(p: FleetProgram, vehicle: int, node: int) -> None:
+    """What an operator with a pallet jack does: the vehicle stands at ``node`` now."""
+    agv = p.fleet.vehicles[vehicle]
+    agv.node, agv.target, agv.progress, agv.speed = node, None, 0.0, 0.0
+    agv.route.clear()
+    agv.driven.append(node)
+
+
+def standing(p: FleetProgram, vehicle: int, limit_s: float = 120.0) -> None:
+    """Run until ``vehicle`` stands at a node with nothing released (processing, waiting)."""
+    agv, control = p.fleet.vehicles[vehicle], p.controls[vehicle]
+    done = p.rt.run_until(
+        lambda: agv.target is None and not control.released and control.current is not None,
+        max_cycles=round(limit_s / p.cfg.cycle_time),
+    )
+    assert done
+
+
+def free_node(p: FleetProgram) -> int:
+    """A node nobody holds, stands on, or plans to pass: somewhere out of everyone's way."""
+    used = {int(p.cfg.plant.ids[n]) for h in p.reservation.holds.values() for n in h}
+    used |= {n for c in p.controls.values() for n in c.planned}
+    used |= {a.node for a in p.fleet.vehicles.values()}
+    # a crossing on the lanes (from a dead end or the exit there may be no way on)
+    return next(
+        n.id for n in reversed(p.cfg.plant.nodes) if n.id not in used and n.role == "transit"
+    )
+
+
+def test_a_vehicle_moved_by_hand_is_suspect_stopped_and_keeps_its_holds(program):
+    p = program
+    program.rt.run(duration=20)
+    standing(p, 2)
+    before = p.reservation.held_by(2)
+    away = free_node(p)
+    move_by_hand(p, 2, away)
+    p.rt.run(duration=1)
+    c = p.controls[2]
+    assert c.state == "suspect" and c.suspect and c.suspect_events == 1
+    assert c.suspect_reason.startswith(f"reports node {away}, never released to it")
+    assert p.reservation.held_by(2) == before  # nothing applied
+    assert p.fleet.vehicles[2].go is False  # the stop command reached it
+    assert p.rt.image.read("agv2.suspect") is True
+    assert p.rt.image.read("agv2.state") == 9  # "suspect" in the state codes
+    events = [e for e in p.events.events if e.vehicle == 2 and e.kind == "vehicle"]
+    assert events[-1].text.endswith(f"-> suspect: {c.suspect_reason}")
+    result = json.loads(json.dumps(summary(p, wall_s=1.0)))
+    assert result["suspect_vehicles"] == {"2": c.suspect_reason}
+    assert result["vehicles"]["2"]["state"] == "suspect"
+    assert result["refused_reports"] > 0 and result["suspect_events"] == 1
+    # it does not come back by itself while it reports a node it was never given
+    p.rt.run(duration=2 * RECOVER_S)
+    assert c.suspect
+    screen = dashboard(p, None, width=80)
+    assert screen is not None
+
+
+def test_an_operator_acknowledge_moves_its_holds_to_where_it_stands(program):
+    p = program
+    p.rt.run(duration=20)
+    standing(p, 2)
+    away = free_node(p)
+    move_by_hand(p, 2, away)
+    p.rt.run(duration=1)
+    assert p.controls[2].suspect
+    p.rt.image.write("agv2.ack", 1)  # as an HMI would, through the quiet point
+    p.rt.run(duration=0.1)
+    c = p.controls[2]
+    assert not c.suspect and c.state != "suspect"
+    assert p.rt.image.read("agv2.ack_result") == ACK_DONE
+    assert p.reservation.held_by(2)[0] == p.cfg.plant.index[away]
+    assert any(e.kind == "recovered" and "acknowledged" in e.text for e in p.events.events)
+    # back in service: it goes on with its recipes, and nobody meets anybody
+    rounds = p.sequencers[2].stations_visited
+    p.rt.run(duration=120)
+    assert p.sequencers[2].stations_visited > rounds
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+    # the same ack value again does nothing (a retried write is not a second acknowledge)
+    p.rt.image.write("agv2.ack", 1)
+    p.rt.run(duration=0.1)
+    assert p.rt.image.read("agv2.ack_result") == ACK_DONE
+
+
+def test_acknowledging_a_vehicle_that_is_not_suspect_is_refused(program):
+    p = program
+    p.rt.run(duration=5)
+    p.rt.image.write("agv3.ack", 7)
+    p.rt.run(duration=0.1)
+    assert p.rt.image.read("agv3.ack_result") == ACK_REFUSED
+    assert p.events.events[-1].text == "acknowledge refused: not suspect"
+
+
+def test_put_back_where_it_belongs_it_returns_to_service_by_itself(program):
+    p = program
+    p.rt.run(duration=20)
+    standing(p, 1)
+    home = p.fleet.vehicles[1].node
+    move_by_hand(p, 1, free_node(p))
+    p.rt.run(duration=1)
+    assert p.controls[1].suspect
+    move_by_hand(p, 1, home)  # the operator pushes it back
+    p.rt.run(duration=RECOVER_S / 2)
+    assert p.controls[1].suspect  # not yet: the rule wants RECOVER_S of consistent reports
+    p.rt.run(duration=RECOVER_S)
+    assert not p.controls[1].suspect
+    visited = p.sequencers[1].stations_visited
+    p.rt.run(duration=120)
+    assert p.sequencers[1].stations_visited > visited
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
