@@ -210,7 +210,10 @@ class VehicleControl(FunctionBlock):
         ]
         self.route, self.planning = [], False
         self.retry_ns = ctx.time_ns
-        self._send(ctx)  # go again, with what it still holds ahead
+        if self.released:
+            self._send(ctx)  # go again, with what it still holds ahead
+        else:
+            self._command(go=True)  # go again; its next route comes as a new command
         self._publish_state()
 
     def acknowledge(self, ctx: CycleContext) -> str | None:
