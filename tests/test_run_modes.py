@@ -8,13 +8,13 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from ports import free_base_port
 
 from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG
@@ -140,35 +140,19 @@ def test_a_failing_vehicle_process_shows_its_own_error(tmp_path, capsys):
     assert "no output" not in err
 
 
-def free_base_port(vehicles: int) -> int:
-    """A base port whose next ``vehicles`` ports are free on 127.0.0.1 right now."""
-    for _ in range(50):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            base = s.getsockname()[1]
-        if base + vehicles > 65535:
-            continue
-        socks = []
-        try:
-            for v in range(1, vehicles + 1):
-                t = socket.socket()
-                socks.append(t)
-                t.bind(("127.0.0.1", base + v))
-            return base
-        except OSError:
-            continue
-        finally:
-            for t in socks:
-                t.close()
-    raise RuntimeError("no free port range")
-
-
-def start_modbus_vehicles(base: int) -> subprocess.Popen:
-    cmd = [*PLC, "vehicles", "--config", str(DEFAULT_CONFIG), "--modbus-base-port", str(base)]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
-    line = proc.stderr.readline()
-    assert "ready" in line, line + proc.stderr.read()
-    return proc
+def start_modbus_vehicles() -> tuple[int, subprocess.Popen]:
+    """The default job's vehicles in their own process, each a Modbus server on loopback;
+    started again on other ports if another process took one of them meanwhile."""
+    for _ in range(3):
+        base = free_base_port(4)
+        cmd = [*PLC, "vehicles", "--config", str(DEFAULT_CONFIG), "--modbus-base-port", str(base)]
+        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        line = proc.stderr.readline()
+        if "ready" in line:
+            return base, proc
+        stop(proc)
+        assert "address already in use" in line, line + proc.stderr.read()
+    raise AssertionError("no free ports for the vehicles")
 
 
 def stop(proc: subprocess.Popen) -> None:
@@ -181,8 +165,7 @@ def stop(proc: subprocess.Popen) -> None:
 
 
 def test_controller_only_mode_attaches_to_vehicles_started_elsewhere(tmp_path, capsys):
-    base = free_base_port(4)
-    vehicles = start_modbus_vehicles(base)
+    base, vehicles = start_modbus_vehicles()
     try:
         args = ["run", "--vehicles", "external", "--bus", f"modbus:127.0.0.1:{base}"]
         args += ["--duration", "4", "--json", "--out", str(tmp_path), *WIDE_WATCHDOG]
