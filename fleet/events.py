@@ -62,6 +62,7 @@ class EventLog(FunctionBlock):
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
         self._blocked: set[tuple[int, int]] = set()
+        self._epoch = -1  # the blockades' change counter when they were last compared
         self._started = False
 
     def add(self, time_s: float, kind: str, vehicle: int | None, text: str) -> None:
@@ -85,6 +86,9 @@ class EventLog(FunctionBlock):
                 elif before in ALARM_STATES and before != "offline":
                     self.add(now, "recovered", v, f"{before} -> {state}")
         self._started = True
+        if self._epoch == self.blockades.epoch:
+            return  # no segment closed or reopened since the last scan
+        self._epoch = self.blockades.epoch
         blocked = {(min(a, b), max(a, b)) for a, b in self.blockades.blocked_segments()}
         for a, b in sorted(blocked - self._blocked):
             self.add(now, "blockade", None, f"segment {a}-{b} closed")
