@@ -16,6 +16,9 @@ from vehicles.fleet import Faults, Fleet
 
 _channels = itertools.count()
 
+# these tests are about the bus, not the watchdog: a busy machine must not fault them
+WIDE_WATCHDOG = 5.0
+
 
 def cosim(starts, routes, faults=None, seed=0, cycles=3000):
     plant = model_plant()
@@ -23,7 +26,7 @@ def cosim(starts, routes, faults=None, seed=0, cycles=3000):
     fleet_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     fleet = Fleet(plant, starts, fleet_bus, faults=faults, seed=seed)
     driver = CanDriver(starts.keys(), interface="virtual", channel=channel)
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(driver)
     rt.add_task("program", [Dispatcher(routes)], priority=0)
     rt.add_task("plant", [CoSimulation(fleet)], priority=9)
@@ -166,7 +169,7 @@ def test_malformed_frames_and_unknown_ids_are_counted(tmp_path):
     channel = f"bad-{next(_channels)}"
     noise = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     driver = CanDriver([1], interface="virtual", channel=channel)
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(driver)
     rt.add_task("program", [Dispatcher({})])
     rt.start()
@@ -201,7 +204,7 @@ def test_driver_sends_route_commands_on_sequence_change_and_stops_everyone_on_cl
     channel = f"cmd-{next(_channels)}"
     listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     driver = CanDriver([3], interface="virtual", channel=channel)
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(driver)
     rt.add_task("program", [Dispatcher({})])
     rt.start()
@@ -229,7 +232,7 @@ def test_driver_sends_route_commands_on_sequence_change_and_stops_everyone_on_cl
 
 
 def test_bad_interface_is_a_clear_startup_error():
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(CanDriver([1], interface="no-such-interface", channel="x"))
     rt.add_task("program", [Dispatcher({})])
     with pytest.raises(
@@ -279,7 +282,7 @@ def test_failed_sends_are_retried_next_tick():
     channel = f"retry-{next(_channels)}"
     listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     driver = CanDriver([3], interface="virtual", channel=channel)
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(driver)
     rt.add_task("program", [Dispatcher({})])
     rt.start()
@@ -308,7 +311,7 @@ def test_failed_sends_are_retried_next_tick():
 def test_a_vehicle_that_never_reports_becomes_stale():
     channel = f"silent-{next(_channels)}"
     driver = CanDriver([1, 2], interface="virtual", channel=channel)
-    rt = Runtime(cycle_time=0.010, clock=VirtualClock())
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
     rt.add_driver(driver)
     rt.add_task("program", [Dispatcher({})])
     rt.start()
