@@ -15,6 +15,7 @@ from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
 from fleet.report import summary
 from fleet.tags import ACK_DONE, ACK_REFUSED
+from io_drivers.protocol import STATUS
 
 
 @pytest.fixture
@@ -136,3 +137,28 @@ def test_put_back_where_it_belongs_it_returns_to_service_by_itself(program):
     p.rt.run(duration=120)
     assert p.sequencers[1].stations_visited > visited
     assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+def test_a_vehicle_suspect_on_its_return_lane_drives_the_rest_of_the_lane(program):
+    """A restarted vehicle link (its counter jumps) on the way back to the entry: once it
+    recovers it drives on along the fixed lane, from where it stands, and starts its next
+    recipe (a return lane is not planned, so it must be adopted again)."""
+    p = program
+    v = next(
+        v
+        for v in sorted(p.sequencers)
+        if p.rt.run_until(
+            lambda v=v: p.sequencers[v].phase == "returning" and p.controls[v].route,
+            max_cycles=round(300 / p.cfg.cycle_time),
+        )
+    )
+    seq, control = p.sequencers[v], p.controls[v]
+    round_before = seq.rounds_done
+    p.fleet._counter[STATUS + v] = (p.fleet._counter[STATUS + v] + 8) % 16  # a restart
+    assert p.rt.run_until(lambda: control.suspect, max_cycles=200)
+    assert control.suspect_reason.startswith("link: message counter jumped")
+    assert p.rt.run_until(lambda: not control.suspect, max_cycles=round(10 / p.cfg.cycle_time))
+    assert p.rt.run_until(
+        lambda: seq.rounds_done > round_before or seq.phase != "returning",
+        max_cycles=round(120 / p.cfg.cycle_time),
+    ), f"vehicle {v} stuck at {control.current}: {control.state}, route {control.route}"

@@ -208,8 +208,7 @@ class VehicleControl(FunctionBlock):
         self.released = [
             n for n in self.released if self.index[n] in self.reservation.holds[self.vehicle]
         ]
-        self.route, self.planning = [], False
-        self.retry_ns = ctx.time_ns
+        self._forget_route(ctx)
         if self.released:
             self._send(ctx)  # go again, with what it still holds ahead
         else:
@@ -252,14 +251,22 @@ class VehicleControl(FunctionBlock):
             if self.fixed_route != self.adopted_fixed:
                 self.adopted_fixed = self.fixed_route
                 fixed = list(self.fixed_route)
-                if fixed and fixed[0] == self.frontier:
-                    fixed = fixed[1:]
+                if self.frontier in fixed:
+                    # adopted again part way along (after a suspicion): only what is ahead
+                    fixed = fixed[fixed.index(self.frontier) + 1 :]
                 self.route, self.goal, self.planning = fixed, self.fixed_route[-1], False
             return
         self.adopted_fixed = None
         if self.target != self.goal:
             self.goal, self.route = self.target, []
             self.planning = False
+
+    def _forget_route(self, ctx: CycleContext) -> None:
+        """Drop the planned route: it is planned again from the frontier, or, on a fixed
+        route, the rest of the fixed route is adopted again."""
+        self.route, self.planning = [], False
+        self.retry_ns = ctx.time_ns
+        self.adopted_fixed = None
 
     def _needs_plan(self, ctx: CycleContext) -> bool:
         if self.goal is None or self.fixed_route is not None:
@@ -398,8 +405,7 @@ class VehicleControl(FunctionBlock):
         if self.route and self.route[0] == node:
             self.route.pop(0)
         else:
-            self.route, self.planning = [], False
-            self.retry_ns = ctx.time_ns
+            self._forget_route(ctx)
         self.released.append(node)
         self._not_waiting()
         self._send(ctx)
