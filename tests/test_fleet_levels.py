@@ -29,6 +29,7 @@ def program():
     made = []
 
     def build(cfg):
+        cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
         p = FleetProgram(cfg)
         made.append(p)
         return p

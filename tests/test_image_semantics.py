@@ -204,7 +204,8 @@ def test_writes_from_another_thread_never_change_inputs_mid_scan():
             assert ctx.image.read("%ID0") == first
         seen.append(first)
 
-    rt = started(Probe(cycle))
+    # the writer holds the GIL against the scan: on a busy machine a scan can take long
+    rt = started(Probe(cycle), watchdog=5.0)
     stop = threading.Event()
 
     def writer():

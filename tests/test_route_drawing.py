@@ -221,6 +221,7 @@ def test_the_fleet_report_hands_over_whole_routes_and_lifted_blockades(tmp_path,
         at_s = 1
         """
     )
+    cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
     program = FleetProgram(cfg, clock=VirtualClock())
     try:
         program.rt.start()
