@@ -7,14 +7,16 @@ per vehicle v an 8-byte record at input byte ``input_base + 8 * v``:
     +4 BYTE state code        +5 BYTE battery %        +6 BYTE speed cm/s
     +7 BYTE flags: bit 0 online, bit 1 stale (no confirmed status for ``stale_after`` s:
             treat the vehicle as an obstacle where it was last seen), bit 2 fault reported,
-            bit 3 clear of the current node, bit 4 suspect link (its counter jumped)
+            bit 3 clear of the current node, bits 4-6 the count (mod 8) of the vehicle's
+            counter jumps (a restart, or a second sender: the program makes it suspect)
 
 Outputs (read after copy-out): per vehicle v an 8-byte record at output byte
 ``output_base + 8 * v``:
 
     +0/+2/+4 WORD next nodes 1..3 (the released route)
-    +6 BYTE bits 0-1 count, bit 6 suspect acknowledge (rising edge), bit 7 go
-    +7 BYTE sequence: a new value sends the RouteCommand; go changes send StopGo
+    +6 BYTE bits 0-1 count, bit 7 go
+    +7 BYTE sequence: a new value sends the RouteCommand (count 0: cancel the vehicle's
+            route); go changes send StopGo
 
 All-zero outputs mean "every vehicle stopped", so the runtime's safe state (outputs 0 on
 STOP and FAULT) really stops the fleet; closing the driver also broadcasts a stop. StopGo
@@ -62,11 +64,11 @@ from .vehicle_records import (  # noqa: F401 - the record API
     CLEAR,
     FAULT,
     GO_BIT,
+    LINK_JUMP_SHIFT,
+    LINK_JUMPS,
     ONLINE,
     RECORD,
     STALE,
-    SUSPECT_ACK,
-    SUSPECT_LINK,
     VehicleRecords,
 )
 
@@ -207,8 +209,8 @@ class CanDriver:
         todo, self._retry = set(self.records.changed()) | self._retry, set()
         for v in sorted(todo):
             go, sequence, nodes = self.records.command(v)
-            if self._sent_go.get(v) != go:
-                self._send_go(v, go, now_ns)
+            if self._sent_go.get(v) != go and not go:
+                self._send_go(v, go, now_ns)  # a stop goes out before a new route
             if sequence != self._sent_sequence.get(
                 v, 0
             ):  # outputs start at 0: 0 is "no command yet"
@@ -219,6 +221,8 @@ class CanDriver:
                     self._sent_sequence[v] = sequence
                 else:
                     self._retry.add(v)
+            if self._sent_go.get(v) != go and go:
+                self._send_go(v, go, now_ns)  # a go only after the route it is for
         refresh = self._go_sent_ns
         while refresh and now_ns - next(iter(refresh.values())) >= self.go_refresh_ns:
             v = next(iter(refresh))

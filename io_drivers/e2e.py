@@ -10,7 +10,8 @@ Two checks guard every safety-relevant frame (AUTOSAR E2E profiles use the same 
   a frame copied to another id (another vehicle) fails the check. The CRC detects every
   error burst of up to 8 bits, so every change of a single byte.
 * **A 4-bit counter** the sender increments per frame, which the receiver checks per data id
-  (:class:`CounterCheck`): repeated, lost, out-of-sequence and stale frames are detected.
+  (:class:`CounterCheck`): repeated, lost and out-of-sequence frames are detected, and a
+  stale frame too unless it is exactly 16k+1..16k+3 frames old (a 4-bit counter's limit).
 
 The CRC is written from the standard's definition (the table is computed from the
 polynomial) and checked against the published test vectors of the AUTOSAR CRC library
@@ -74,8 +75,10 @@ class CounterCheck:
       dropped one (its counter is the dropped one + 1), the sender really jumped: it
       restarted, a second sender uses the same id (its two frames in a row), or more than
       two frames in a row were lost. The check **resynchronises** to it and accepts it,
-      and the caller is told so (``RESYNC``) to flag the sender as suspect. A false frame
-      whose counter is outside the window cannot cause this by itself: the real sender's
+      and the caller is told so (``RESYNC``): the controller counts a jump of that
+      vehicle (it becomes suspect), the vehicle side obeys nothing but a stop from it. A
+      false frame whose counter is outside the window cannot cause this by itself: the
+      real sender's
       next frame is in the window of the reference, and a counter in the window is
       accepted before anything else is looked at.
 

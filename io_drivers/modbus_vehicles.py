@@ -105,8 +105,20 @@ class ModbusVehicleLink:
             raise ConfigError(f"{self.name}: the worker did not start")
 
     def close(self) -> None:
+        """The controller goes away: every vehicle is told to stop, and what waits to be
+        written (that stop, the runtime's safe state) is delivered before the link closes,
+        waiting at most two poll periods and one timeout."""
         if self._thread is None:
             return
+        now = time.monotonic_ns()
+        for v in self.addresses:
+            self._queue_go(v, False, now)
+        deadline = time.monotonic() + 2 * self.poll_period + self.timeout
+        while time.monotonic() < deadline:
+            with self._lock:
+                if not self._commands:
+                    break
+            time.sleep(0.005)
         self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(10)
         self._thread = None

@@ -4,7 +4,7 @@ Frame ids are standard 11-bit ids, ``base + id`` (see docs/protocol.md):
 
     0x080 + v  StopGo        controller -> vehicle v (v = 127: every vehicle)
     0x100 + v  VehicleStatus vehicle v -> everyone (periodic and on every event)
-    0x200 + v  RouteCommand  controller -> vehicle v: the next 1..3 verified nodes
+    0x200 + v  RouteCommand  controller -> vehicle v: the next 1..3 verified nodes (0: cancel)
     0x600 + v  VehicleInfo   vehicle v -> everyone: battery (every second and on change)
     0x700 + n  Heartbeat     node n alive (n = 0: the controller)
 
@@ -89,7 +89,7 @@ class Info:
 class RouteCommand:
     vehicle: int
     sequence: int  # 0..15, the frame's counter
-    nodes: tuple[int, ...]  # 1..3 node ids
+    nodes: tuple[int, ...]  # 1..3 node ids; none cancels the route
 
 
 @dataclass(slots=True)
@@ -324,8 +324,8 @@ class Codec:
 
         def decode(frame_id: int, sender: int, data: bytes) -> RouteCommand:
             t = unpack(data)
-            nodes = t[first : first + t[count]]
-            if not nodes or NO_NODE in nodes or not 1 <= sender <= MAX_VEHICLE_ID:
+            nodes = t[first : first + t[count]]  # none: cancel the route
+            if NO_NODE in nodes or not 1 <= sender <= MAX_VEHICLE_ID:
                 raise MalformedFrame(f"0x{frame_id:03X}: route command with nodes {nodes}")
             return RouteCommand(sender, t[counter], nodes)
 

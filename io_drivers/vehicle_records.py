@@ -4,8 +4,9 @@ carries it.
 
 Inputs at ``input_base + 8 * v``: WORD current node, WORD next node, BYTE state, BYTE
 battery %, BYTE speed cm/s, BYTE flags (online, stale, fault, clear of the current node,
-suspect link). Outputs at ``output_base + 8 * v``: WORD next nodes 1..3, BYTE count (bits
-0-1) | suspect acknowledge (bit 6) | go (bit 7), BYTE sequence. Input writes happen in the
+bits 4-6 the count of the vehicle's counter jumps, mod 8). Outputs at ``output_base + 8 *
+v``: WORD next nodes 1..3, BYTE count (bits 0-1, 0 with a new sequence: cancel the route) |
+go (bit 7), BYTE sequence. Input writes happen in the
 scan thread at the quiet point; outputs are read after copy-out, and only records that
 changed since the last tick are looked at.
 
@@ -15,8 +16,9 @@ consecutive status frames (accepted, and consecutive as sent: their counters dif
 agree on (current node, clear). The vehicles send every event twice, so this costs one
 step of latency (one status period when a frame is lost), and a single well-formed but
 false frame (a spoofing node, a corruption the CRC missed) can never take a node from
-another vehicle or free one a vehicle still stands on. State, fault, speed and battery are
-taken at once: a fault reported is the safe direction.
+another vehicle or free one a vehicle still stands on. A fault is taken at once (the safe
+direction); its end, like a position, only when two consecutive frames report it. State,
+speed and battery are taken at once.
 """
 
 from __future__ import annotations
@@ -31,8 +33,11 @@ from .e2e import COUNTER_MODULO
 from .protocol import MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Info, Status
 
 RECORD = 8
-ONLINE, STALE, FAULT, CLEAR, SUSPECT_LINK = 0x01, 0x02, 0x04, 0x08, 0x10
-GO_BIT, SUSPECT_ACK, COUNT_MASK = 0x80, 0x40, 0x03
+ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
+# the link's count of the vehicle's counter jumps (restart, a second sender), mod 8: the
+# program sees a jump as a change of the count, so no jump can hide behind an earlier one
+LINK_JUMPS, LINK_JUMP_SHIFT = 0x70, 4
+GO_BIT, COUNT_MASK = 0x80, 0x03
 
 
 class VehicleRecords:
@@ -68,11 +73,11 @@ class VehicleRecords:
         self._flags: dict[int, int] = {}
         self.stale_after_ns = stale_after_ns
         self.status: dict[int, Status] = {}  # the last accepted status of each vehicle
-        # ((current, clear), counter) of that status
-        self._candidate: dict[int, tuple[tuple[int, bool], int]] = {}
+        # ((current, clear), counter, fault) of that status
+        self._candidate: dict[int, tuple[tuple[int, bool], int, bool]] = {}
+        self._fault: set[int] = set()  # vehicles whose fault was not confirmed gone
         self._position: dict[int, tuple[int, bool]] = {}  # the confirmed (current, clear)
-        self._suspect: set[int] = set()
-        self._acknowledged: dict[int, bool] = {}  # the SUSPECT_ACK bit last seen
+        self._jumps: dict[int, int] = {}  # counter jumps seen per vehicle, mod 8
         self._last_seen: dict[int, int] = {}  # the last confirmed position's tick
         self._first_ns: int | None = None
         self._now_ns = 0
@@ -103,21 +108,26 @@ class VehicleRecords:
     # ----- frames that passed the checks --------------------------------------------------------
     def received(self, status: Status, now_ns: int, resync: bool = False) -> None:
         """An accepted status (in the tick at ``now_ns``); ``resync``: the link resynchronised
-        to this vehicle's counter, so the vehicle is flagged SUSPECT_LINK."""
+        to this vehicle's counter, so its jump count goes up."""
         v = status.vehicle
         if resync:
-            self._suspect.add(v)
+            self._jumped(v)
         self.status[v] = status
         w = self._in[v]
         w["state"](STATE_CODE[status.state])
         w["speed"](min(255, round(status.speed * 100)))
         position = (status.current_node, status.clear)
         candidate = self._candidate.get(v)
-        self._candidate[v] = (position, status.counter)
+        self._candidate[v] = (position, status.counter, status.fault)
+        if status.fault:
+            self._fault.add(v)
         if candidate is None:
             return
+        consecutive = status.counter == (candidate[1] + 1) % COUNTER_MODULO
+        if consecutive and not status.fault and not candidate[2]:
+            self._fault.discard(v)
         if candidate[0] == position:
-            if status.counter == (candidate[1] + 1) % COUNTER_MODULO:
+            if consecutive:
                 self._position[v] = position
                 self._last_seen[v] = now_ns
                 w["current"](status.current_node)
@@ -128,12 +138,11 @@ class VehicleRecords:
     def received_info(self, info: Info, resync: bool = False) -> None:
         """An accepted info frame: the battery is taken at once."""
         if resync:
-            self._suspect.add(info.vehicle)
+            self._jumped(info.vehicle)
         self._in[info.vehicle]["battery"](info.battery)
 
-    def clear_suspect(self, vehicle: int) -> None:
-        """The controller has seen the SUSPECT_LINK flag: it is off from the next tick."""
-        self._suspect.discard(vehicle)
+    def _jumped(self, vehicle: int) -> None:
+        self._jumps[vehicle] = (self._jumps.get(vehicle, 0) + 1) % 8
 
     # ----- liveness -------------------------------------------------------------------------
     def refresh_flags(self, now_ns: int) -> None:
@@ -149,12 +158,11 @@ class VehicleRecords:
             stale = self.is_stale(v)
             if position is None and not stale:
                 continue  # never heard of: the record holds no position, flags stay 0
-            status = self.status.get(v)
             flags = (
                 (STALE if stale else ONLINE)
-                | (FAULT if status is not None and status.fault else 0)
+                | (FAULT if v in self._fault else 0)
                 | (CLEAR if position is not None and position[1] else 0)
-                | (SUSPECT_LINK if v in self._suspect else 0)
+                | (self._jumps.get(v, 0) << LINK_JUMP_SHIFT)
             )
             if self._flags.get(v) != flags:
                 self._flags[v] = flags
@@ -171,22 +179,16 @@ class VehicleRecords:
 
     # ----- the commands -----------------------------------------------------------------------
     def changed(self) -> list[int]:
-        """Vehicles whose output record changed since the last call (all on the first). A
-        rising SUSPECT_ACK bit among them clears that vehicle's SUSPECT_LINK flag."""
+        """Vehicles whose output record changed since the last call (all on the first)."""
         rows = np.flatnonzero((self._block != self._last).any(axis=1)).tolist()
         self._last[...] = self._block
-        vehicles = [v for r in rows if (v := self._row_vehicle[r]) is not None]
-        for v in vehicles:
-            ack = bool(self._out[v]["control"]() & SUSPECT_ACK)
-            if ack and not self._acknowledged.get(v, False):
-                self.clear_suspect(v)
-            self._acknowledged[v] = ack
-        return vehicles
+        return [v for r in rows if (v := self._row_vehicle[r]) is not None]
 
     def command(self, vehicle: int) -> tuple[bool, int, tuple[int, ...] | None]:
-        """(go, sequence, nodes) of a vehicle's output record; nodes None if not sendable."""
+        """(go, sequence, nodes) of a vehicle's output record; nodes None if not sendable,
+        () to cancel the vehicle's route (it stops at the node it reaches next)."""
         r = self._out[vehicle]
         control, sequence = r["control"](), r["sequence"]()
         count = control & COUNT_MASK
         nodes = tuple(reader() for reader in r["nodes"][:count])
-        return bool(control & GO_BIT), sequence, nodes if count and NO_NODE not in nodes else None
+        return bool(control & GO_BIT), sequence, nodes if NO_NODE not in nodes else None

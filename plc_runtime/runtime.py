@@ -111,6 +111,7 @@ class Runtime:
             loc.type.check(value, f"safe output {ref}")
         self.retain_interval = retain_interval
         self.watchdog_interrupt = watchdog_interrupt
+        self._drivers_open = False  # every driver opened (they get the safe state at stop)
         self.tasks: list[Task] = []
         self.drivers: list[IoDriver] = []
         self.state = STOP
@@ -253,6 +254,7 @@ class Runtime:
             self.state = RUN
 
     def _open_drivers(self) -> None:
+        self._drivers_open = False
         opened = []
         for driver in self.drivers:
             try:
@@ -263,6 +265,7 @@ class Runtime:
                 self._fault(f"driver {driver.name}: cannot open: {exc}")
                 raise StartupError(self.fault_reason) from exc
             opened.append(driver)
+        self._drivers_open = True
 
     def _run_startup(self) -> None:
         """Every block's startup, in task priority order, without cycle monitoring."""
@@ -296,11 +299,25 @@ class Runtime:
             was_running = self.state in (RUN, FAULT)
             self.clock.exit_run()
             self._alarm.uninstall()
+            retained = self._collect_retain() if was_running else None
+            self.image.publish_safe_state(self.safe_outputs)
+            if was_running and self._drivers_open:
+                # the safe state goes out through every driver before it closes: the devices
+                # must see it, not only the image
+                now = self.clock.now_ns()
+                for driver in self.drivers:
+                    try:
+                        driver.write_outputs(self.image, now)
+                    except Exception as exc:  # a driver that cannot write still gets closed
+                        warnings.warn(
+                            f"{type(driver).__name__}: safe state not written at stop: {exc}",
+                            RuntimeWarning,
+                            stacklevel=2,
+                        )
             for driver in self.drivers:
                 driver.close()
-            if was_running:
-                self._retain.save_or_warn(self._collect_retain())
-            self.image.publish_safe_state(self.safe_outputs)
+            if retained is not None:
+                self._retain.save_or_warn(retained)
             self.state = STOP
 
     def request_stop(self) -> None:

@@ -11,7 +11,7 @@ import cantools
 import pytest
 from fleet_helpers import Dispatcher, record
 
-from io_drivers.can_driver import CLEAR, FAULT, ONLINE, STALE, SUSPECT_ACK, SUSPECT_LINK, CanDriver
+from io_drivers.can_driver import CLEAR, FAULT, LINK_JUMP_SHIFT, ONLINE, STALE, CanDriver
 from io_drivers.e2e import (
     ACCEPTED,
     OUT_OF_SEQUENCE,
@@ -222,20 +222,39 @@ def test_a_fault_is_taken_at_once_and_staleness_follows_confirmed_positions():
     assert inputs(image, recs, 50) == (17, NO_NODE, 6, ONLINE | FAULT)
     for t in (120, 140, 160):  # statuses that never agree keep nothing fresh
         recs.received(Status(3, t, NO_NODE, "IDLE", 0.0, t % 16), t)
-    assert inputs(image, recs, 160)[3] == STALE
+    # ... and the fault stands: no two consecutive frames said it was over
+    assert inputs(image, recs, 160)[3] == STALE | FAULT
 
 
-def test_suspect_flag_stays_until_the_controller_acknowledges_it():
+def jumps(n: int) -> int:
+    return (n % 8) << LINK_JUMP_SHIFT
+
+
+def test_every_counter_jump_counts_so_none_hides_behind_an_earlier_one():
     image, recs = records()
     recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 1), 0)
     recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 2), 0, resync=True)
-    assert inputs(image, recs, 0)[3] == ONLINE | SUSPECT_LINK
+    assert inputs(image, recs, 0)[3] == ONLINE | jumps(1)
     recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 3), 1)
-    assert inputs(image, recs, 1)[3] == ONLINE | SUSPECT_LINK  # stays
-    recs.clear_suspect(3)
-    assert inputs(image, recs, 2)[3] == ONLINE
+    assert inputs(image, recs, 1)[3] == ONLINE | jumps(1)  # the count stays
     recs.received_info(Info(3, 50, 1), resync=True)  # an info frame's counter jumped too
-    assert inputs(image, recs, 3)[3] == ONLINE | SUSPECT_LINK
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 9), 2, resync=True)  # in the same tick
+    assert inputs(image, recs, 2)[3] == ONLINE | jumps(3)  # two jumps in one tick: both seen
+
+
+def test_a_fault_ends_only_when_two_consecutive_frames_say_so():
+    image, recs = records()
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 1), 0)
+    recs.received(Status(3, 17, NO_NODE, "FAULT", 0.0, 2, True), 0)
+    assert inputs(image, recs, 0)[3] == ONLINE | FAULT
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 3), 1)  # one frame (a spoof?) says no
+    assert inputs(image, recs, 1)[3] == ONLINE | FAULT
+    recs.received(Status(3, 17, NO_NODE, "FAULT", 0.0, 4, True), 2)
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 6), 3)  # not consecutive
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 8), 3)
+    assert inputs(image, recs, 3)[3] == ONLINE | FAULT
+    recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 9), 4)  # 8 and 9: confirmed
+    assert inputs(image, recs, 4)[3] == ONLINE
 
 
 # ----- the CAN driver ----------------------------------------------------------------------------
@@ -255,7 +274,7 @@ def send(bus, codec, message):
     bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
 
 
-def test_a_counter_jump_sets_the_suspect_flag_until_the_program_acknowledges_it():
+def test_a_counter_jump_raises_the_jump_count_in_the_record():
     rt, driver, bus = driver_runtime([1])
     codec = Codec()
     flags = f"%IB{record(1) + 7}"
@@ -265,13 +284,11 @@ def test_a_counter_jump_sets_the_suspect_flag_until_the_program_acknowledges_it(
             rt.step()
         stats = driver.stats()
         assert stats["out_of_sequence"] == 1 and stats["resyncs"] == 1
-        assert rt.image.read(flags) == ONLINE | SUSPECT_LINK
-        rt.image.write(f"%QB{record(1) + 6}", SUSPECT_ACK)  # the program acknowledges
-        rt.step(2)
-        assert rt.image.read(flags) == ONLINE
-        send(bus, codec, Status(1, 5, NO_NODE, "IDLE", 0.0, 12))
-        rt.step()
-        assert rt.image.read(flags) == ONLINE  # a held acknowledge bit is not a new one
+        assert rt.image.read(flags) == ONLINE | jumps(1)
+        for counter in (12, 13, 4, 5):  # another jump, right after
+            send(bus, codec, Status(1, 5, NO_NODE, "IDLE", 0.0, counter))
+            rt.step()
+        assert rt.image.read(flags) == ONLINE | jumps(2)
     finally:
         rt.stop()
         bus.shutdown()
@@ -448,3 +465,45 @@ def test_the_default_job_under_corruption_and_spoofing_sees_only_true_positions(
     assert program.monitor.head_on == 0 and program.monitor.node == 0, program.monitor.events
     assert fleet.counters["corrupted"] > 0 and fleet.counters["spoofed"] > 0
     assert stats["crc_errors"] == fleet.counters["corrupted"] and stats["unconfirmed"] > 0
+
+
+# ----- the vehicle side ---------------------------------------------------------------------------
+def test_a_resync_on_the_vehicle_side_never_starts_a_vehicle_or_gives_it_a_route():
+    """Replayed old frames (or a restarted controller) make the vehicle's check resync: the
+    new reference is taken, but only a stop is obeyed from such a frame."""
+    codec = Codec()
+    fleet = Fleet(model_plant(), {1: 0})
+    agv = fleet.vehicles[1]
+
+    def deliver(message):
+        fleet.receive(*codec.encode(message))
+
+    for k in range(1, 12):
+        deliver(StopGo(1, k != 11, k))  # ... go 10, then stop 11
+    deliver(StopGo(1, False, 4))  # a replayed old pair: stop 4 (a stop is always obeyed) ...
+    deliver(StopGo(1, True, 5))  # ... and go 5, which the check resyncs to
+    assert agv.go is False and fleet.counters["resyncs"] == 1
+    deliver(StopGo(1, True, 6))  # the next frame in the window: a go again
+    assert agv.go is True
+    for k in range(1, 10):
+        deliver(RouteCommand(1, k, (6,)))
+        agv.route.clear()
+    deliver(RouteCommand(1, 3, (6,)))  # replays of old commands 3 and 4
+    deliver(RouteCommand(1, 4, (6,)))
+    assert list(agv.route) == [] and fleet.counters["resyncs"] == 2
+    for _ in range(300):
+        fleet.step(0.01)
+    assert agv.driven == [0]  # it did not move
+
+
+def test_an_empty_route_command_cancels_the_route_aboard():
+    codec = Codec()
+    fleet = Fleet(model_plant(), {1: 0})
+    agv = fleet.vehicles[1]
+    fleet.receive(*codec.encode(RouteCommand(1, 1, (6, 7))))
+    assert list(agv.route) == [6, 7]
+    fleet.receive(*codec.encode(RouteCommand(1, 2, ())))
+    assert list(agv.route) == [] and agv.target is None
+    for _ in range(300):
+        fleet.step(0.01)
+    assert agv.driven == [0]

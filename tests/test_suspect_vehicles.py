@@ -162,3 +162,80 @@ def test_a_vehicle_suspect_on_its_return_lane_drives_the_rest_of_the_lane(progra
         lambda: seq.rounds_done > round_before or seq.phase != "returning",
         max_cycles=round(120 / p.cfg.cycle_time),
     ), f"vehicle {v} stuck at {control.current}: {control.state}, route {control.route}"
+
+
+def jump_counter(p: FleetProgram, vehicle: int) -> None:
+    """The vehicle's status counter jumps, as after a restart of its controller."""
+    p.fleet._counter[STATUS + vehicle] = (p.fleet._counter[STATUS + vehicle] + 8) % 16
+
+
+def test_a_second_jump_right_after_the_first_is_seen_and_restarts_the_recovery(program):
+    p = program
+    p.rt.run(duration=20)
+    standing(p, 2)
+    c = p.controls[2]
+    jump_counter(p, 2)
+    assert p.rt.run_until(lambda: c.suspect, max_cycles=100)
+    p.rt.run(duration=RECOVER_S - 0.2)
+    assert c.suspect
+    jump_counter(p, 2)  # just before it would have recovered: the recovery starts again
+    p.rt.run(duration=0.4)
+    assert c.suspect and c.suspect_events == 1
+    jump_counter(p, 2)
+    p.rt.step()
+    jump_counter(p, 2)  # two jumps one scan apart
+    p.rt.run(duration=RECOVER_S - 0.3)
+    assert c.suspect  # the last jump counts from when it was seen
+    # ... and once the link is quiet it recovers by the rule: never stuck
+    assert p.rt.run_until(lambda: not c.suspect, max_cycles=round(2 * RECOVER_S / p.cfg.cycle_time))
+    assert c.suspect_events == 1
+
+
+def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program):
+    """Pushed by hand while it was driving, the vehicle still carries the route it had
+    from its old place. An operator's acknowledge moves its holds to where it stands; the
+    old route is cancelled before it may go again, so it drives only what it is released."""
+    p = program
+    plant = p.cfg.plant
+    p.rt.run(duration=10)
+    found = None
+    for _ in range(20_000):
+        p.rt.step()
+        for v, agv in p.fleet.vehicles.items():
+            if agv.target is None or not agv.route:
+                continue
+            used = {a.node for a in p.fleet.vehicles.values()}
+            used |= {a.target for a in p.fleet.vehicles.values()}
+            used |= {n for c in p.controls.values() for n in c.planned}
+            for x in plant.ids.tolist():
+                if (
+                    (x, agv.route[0]) in agv._lengths
+                    and x not in used
+                    and p.reservation.holder_of(plant.index[x]) is None
+                ):
+                    found = (v, x)
+                    break
+            if found:
+                break
+        if found:
+            break
+    v, x = found
+    agv, c = p.fleet.vehicles[v], p.controls[v]
+    carried = list(agv.route)
+    agv.node, agv.target, agv.progress, agv.speed, agv.turn_left = x, None, 0.0, 0.0, 0.0
+    agv.driven.append(x)  # the route on board is left as it was
+    p.rt.run(duration=1)
+    assert c.suspect and list(agv.route) == carried
+    p.rt.image.write(f"agv{v}.ack", 1)
+    for _ in range(round(5 / p.cfg.cycle_time)):
+        p.rt.step()
+        # once it may go, whatever it carries or drives to was released to it after the
+        # acknowledge (the frames reach it a tick after the program acted: until then it
+        # is still stopped)
+        held = {int(plant.ids[n]) for n in p.reservation.held_by(v)}
+        aboard = set(agv.route) | ({agv.target} if agv.target is not None else set())
+        assert not agv.go or aboard <= held, (aboard, held)
+    p.rt.run(duration=30)
+    assert p.rt.image.read(f"agv{v}.ack_result") == ACK_DONE
+    assert c.suspect_events == 1, c.suspect_reason  # it never drove what it was not given
+    assert p.monitor.head_on == 0 and p.monitor.node == 0

@@ -6,7 +6,7 @@ import can
 import pytest
 from fleet_helpers import Dispatcher, record
 
-from io_drivers.can_driver import FAULT, GO_BIT, ONLINE, STALE, SUSPECT_LINK, CanDriver
+from io_drivers.can_driver import FAULT, GO_BIT, LINK_JUMPS, ONLINE, STALE, CanDriver
 from io_drivers.protocol import NO_NODE, STATE_CODE, Codec, RouteCommand, Status
 from plc_runtime import Runtime, StartupError, VirtualClock
 from topology import model_plant
@@ -155,8 +155,8 @@ def test_lossy_and_corrupting_links_are_survived():
     assert stats["crc_errors"] == fleet.counters["corrupted"]  # every one counted, not applied
     assert stats["lost"] > 0  # counter steps over dropped and corrupted frames
     assert fleet.vehicles[1].driven == [0, 6, 7, 8, 9, 24]  # the route still completes
-    # three frames lost in a row look like a counter jump: the link may flag it suspect
-    assert image[1][0] == 24 and image[1][1] & ~SUSPECT_LINK == ONLINE
+    # three frames lost in a row look like a counter jump: the link may count one
+    assert image[1][0] == 24 and image[1][1] & ~LINK_JUMPS == ONLINE
 
 
 def test_faults_are_reported():
@@ -224,10 +224,14 @@ def test_driver_sends_route_commands_on_sequence_change_and_stops_everyone_on_cl
     while (msg := listener.recv(timeout=0)) is not None:
         got.append(codec.decode(msg.arbitration_id, msg.data))
     routes = [m for m in got if isinstance(m, RouteCommand)]
-    assert routes == [RouteCommand(3, 1, (6, 7))]  # once, not every cycle
+    # once, not every cycle; at stop the safe state (all outputs 0) goes out before the
+    # driver closes: the route is cancelled (no nodes) and the vehicle stopped
+    assert routes == [RouteCommand(3, 1, (6, 7)), RouteCommand(3, 0, ())]
     stops = [m for m in got if type(m).__name__ == "StopGo"]
     assert stops[0].vehicle == 3 and stops[0].go  # go bit set from the first scan
+    assert (stops[-2].vehicle, stops[-2].go) == (3, False)  # the safe state
     assert stops[-1].vehicle == 127 and not stops[-1].go  # closing the driver stops everyone
+    assert got.index(stops[-2]) < got.index(routes[-1])  # the stop before the cancel
     listener.shutdown()
 
 

@@ -71,8 +71,15 @@ class AGV:
     # ----- commands ----------------------------------------------------------------------
     def command(self, nodes: tuple[int, ...]) -> bool:
         """Replace the released route: the nodes to drive next, from where the vehicle is.
-        On a segment the first node must be the segment's end; at a node, a neighbour."""
+        On a segment the first node must be the segment's end; at a node, a neighbour. No
+        nodes cancel the route: the vehicle stops at the node it reaches next."""
         nodes = tuple(nodes)
+        if not nodes:
+            self.route = deque()
+            self.commanded = True
+            if self.target is not None and self.progress == 0.0 and self.speed == 0.0:
+                self.target = None  # it has not left its node yet: it stays there
+            return True
         if self.target is not None:
             if nodes[0] != self.target:
                 self.rejected_commands += 1
@@ -133,9 +140,10 @@ class AGV:
         elif self.target is None:
             self.speed, self.accel = 0.0, 0.0
             if self.turn_left > 0:
-                self.turn_left = max(0.0, self.turn_left - dt)
-                if self.turn_left == 0:
-                    self._set_off()
+                if self.go:  # a stop holds the turn: it sets off only with a go
+                    self.turn_left = max(0.0, self.turn_left - dt)
+                    if self.turn_left == 0:
+                        self._set_off()
             elif self.route and self.go:
                 self._start_turn(self.route[0])
         else:

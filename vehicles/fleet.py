@@ -6,7 +6,8 @@ clear bit changing; an event is sent twice, at once and at the next step, becaus
 controller applies a position only when two consecutive statuses agree) and info frames
 (battery: every ``info_period`` and on change). The fleet talks to the controller only
 through end-to-end protected frames of the message set; received commands pass the same
-CRC and counter checks as on the controller's side. The vehicles' own physics (front
+CRC and counter checks as on the controller's side, and a command the counter check only
+resynchronised to is obeyed if it is a stop, never as a go or a route. The vehicles' own physics (front
 sensor, turning, battery) is local.
 
 Fault injection (``Faults``, per vehicle) acts on the frames a vehicle sends: lost,
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from io_drivers.e2e import ACCEPTED, RESYNC, CounterCheck
+from io_drivers.e2e import ACCEPTED, CounterCheck
 from io_drivers.protocol import (
     ALL_VEHICLES,
     INFO,
@@ -72,13 +73,16 @@ class Fleet:
         faults: Mapping[int, Faults] | None = None,
         seed: int = 0,
         info_period: float = 1.0,
+        charges: Mapping[int, float] | None = None,
     ) -> None:
+        """``charges``: vehicle -> its battery's charge at the start, in % (default 100)."""
         for vehicle in starts:
             if not 1 <= vehicle <= MAX_VEHICLE_ID:
                 raise ValueError(f"vehicle ids are 1..{MAX_VEHICLE_ID}, got {vehicle}")
         self.plant = plant
         self.vehicles = {
-            v: AGV(v, plant, node, params, Battery(battery)) for v, node in sorted(starts.items())
+            v: AGV(v, plant, node, params, Battery(battery, (charges or {}).get(v, 100.0) / 100.0))
+            for v, node in sorted(starts.items())
         }
         self.bus = bus
         self.codec = Codec()
@@ -291,7 +295,12 @@ class Fleet:
         """A frame from the controller, whatever link carried it (CAN frame, Modbus write):
         checked (CRC, counter) and applied. A route command repeating the last one's
         counter is a resend of it, not a new route. A stop that passes the CRC is obeyed
-        whatever its counter (the safe direction); a go must pass the counter check too."""
+        whatever its counter (the safe direction). A go and a route need a counter in the
+        window of the last one accepted: a frame the check resynchronises to (a restarted
+        controller, or replayed old frames) only sets the new reference, so it can stop a
+        vehicle but never start one or give it a route; the controller's next frames (the
+        go is repeated every second, a route resent when the vehicle shows no sign of it)
+        are then in the window."""
         try:
             message = self.codec.decode(frame_id, data)
         except CorruptFrame:
@@ -303,13 +312,13 @@ class Fleet:
         self.counters["received"] += 1
         if isinstance(message, RouteCommand) and message.vehicle in self.vehicles:
             verdict = self.checks.check(frame_id, message.sequence)
-            if verdict is ACCEPTED or verdict is RESYNC:
+            if verdict is ACCEPTED:  # (a resync only sets the new reference)
                 self._route_ack[message.vehicle] = message.sequence
                 if not self.vehicles[message.vehicle].command(message.nodes):
                     self.counters["rejected"] += 1
         elif isinstance(message, StopGo):
             verdict = self.checks.check(frame_id, message.counter)
-            if message.go and verdict is not ACCEPTED and verdict is not RESYNC:
+            if message.go and verdict is not ACCEPTED:
                 return
             for vehicle, agv in self.vehicles.items():
                 if message.vehicle in (vehicle, ALL_VEHICLES):

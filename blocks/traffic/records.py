@@ -32,8 +32,9 @@ OUT_RECORD = np.dtype([("nodes", "<u2", (3,)), ("control", "u1"), ("sequence", "
 RECORD = 8
 NO_NODE = 0xFFFF
 ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
-SUSPECT_LINK = 0x10  # the link saw the vehicle's message counter jump (restart, second sender)
-GO_BIT, SUSPECT_ACK, COUNT_MASK = 0x80, 0x40, 0x03  # ack: a rising edge clears SUSPECT_LINK
+# bits 4-6: the link's count of the vehicle's message counter jumps (restart, second sender)
+LINK_JUMPS, LINK_JUMP_SHIFT = 0x70, 4
+GO_BIT, COUNT_MASK = 0x80, 0x03  # count 0 with a new sequence: cancel the vehicle's route
 MAX_RELEASED = 3  # nodes per route command
 STATES = (
     "IDLE",
@@ -82,14 +83,10 @@ class VehicleRecordsView:
         area, local = self.vehicles[vehicle]
         return self._in[area][local]
 
-    def write_command(
-        self, vehicle: int, nodes: tuple[int, ...], go: bool, sequence: int, ack: bool = False
-    ) -> None:
+    def write_command(self, vehicle: int, nodes: tuple[int, ...], go: bool, sequence: int) -> None:
         area, local = self.vehicles[vehicle]
         rec = self._out[area][local]
         padded = (list(nodes) + [NO_NODE] * MAX_RELEASED)[:MAX_RELEASED]
         rec["nodes"] = padded
-        rec["control"] = (
-            min(len(nodes), MAX_RELEASED) | (GO_BIT if go else 0) | (SUSPECT_ACK if ack else 0)
-        )
+        rec["control"] = min(len(nodes), MAX_RELEASED) | (GO_BIT if go else 0)
         rec["sequence"] = sequence

@@ -39,7 +39,16 @@ from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
-from .records import CLEAR, FAULT, NO_NODE, ONLINE, STALE, SUSPECT_LINK, VehicleRecordsView
+from .records import (
+    CLEAR,
+    FAULT,
+    LINK_JUMP_SHIFT,
+    LINK_JUMPS,
+    NO_NODE,
+    ONLINE,
+    STALE,
+    VehicleRecordsView,
+)
 from .reservation import ReservationMatrix
 
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
@@ -84,7 +93,7 @@ class VehicleControl(FunctionBlock):
     wait_node = Static(None)
     wait_replanned = Static(False)
     consistent_since_ns = Static(None)  # suspect: reporting a held node since then
-    link_ack = Static(False)  # the SUSPECT_LINK flag seen, acknowledged to the link
+    link_jumps = Static(0)  # the link's count of this vehicle's counter jumps, last seen
     reported = Static(None)  # the last reported node, plausible or not
 
     def __init__(
@@ -137,14 +146,16 @@ class VehicleControl(FunctionBlock):
             return
         self.reported = current
         clear = bool(flags & CLEAR)
-        link = bool(flags & SUSPECT_LINK)
-        if link and not self.suspect:
-            self._become_suspect(ctx, "link: message counter jumped (restart, or a second sender)")
-        if link != self.link_ack:
-            # seen: the rising edge of the acknowledge bit clears the flag at the link, so a
-            # later jump raises it anew (the suspicion itself stays, with its own recovery)
-            self.link_ack = link
-            self._command(not self.suspect)
+        jumps = (flags & LINK_JUMPS) >> LINK_JUMP_SHIFT
+        if jumps != self.link_jumps:
+            # a new jump (a change of the count: none can hide behind one not yet seen)
+            self.link_jumps = jumps
+            if self.suspect:
+                self.consistent_since_ns = None  # the recovery starts again
+            else:
+                self._become_suspect(
+                    ctx, "link: message counter jumped (restart, or a second sender)"
+                )
         why = self.reservation.plausible(self.vehicle, self.index[current], clear)
         if why is not None:
             self.reservation.refuse()
@@ -227,7 +238,12 @@ class VehicleControl(FunctionBlock):
             why = self.reservation.relocate(self.vehicle, node)
             if why is not None:
                 return why
+            # the route it still carries leads from where it was: cancel it (an empty
+            # route command) before it may go again
             self.released = []
+            self.sequence = self.sequence % 255 + 1
+            self.sent_ns = ctx.time_ns
+            self._command(go=False)
         self.current = self.reported
         self._return_to_service(ctx)
         return None
@@ -238,9 +254,7 @@ class VehicleControl(FunctionBlock):
 
     def _command(self, go: bool) -> None:
         """Write the command record: the released nodes, the go bit, the acknowledge bit."""
-        self.records.write_command(
-            self.vehicle, tuple(self.released[:3]), go, self.sequence, ack=self.link_ack
-        )
+        self.records.write_command(self.vehicle, tuple(self.released[:3]), go, self.sequence)
 
     @property
     def frontier(self) -> int:
