@@ -8,18 +8,26 @@ provides, two vehicles on one start node, unknown recipe names.
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
+from vehicles.agv import AgvParams
 from vehicles.fleet import Faults
 
+from .config_reader import TableReader
 from .liveness import standing_steps
+from .orders_config import (
+    BatteryConfig,
+    DispatchConfig,
+    OrdersConfig,
+    parse_battery,
+    parse_dispatch,
+    parse_orders,
+)
 
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
 VEHICLES_PER_BUS = 126
@@ -72,6 +80,13 @@ class FleetConfig:
     blockades: list[Blockade] = field(default_factory=list)
     # fault injection into the simulated vehicles' links (a commissioning test): vehicle -> faults
     faults: dict[int, Faults] = field(default_factory=dict)
+    # transport orders (docs/orders.md): where they come from, who takes them, how
+    orders: OrdersConfig | None = None
+    order_vehicles: list[int] = field(default_factory=list)  # the others run recipes
+    dispatch: DispatchConfig = field(default_factory=DispatchConfig)
+    battery: BatteryConfig = field(default_factory=BatteryConfig)
+    # the simulated vehicles' drive ([simulation]; real vehicles bring their own)
+    agv: AgvParams = field(default_factory=AgvParams)
 
     @property
     def level(self) -> str:
@@ -85,66 +100,6 @@ class FleetConfig:
         if self.blockades:
             return "3"
         return "2" if multi else "1"
-
-
-class _Reader:
-    """Typed access to one TOML table, with errors that say where."""
-
-    def __init__(self, source: str, table: dict[str, Any], where: str) -> None:
-        self.source, self.table, self.where = source, table, where
-        self.used: set[str] = set()
-
-    def fail(self, key: str, message: str) -> ConfigError:
-        return ConfigError(f"{self.source}: {self.where}{key}: {message}")
-
-    def get(self, key: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
-        self.used.add(key)
-        if key not in self.table:
-            if default is ...:
-                raise self.fail(key, "missing")
-            return default
-        value = self.table[key]
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        if isinstance(value, bool) and bool not in kinds:
-            raise self.fail(key, f"expected {_names(kinds)}, got {value!r}")
-        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kinds):
-            raise self.fail(key, f"expected {_names(kinds)}, got {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise self.fail(key, f"must be finite, got {value!r}")
-        return value
-
-    def number(self, key: str, default: float, low: float, high: float = math.inf) -> float:
-        value = self.get(key, float, default)
-        if not low <= value <= high:
-            raise self.fail(key, f"must be in {low}..{high}, got {value}")
-        return value
-
-    def integer(self, key: str, default: int, low: int, high: int) -> int:
-        value = self.get(key, int, default)
-        if not low <= value <= high:
-            raise self.fail(key, f"must be in {low}..{high}, got {value}")
-        return value
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.table) - self.used)
-        if unknown:
-            raise self.fail(unknown[0], "unknown key")
-
-
-def _names(kinds: tuple[type, ...]) -> str:
-    return " or ".join(
-        {
-            int: "an integer",
-            float: "a number",
-            str: "a string",
-            list: "a list",
-            dict: "a table",
-            bool: "true/false",
-        }[k]
-        for k in kinds
-    )
 
 
 def load_config(path: str | Path | None = None) -> FleetConfig:
@@ -167,14 +122,20 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         raise ConfigError(f"{source}: {exc}") from None
     except RecursionError:
         raise ConfigError(f"{source}: nested too deeply") from None
-    top = _Reader(source, doc, "")
-    plant = _plant(_Reader(source, top.get("plant", dict), "plant."), base or Path("."))
-    runtime = _Reader(source, top.get("runtime", dict, {}), "runtime.")
-    routing = _Reader(source, top.get("routing", dict, {}), "routing.")
-    stations = _Reader(source, top.get("stations", dict, {}), "stations.")
-    sequencer = _Reader(source, top.get("sequencer", dict, {}), "sequencer.")
-    bus = _Reader(source, top.get("bus", dict, {}), "bus.")
-    recipes = _recipes(source, top.get("recipes", list), plant)
+    top = TableReader(source, doc, "")
+    plant = _plant(TableReader(source, top.get("plant", dict), "plant."), base or Path("."))
+    runtime = TableReader(source, top.get("runtime", dict, {}), "runtime.")
+    routing = TableReader(source, top.get("routing", dict, {}), "routing.")
+    stations = TableReader(source, top.get("stations", dict, {}), "stations.")
+    sequencer = TableReader(source, top.get("sequencer", dict, {}), "sequencer.")
+    bus = TableReader(source, top.get("bus", dict, {}), "bus.")
+    orders_table = top.get("orders", dict, None)
+    orders = (
+        None
+        if orders_table is None
+        else parse_orders(TableReader(source, orders_table, "orders."), base or Path("."), plant)
+    )
+    recipes = _recipes(source, top.get("recipes", list, []), plant, required=orders is None)
     clusters = _clusters(stations, plant)
     for recipe in recipes.values():
         for f in recipe.functions:
@@ -183,7 +144,9 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
                     f"{source}: recipes: recipe {recipe.name!r} needs function {f}, "
                     "which no station provides (add it to stations.clusters)"
                 )
-    starts, vehicle_recipes = _vehicles(source, top.get("vehicles", list), plant, recipes)
+    starts, vehicle_recipes, charges = _vehicles(
+        source, top.get("vehicles", list), plant, recipes, orders is not None
+    )
     cfg = FleetConfig(
         source=source,
         plant=plant,
@@ -209,7 +172,13 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         stale_after_s=bus.number("stale_after_s", 0.5, 0.01, 300.0),
         blockades=_blockades(source, top.get("blockades", list, []), plant),
     )
-    cfg.faults = _faults(_Reader(source, top.get("faults", dict, {}), "faults."), cfg.starts)
+    cfg.orders = orders
+    cfg.order_vehicles = [v for v in sorted(starts) if v not in vehicle_recipes]
+    cfg.dispatch = parse_dispatch(TableReader(source, top.get("dispatch", dict, {}), "dispatch."))
+    cfg.battery = parse_battery(TableReader(source, top.get("battery", dict, {}), "battery."))
+    cfg.battery.start = charges
+    cfg.agv = _simulation(TableReader(source, top.get("simulation", dict, {}), "simulation."))
+    cfg.faults = _faults(TableReader(source, top.get("faults", dict, {}), "faults."), cfg.starts)
     if cfg.strategy not in STRATEGIES:
         raise stations.fail(
             "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
@@ -227,7 +196,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     return cfg
 
 
-def _plant(reader: _Reader, base: Path) -> Plant:
+def _plant(reader: TableReader, base: Path) -> Plant:
     sample = reader.get("sample", str, None)
     file = reader.get("file", str, None)
     reader.finish()
@@ -248,21 +217,21 @@ def _plant(reader: _Reader, base: Path) -> Plant:
         raise ConfigError(f"{reader.source}: plant.file: {exc}") from None
 
 
-def _node(reader: _Reader, key: str, plant: Plant) -> int:
+def _node(reader: TableReader, key: str, plant: Plant) -> int:
     node = reader.get(key, int)
     if node not in plant.index:
         raise reader.fail(key, f"node {node} is not in plant {plant.name!r}")
     return node
 
 
-def _recipes(source: str, items: list, plant: Plant) -> dict[str, Recipe]:
-    if not items:
+def _recipes(source: str, items: list, plant: Plant, required: bool) -> dict[str, Recipe]:
+    if not items and required:
         raise ConfigError(f"{source}: recipes: at least one [[recipes]] entry is needed")
     recipes: dict[str, Recipe] = {}
     for k, item in enumerate(items):
         if not isinstance(item, dict):
             raise ConfigError(f"{source}: recipes[{k}]: expected a table")
-        r = _Reader(source, item, f"recipes[{k}].")
+        r = TableReader(source, item, f"recipes[{k}].")
         name = r.get("name", str)
         functions = r.get("functions", list)
         r.finish()
@@ -278,7 +247,7 @@ def _recipes(source: str, items: list, plant: Plant) -> dict[str, Recipe]:
     return recipes
 
 
-def _clusters(reader: _Reader, plant: Plant) -> dict[int, list[int]]:
+def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
     clusters: dict[int, list[int]] = {}
     for node in plant.nodes:
         for f in node.functions:
@@ -303,26 +272,35 @@ def _clusters(reader: _Reader, plant: Plant) -> dict[int, list[int]]:
 
 
 def _vehicles(
-    source: str, items: list, plant: Plant, recipes: dict[str, Recipe]
-) -> tuple[dict[int, int], dict[int, list[str]]]:
+    source: str, items: list, plant: Plant, recipes: dict[str, Recipe], orders: bool
+) -> tuple[dict[int, int], dict[int, list[str]], dict[int, float]]:
+    """Start nodes, the recipes of the vehicles that run recipes (with orders configured,
+    a vehicle without ``recipes`` takes orders), and start charges in %."""
     if not items:
         raise ConfigError(f"{source}: vehicles: at least one [[vehicles]] entry is needed")
     starts: dict[int, int] = {}
     chosen: dict[int, list[str]] = {}
+    charges: dict[int, float] = {}
     names = list(recipes)
     for k, item in enumerate(items):
         if not isinstance(item, dict):
             raise ConfigError(f"{source}: vehicles[{k}]: expected a table")
-        r = _Reader(source, item, f"vehicles[{k}].")
+        r = TableReader(source, item, f"vehicles[{k}].")
         vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
         start = _node(r, "start", plant)
         own = r.get("recipes", list, None)
+        charge = r.number("battery", 100.0, 0.0, 100.0)
         r.finish()
         if vid in starts:
             raise r.fail("id", f"vehicle {vid} defined twice")
         if start in starts.values():
             other = next(v for v, s in starts.items() if s == start)
             raise r.fail("start", f"node {start} is already vehicle {other}'s start")
+        if charge != 100.0:
+            charges[vid] = charge
+        if own is None and orders:
+            starts[vid] = start  # takes transport orders
+            continue
         if own is None:
             # every vehicle runs all recipes, each starting at a different one (level 4)
             own = names[len(starts) % len(names) :] + names[: len(starts) % len(names)]
@@ -331,10 +309,10 @@ def _vehicles(
                 raise r.fail("recipes", f"unknown recipe {name!r} (defined: {', '.join(names)})")
         starts[vid] = start
         chosen[vid] = list(own)
-    return starts, chosen
+    return starts, chosen, charges
 
 
-def _faults(reader: _Reader, starts: dict[int, int]) -> dict[int, Faults]:
+def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
     """``[faults]``: link rates for every vehicle, and ``[[faults.vehicles]]`` entries that
     override them or make one vehicle die, stall or lose its battery at a given time."""
     rates = {
@@ -349,7 +327,7 @@ def _faults(reader: _Reader, starts: dict[int, int]) -> dict[int, Faults]:
     for k, item in enumerate(items):
         if not isinstance(item, dict):
             raise ConfigError(f"{reader.source}: faults.vehicles[{k}]: expected a table")
-        r = _Reader(reader.source, item, f"faults.vehicles[{k}].")
+        r = TableReader(reader.source, item, f"faults.vehicles[{k}].")
         vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
         if vid not in starts:
             raise r.fail("id", f"no vehicle {vid} in [[vehicles]]")
@@ -370,12 +348,28 @@ def _faults(reader: _Reader, starts: dict[int, int]) -> dict[int, Faults]:
     return faults
 
 
+def _simulation(r: TableReader) -> AgvParams:
+    """``[simulation]``: the simulated vehicles' drive (defaults: the thesis' model AGVs)."""
+    d = AgvParams()
+    params = AgvParams(
+        max_speed=r.number("max_speed", d.max_speed, 0.01, 10.0),
+        accel=r.number("accel", d.accel, 0.01, 10.0),
+        decel=r.number("decel", d.decel, 0.01, 10.0),
+        turn_90=r.number("turn_90_s", d.turn_90, 0.0, 60.0),
+        turn_180=r.number("turn_180_s", d.turn_180, 0.0, 60.0),
+        length=r.number("length", d.length, 0.01, 20.0),
+        sensor_range=r.number("sensor_range", d.sensor_range, 0.0, 20.0),
+    )
+    r.finish()
+    return params
+
+
 def _blockades(source: str, items: list, plant: Plant) -> list[Blockade]:
     out = []
     for k, item in enumerate(items):
         if not isinstance(item, dict):
             raise ConfigError(f"{source}: blockades[{k}]: expected a table")
-        r = _Reader(source, item, f"blockades[{k}].")
+        r = TableReader(source, item, f"blockades[{k}].")
         a, b = _node(r, "from", plant), _node(r, "to", plant)
         at = r.number("at_s", 0.0, 0.0)
         until = r.get("until_s", float, None)
@@ -386,3 +380,18 @@ def _blockades(source: str, items: list, plant: Plant) -> list[Blockade]:
             raise r.fail("until_s", f"must be after at_s ({at}), got {until}")
         out.append(Blockade(a, b, at, until))
     return out
+
+
+def first_vehicles(cfg: FleetConfig, n: int) -> None:
+    """Keep only the first ``n`` vehicles (by id): a fleet-size experiment on one config."""
+    ids = sorted(cfg.starts)
+    if not 1 <= n <= len(ids):
+        raise ConfigError(
+            f"--vehicles-count: must be 1..{len(ids)} (the vehicles of {cfg.source}), got {n}"
+        )
+    keep = set(ids[:n])
+    cfg.starts = {v: s for v, s in cfg.starts.items() if v in keep}
+    cfg.vehicle_recipes = {v: r for v, r in cfg.vehicle_recipes.items() if v in keep}
+    cfg.order_vehicles = [v for v in cfg.order_vehicles if v in keep]
+    cfg.battery.start = {v: c for v, c in cfg.battery.start.items() if v in keep}
+    cfg.faults = {v: f for v, f in cfg.faults.items() if v in keep}

@@ -26,6 +26,7 @@ VEHICLE_COLUMNS = (
     ("state", "state", True),
     ("node", "node", False),
     ("target", "tgt", False),
+    ("order", "order/next", True),
     ("step", "step", False),
     ("battery", "bat%", False),
     ("recipe", "recipe", True),
@@ -87,6 +88,12 @@ def dashboard(program: FleetProgram, total: int | None, width: int | None = None
         f"{rt.clock_time:.1f} s{pace}\nrecipes {len(program.completed)} | "
         f"deadlocks resolved {program.resolver.resolved} of {program.resolver.detected}"
     )
+    if program.orders is not None:
+        counts = program.orders.book.counts()
+        status += (
+            f" | orders done {counts['FINISHED']}, open "
+            f"{counts['DISPATCHABLE'] + counts['BEING_PROCESSED']}"
+        )
     if program.monitor is not None:
         status += f" | conflicts {program.monitor.head_on + program.monitor.node}"
     rows = {name: s.to_dict() for name, s in rt.stats.tasks.items()}
@@ -155,8 +162,18 @@ def final_tables(result: dict[str, Any]) -> Group:
             f"{u['busy_s']:.0f}",
             f"{u['utilisation']:.1%}",
         )
+    if "orders" in result:
+        for key in ("mean_order_time_s", "station_wait_s", "makespan_s"):
+            fleet.add_row(key, str(result[key]))
+        fleet.add_row("orders", ", ".join(f"{k} {n}" for k, n in result["orders"].items() if n))
+        c = result["charging"]
+        fleet.add_row(
+            "charging", f"{c['visits']} visits, {c['time_s']:.0f} s, min {c['min_battery']}%"
+        )
     files = "  ".join(f"{k}: {v}" for k, v in result.get("files", {}).items())
     if result["fault_reason"]:
         fleet.caption = f"FAULT: {result['fault_reason']}"
     counts = ", ".join(f"{k} {n}" for k, n in result.get("event_counts", {}).items()) or "none"
-    return Group(tasks, fleet, util, f"events: {counts}", f"written: {files}")
+    used = any(u["assigned"] or u["visits"] for u in result["station_utilisation"].values())
+    parts = (tasks, fleet, util) if used else (tasks, fleet)  # recipes' stations only
+    return Group(*parts, f"events: {counts}", f"written: {files}")

@@ -19,10 +19,11 @@ or real vehicles; the program talks to them the same way.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import can
 
+from blocks.dispatch.executor import OrderRunner
 from blocks.jobs.recipe import RecipeRun, RecipeSequencer, StationChooser
 from blocks.routing.constraints import RoutingConstraints
 from blocks.routing.heuristic import HeuristicTable
@@ -40,6 +41,7 @@ from vehicles.monitor import ConflictMonitor
 
 from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, modbus_endpoint
 from .events import EventLog
+from .order_system import OrderSystem, targets
 from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
 
 AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
@@ -80,12 +82,14 @@ class FleetCycle(FunctionBlock):
 
     def __init__(
         self,
-        pairs: list[tuple[RecipeSequencer, VehicleControl]],
+        pairs: list[tuple[RecipeSequencer | OrderRunner, VehicleControl]],
         grace_s: float,
         held: set[int] | None = None,
+        battery: Callable[[int], int] | None = None,
     ) -> None:
         super().__init__()
         self.pairs = pairs
+        self.battery = battery
         self.grace_ns = round(grace_s * 1e9)
         self.held = held if held is not None else set()  # vehicles an operator holds
 
@@ -95,7 +99,15 @@ class FleetCycle(FunctionBlock):
                 c.current is not None for _s, c in self.pairs
             )
         for seq, control in self.pairs:
-            seq(ctx, arrived=control.arrived, current=control.current)
+            if isinstance(seq, OrderRunner):
+                seq(
+                    ctx,
+                    arrived=control.arrived,
+                    current=control.current,
+                    battery=self.battery(control.vehicle),
+                )
+            else:
+                seq(ctx, arrived=control.arrived, current=control.current)
             control(
                 ctx,
                 target=seq.target,
@@ -158,8 +170,10 @@ class FleetProgram:
                 self.rt.add_driver(self._vehicle_link(interface, channel, k, n_buses, local, base))
         assert all(RECORD * (a.max_vehicle + 1) <= AREA_BYTES for a in areas)
         self.records = VehicleRecordsView(areas, placement)
-        targets = sorted({s for stations in cfg.clusters.values() for s in stations})
-        self.table = HeuristicTable(plant, targets)
+        rows = {s for stations in cfg.clusters.values() for s in stations}
+        if cfg.order_vehicles:
+            rows |= set(targets(plant))
+        self.table = HeuristicTable(plant, sorted(rows))
         self.blockades = RoutingConstraints(plant)
         self.reservation = ReservationMatrix(
             plant,
@@ -171,6 +185,11 @@ class FleetProgram:
         self.completed: list[RecipeRun] = []
         self.controls: dict[int, VehicleControl] = {}
         self.sequencers: dict[int, RecipeSequencer] = {}
+        self.orders: OrderSystem | None = None
+        if cfg.order_vehicles:
+            self.orders = OrderSystem(cfg, self.table, self.blockades, self._available)
+        # each vehicle's job block: its recipe sequencer or its order runner
+        self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}
         for v in vehicles:
             self.controls[v] = VehicleControl(
                 v,
@@ -184,7 +203,10 @@ class FleetProgram:
                 priority=self._priority,
             )
             self.controls[v].budget = cfg.astar_budget
-            self.sequencers[v] = RecipeSequencer(
+            if v in cfg.order_vehicles:
+                self.jobs[v] = self.orders.runners[v]
+                continue
+            self.sequencers[v] = self.jobs[v] = RecipeSequencer(
                 v,
                 plant,
                 [cfg.recipes[name] for name in cfg.vehicle_recipes[v]],
@@ -199,7 +221,7 @@ class FleetProgram:
             plant, self.controls, self.reservation, self.blockades, self._priority, self.table
         )
         self.recorder = FleetRecorder(self.controls)
-        self.events = EventLog(self.controls, self.sequencers, self.resolver, self.blockades)
+        self.events = EventLog(self.controls, self.jobs, self.resolver, self.blockades)
         self.commands = FleetCommands(plant, self.blockades, vehicles, self._acknowledge)
         self.status = FleetStatus(self, self.commands)
         self.rt.add_task(
@@ -208,10 +230,12 @@ class FleetProgram:
                 _Startup(self.table, self.records),
                 self.schedule,
                 self.commands,
+                *(self.orders.blocks() if self.orders else ()),
                 FleetCycle(
-                    [(self.sequencers[v], self.controls[v]) for v in vehicles],
+                    [(self.jobs[v], self.controls[v]) for v in vehicles],
                     cfg.stale_after_s,
                     self.commands.held,
+                    self._battery,
                 ),
                 self.reservation,
                 self.resolver,
@@ -278,6 +302,7 @@ class FleetProgram:
                     cfg.plant,
                     starts,
                     bus,
+                    params=cfg.agv,
                     status_period=cfg.status_period_s,
                     faults={
                         v - k * VEHICLES_PER_BUS: f
@@ -285,6 +310,11 @@ class FleetProgram:
                         if (v - 1) // VEHICLES_PER_BUS == k
                     },
                     seed=cfg.seed + k,
+                    charges={
+                        v - k * VEHICLES_PER_BUS: c
+                        for v, c in cfg.battery.start.items()
+                        if (v - 1) // VEHICLES_PER_BUS == k
+                    },
                 )
             )
             offsets.append(k * VEHICLES_PER_BUS)
@@ -303,13 +333,24 @@ class FleetProgram:
             overrun="catch_up",
         )
 
+    def _available(self, vehicle: int) -> bool:
+        """May the dispatcher give this vehicle an order? Not while it is offline, stale,
+        faulty, suspect or held by an operator."""
+        state = self.controls[vehicle].state
+        return state not in ("offline", "stale", "fault", "suspect") and (
+            vehicle not in self.commands.held
+        )
+
+    def _battery(self, vehicle: int) -> int:
+        return int(self.records.inputs(vehicle)["battery"])
+
     def _taken_by_other(self, vehicle: int):
         def taken(station: int) -> bool:
             idx = self.cfg.plant.index[station]
             holder = self.reservation.holder_of(idx)
             if holder is not None and holder != vehicle:
                 return True
-            return any(s.target == station for v, s in self.sequencers.items() if v != vehicle)
+            return any(s.target == station for v, s in self.jobs.items() if v != vehicle)
 
         return taken
 
@@ -326,7 +367,7 @@ class FleetProgram:
         return why
 
     def _priority(self, vehicle: int) -> tuple[int, int]:
-        return (self.sequencers[vehicle].priority_ns, vehicle)
+        return (self.jobs[vehicle].priority_ns, vehicle)
 
     def close(self) -> None:
         self.rt.stop()
@@ -338,7 +379,7 @@ class FleetProgram:
     def vehicle_rows(self) -> list[dict[str, object]]:
         rows = []
         for v in self.vehicles:
-            c, s = self.controls[v], self.sequencers[v]
+            c, s = self.controls[v], self.jobs[v]
             rec = self.records.inputs(v) if self.records.bound else None
             recipe = self.cfg.recipes.get(s.recipe_name)
             rows.append(
@@ -350,6 +391,7 @@ class FleetProgram:
                     else "-",
                     "node": c.current,
                     "target": s.target,
+                    "order": _orders_of(s),
                     "recipe": s.recipe_name,
                     "step": f"{s.step + 1}/{len(recipe.functions)}" if recipe else "-",
                     "phase": s.phase,
@@ -360,6 +402,14 @@ class FleetProgram:
                 }
             )
         return rows
+
+
+def _orders_of(job: RecipeSequencer | OrderRunner) -> str | None:
+    """ "active/next" order ids of a vehicle that takes orders; None for a recipe vehicle."""
+    if not isinstance(job, OrderRunner):
+        return None
+    active = job.active.id if job.active is not None else "-"
+    return f"{active}/{job.next.id}" if job.next is not None else active
 
 
 class _Startup(FunctionBlock):

@@ -18,6 +18,7 @@ from typing import Any
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
 
+from .order_report import order_summary, write_orders_csv
 from .program import FleetProgram
 
 CSV_COLUMNS = (
@@ -39,7 +40,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
     rt = program.rt
     stats = rt.stats.to_dict()
     sim = stats["clock_time_s"]
-    controls, sequencers = program.controls, program.sequencers
+    controls, sequencers = program.controls, program.jobs
     monitor = program.monitor
     resolver = program.resolver
     vehicles = {
@@ -115,6 +116,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             "build_ms": round(program.table.build_time_s * 1e3, 3),
             "bytes": program.table.nbytes,
         },
+        **(order_summary(program.orders) if program.orders else {}),
         "tags": {tag.name: rt.image.read(tag.name) for tag in rt.image.tags},
         "drivers": stats.get("drivers", {}),
         "scan": stats["scan"],
@@ -199,7 +201,7 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
 
 
 EVENTS_IN_SUMMARY = 200  # the newest events; event_counts counts them all
-OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png")
+OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png", "orders.csv")
 
 
 def check_out_dir(out_dir: Path) -> None:
@@ -223,7 +225,8 @@ def check_out_dir(out_dir: Path) -> None:
 
 
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:
-    """Write summary.json, recipes.csv and routes.png into ``out_dir`` (created)."""
+    """Write summary.json, recipes.csv, routes.png and, with transport orders, orders.csv
+    (every order's history) into ``out_dir`` (created)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {
         "summary": out_dir / "summary.json",
@@ -231,6 +234,8 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
         "routes": out_dir / "routes.png",
     }
     write_csv(program, files["recipes"])
+    if program.orders is not None:
+        files["orders"] = write_orders_csv(program.orders, out_dir / "orders.csv")
     write_drawing(program, files["routes"])
     result["files"] = {k: str(p) for k, p in files.items()}
     files["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")

@@ -373,7 +373,7 @@ class FleetStatus(FunctionBlock):
             outputs = memoryview(ctx.image.record_view("Q", area.output_base, size))
             for v, (a, local) in sorted(p.records.vehicles.items()):
                 if a == k:
-                    c, s = p.controls[v], p.sequencers[v]
+                    c, s = p.controls[v], p.jobs[v]
                     row = 2 * (vehicle_word(v) - VEHICLE_BASE)
                     self._slots.append(
                         (c, s, inputs, RECORD * local, outputs, RECORD * local + 6, row)

@@ -3,7 +3,8 @@ default job there is the embedded one, and the MovingAI-format map is what its s
 
 A configuration runs on the virtual clock (fleet_scenarios.run: zero head-on and node
 conflicts from the independent monitor after every cycle, the A* budget, no forced
-takeover) for ``SIMULATED_S`` and must complete at least one recipe in that time.
+takeover) for ``SIMULATED_S`` and must complete at least one recipe (or finish at least
+one transport order) in that time.
 """
 
 from __future__ import annotations
@@ -46,7 +47,10 @@ def test_example_config_runs_without_conflicts(path):
         assert program.rt.state == "RUN"
         assert program.monitor.head_on == 0 and program.monitor.node == 0
         assert program.resolver.unresolved == 0
-        if seconds == SIMULATED_S:
+        if seconds == SIMULATED_S and cfg.order_vehicles:
+            finished = program.orders.book.counts()["FINISHED"]
+            assert finished, f"{path.name}: no order finished in {seconds} s"
+        if seconds == SIMULATED_S and cfg.vehicle_recipes:
             assert program.completed, f"{path.name}: no recipe completed in {seconds} s"
             if return_lanes(cfg.plant) and all(
                 r.functions[-1] == EXIT for r in cfg.recipes.values()

@@ -1,7 +1,8 @@
 """Dependencies point one way, so the folder list shows the architecture.
 
     plc_runtime  <-  blocks.standard  <-  blocks.routing  <-  blocks.traffic  <-  blocks.jobs
-    topology     <-  blocks.routing, blocks.traffic, blocks.jobs, vehicles
+                                                        blocks.traffic  <-  blocks.dispatch
+    topology     <-  blocks.routing, blocks.traffic, blocks.jobs, blocks.dispatch, vehicles
     plc_runtime  <-  io_drivers  <-  vehicles
     everything   <-  fleet (the application: configuration, program assembly, reports, CLI)
 
@@ -25,6 +26,13 @@ ALLOWED = {
     "blocks.routing": {"plc_runtime", "topology", "blocks.standard"},
     "blocks.traffic": {"plc_runtime", "topology", "blocks.standard", "blocks.routing"},
     "blocks.jobs": {
+        "plc_runtime",
+        "topology",
+        "blocks.standard",
+        "blocks.routing",
+        "blocks.traffic",
+    },
+    "blocks.dispatch": {
         "plc_runtime",
         "topology",
         "blocks.standard",

@@ -59,6 +59,7 @@ ROLE_STYLE = {
     "exit": ("#333333", "#333333", ">", 80),
     "charger": ("#888888", "#333333", "P", 80),
     "parking": ("#d0d0d0", "#333333", "h", 60),
+    "queue": ("white", "#777777", "D", 30),
 }
 
 Point = tuple[float, float]

@@ -6,8 +6,13 @@ routable *arc* an index, so blockades and penalties are plain array lookups. A s
 that can be driven both ways is two arcs. Non-routable segments (a return lane) exist for
 driving and drawing but never appear in the routing graph.
 
-The fingerprint is a hash of everything routing depends on: a block that precomputed
-something for one plant can tell when it is handed another.
+Besides the graph, a plant carries what dispatching needs to know about places: queue
+nodes (a waiting place off the lanes before a station), cluster zones (the nodes around a
+logistic unit, where a vehicle's next order is frozen) and single-vehicle areas (groups of
+nodes at most one vehicle may occupy at a time, such as a transfer station and its approach).
+
+The fingerprint is a hash of everything routing and dispatching depend on: a block that
+precomputed something for one plant can tell when it is handed another.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ import scipy.sparse as sp
 
 from .errors import TopologyError
 
-ROLES = ("transit", "station", "entry", "exit", "charger", "parking")
+ROLES = ("transit", "station", "entry", "exit", "charger", "parking", "queue")
 TARGET_ROLES = ("station", "exit", "charger")  # default final targets of routes
 PORTS = ("N", "E", "S", "W")
 
@@ -35,6 +40,9 @@ class Node:
     y: float = 0.0
     role: str = "transit"
     functions: tuple[int, ...] = ()  # function ids a station provides
+    queue_for: int | None = None  # role "queue": the station this node is a waiting place of
+    zone: int | None = None  # the function whose cluster zone this node lies in
+    area: str | None = None  # the single-vehicle area this node belongs to
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,6 +198,38 @@ class Plant:
         """The function cluster: every node that provides ``function``."""
         return [n.id for n in self.nodes if function in n.functions]
 
+    # ----- dispatching: queues, cluster zones, single-vehicle areas --------------------
+    @cached_property
+    def queues(self) -> dict[int, tuple[int, ...]]:
+        """Station id -> its queue nodes, in plant order (stations without one left out)."""
+        out: dict[int, list[int]] = {}
+        for n in self.nodes:
+            if n.queue_for is not None:
+                out.setdefault(n.queue_for, []).append(n.id)
+        return {station: tuple(queue) for station, queue in out.items()}
+
+    @cached_property
+    def zones(self) -> dict[int, frozenset[int]]:
+        """Function id -> the node ids of its cluster zone: the nodes marked with that zone
+        and the nodes providing the function (a station lies in its own unit's zone), for
+        every function of the plant. Without marks a zone is just the unit's stations."""
+        members: dict[int, set[int]] = {}
+        for n in self.nodes:
+            for function in n.functions:
+                members.setdefault(function, set()).add(n.id)
+            if n.zone is not None:
+                members.setdefault(n.zone, set()).add(n.id)
+        return {function: frozenset(ids) for function, ids in sorted(members.items())}
+
+    @cached_property
+    def areas(self) -> dict[str, tuple[int, ...]]:
+        """Area name -> its node ids, in plant order."""
+        out: dict[str, list[int]] = {}
+        for n in self.nodes:
+            if n.area is not None:
+                out.setdefault(n.area, []).append(n.id)
+        return {name: tuple(members) for name, members in out.items()}
+
     @cached_property
     def positions(self) -> np.ndarray:
         return np.array([(n.x, n.y) for n in self.nodes], dtype=np.float64).reshape(-1, 2)
@@ -214,10 +254,14 @@ class Plant:
     def fingerprint(self) -> str:
         """Hash of everything routing depends on: nodes and edges in their order (which
         fixes the node and arc indices that tables and constraints are built on), roles,
-        functions, lengths as floats (so 1 and 1.0 are the same plant)."""
+        functions, lengths as floats (so 1 and 1.0 are the same plant); and the queue, zone
+        and area of the nodes that have them, which dispatching depends on."""
         digest = hashlib.sha256()
         for n in self.nodes:
-            digest.update(f"n{n.id}|{n.role}|{n.functions}\n".encode())
+            line = f"n{n.id}|{n.role}|{n.functions}"
+            if n.queue_for is not None or n.zone is not None or n.area is not None:
+                line += f"|{n.queue_for}|{n.zone}|{n.area!r}"  # only then: grids stay fast
+            digest.update(f"{line}\n".encode())
         for e in self.edges:
             length = float(e.length).hex()
             digest.update(
@@ -238,6 +282,9 @@ class Plant:
                 for f in sorted({f for n in self.nodes for f in n.functions})
             },
             "targets": len(self.targets),
+            "queues": {station: list(queue) for station, queue in self.queues.items()},
+            "zones": {function: sorted(zone) for function, zone in self.zones.items()},
+            "areas": {name: list(members) for name, members in self.areas.items()},
             "fingerprint": self.fingerprint,
             "warnings": list(self.warnings),
         }

@@ -3,7 +3,9 @@
 Errors (TopologyError, naming the file and the node or edge): more nodes or edges than the
 size limits allow, duplicate node ids, unknown roles, non-finite positions, edges to unknown
 nodes, self loops, negative/NaN/inf lengths, two edges on one compass port of a node,
-functions on nodes that cannot provide them, a declared function no station provides, a
+functions on nodes that cannot provide them, a queue node without the station it waits for
+(or ``queue_for`` on a node that is no queue, or naming no station), a zone that is no
+function of the plant, an empty area name, a declared function no station provides, a
 target that cannot be reached from an entry.
 Warnings (returned): a target that some other node cannot reach.
 
@@ -28,7 +30,7 @@ from .limits import check_plant_size
 from .model import MAX_LENGTH, MAX_NODE_ID, PORTS, ROLES, is_finite_length
 
 if TYPE_CHECKING:
-    from .model import Edge, Plant
+    from .model import Edge, Node, Plant
 
 FUNCTION_ROLES = ("station", "entry", "exit", "charger")
 MAX_REACHABILITY_WARNINGS = 20
@@ -41,6 +43,7 @@ Rule = tuple[np.ndarray, Callable[[int], str]]  # (mask of the items that pass, 
 def validate(plant: Plant, source: str | None = None) -> list[str]:
     check_plant_size(len(plant.nodes), len(plant.edges), source)
     _check_nodes(plant, source)
+    _check_places(plant, source)
     _check_edges(plant, source)
     _check_functions(plant, source)
     return _check_reachability(plant, source)
@@ -152,6 +155,60 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
         source,
         lambda i: f"nodes[{i}] (id {ids[i]})" if id_ok[i] else f"nodes[{i}]",
     )
+
+
+def _check_places(plant: Plant, source: str | None) -> None:
+    """The dispatching annotations: queue nodes and the stations they wait for, cluster
+    zones, single-vehicle areas. Checked once the node ids are known to be unique, so
+    ``queue_for`` can be looked up. Few nodes carry them, so a plain loop over those."""
+    marked = [
+        i
+        for i, node in enumerate(plant.nodes)
+        if node.role == "queue"
+        or node.queue_for is not None
+        or node.zone is not None
+        or node.area is not None
+    ]
+    if not marked:
+        return
+    functions = set(plant.functions) | {f for node in plant.nodes for f in node.functions}
+    for i in marked:
+        problem = _place_problem(plant, plant.nodes[i], functions)
+        if problem:
+            raise TopologyError(problem, source, f"nodes[{i}] (id {plant.nodes[i].id})")
+
+
+def _place_problem(plant: Plant, node: Node, functions: set[int]) -> str | None:
+    """What is wrong with a node's queue_for, zone and area, None if nothing."""
+    if node.role == "queue" and node.queue_for is None:
+        return "a queue node needs queue_for = <id of the station it is the queue of>"
+    if node.queue_for is not None:
+        if node.role != "queue":
+            return (
+                f"queue_for is only for queue nodes, this one has role {node.role!r} "
+                '(set role = "queue")'
+            )
+        if not _is_id(node.queue_for):
+            return f"queue_for must be a node id 0..{MAX_NODE_ID}, got {_short(node.queue_for)}"
+        at = _lookup(plant.index, node.queue_for)
+        if at < 0:
+            return f"queue_for names node {node.queue_for}, which is not in the plant"
+        station = plant.nodes[at]
+        if station.role != "station":
+            named = f" ({station.name})" if station.name else ""
+            return (
+                f"queue_for names node {station.id}{named}, whose role is {station.role!r}: "
+                "a queue waits for a station"
+            )
+    if node.zone is not None:
+        if not _is_id(node.zone):
+            return f"zone must be a function id 0..{MAX_NODE_ID}, got {_short(node.zone)}"
+        if node.zone not in functions:
+            known = ", ".join(map(str, sorted(functions))) or "none"
+            return f"zone {node.zone} is not a function of the plant (its functions: {known})"
+    if node.area is not None and not (isinstance(node.area, str) and node.area.strip()):
+        return f"area must be a non-empty name, got {_short(node.area)}"
+    return None
 
 
 def _role_mask(roles: list[object]) -> np.ndarray:

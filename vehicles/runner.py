@@ -16,6 +16,7 @@ import can
 from plc_runtime.clock import WallClock
 from topology import Plant
 
+from .agv import AgvParams
 from .fleet import Faults, Fleet
 from .modbus_endpoint import VehicleModbusEndpoints
 
@@ -52,6 +53,8 @@ def run_fleet(
     on_ready: Callable[[str], None] | None = None,
     on_step: Callable[[Fleet], None] | None = None,
     status_period: float = 0.1,
+    params: AgvParams | None = None,
+    charges: Mapping[int, float] | None = None,
 ) -> Fleet:
     """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal.
 
@@ -70,7 +73,16 @@ def run_fleet(
         if modbus_base_port
         else can.Bus(interface=interface, channel=channel, receive_own_messages=False)
     )
-    fleet = Fleet(plant, starts, bus, faults=faults, seed=seed, status_period=status_period)
+    fleet = Fleet(
+        plant,
+        starts,
+        bus,
+        params=params,
+        faults=faults,
+        seed=seed,
+        status_period=status_period,
+        charges=charges,
+    )
     endpoints = (
         VehicleModbusEndpoints(fleet, base_port=modbus_base_port) if modbus_base_port else None
     )

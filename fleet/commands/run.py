@@ -35,12 +35,20 @@ from typing import Any
 
 from rich.console import Console
 
+from blocks.dispatch.strategies import STRATEGIES
 from plc_runtime.cli import CliError, drive
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 
 from .. import liveness
-from ..config import DEFAULT_CONFIG, MODBUS, FleetConfig, load_config, modbus_endpoint
+from ..config import (
+    DEFAULT_CONFIG,
+    MODBUS,
+    FleetConfig,
+    first_vehicles,
+    load_config,
+    modbus_endpoint,
+)
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
 from ..report import check_out_dir, summary, write_all
@@ -83,6 +91,17 @@ def add_options(run: argparse.ArgumentParser) -> None:
         "--realtime and a shared bus) or external (attach to vehicles started elsewhere; "
         "implies the wall clock)",
     )
+    run.add_argument(
+        "--dispatch",
+        choices=STRATEGIES,
+        help="fleet: the order allocation strategy, overriding [dispatch] strategy",
+    )
+    run.add_argument(
+        "--vehicles-count",
+        type=int,
+        metavar="N",
+        help="fleet: run only the first N vehicles of the configuration (by id)",
+    )
 
 
 def run(args: argparse.Namespace, modbus: Any) -> int:
@@ -91,7 +110,16 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         cfg.cycle_time = args.cycle_time
     if args.watchdog is not None:
         cfg.watchdog = args.watchdog / 1e3
+    if args.dispatch is not None:
+        cfg.dispatch.strategy = args.dispatch
+    if args.vehicles_count is not None:
+        first_vehicles(cfg, args.vehicles_count)
     setup = plan(args, cfg)
+    if setup.spawn and args.vehicles_count is not None:
+        raise ConfigError(
+            "--vehicles-count: only with vehicles simulated in this process (the vehicle "
+            "process simulates every vehicle of the configuration)"
+        )
     out = Path(args.out)
     check_out_dir(out)
     broken = liveness.violations(cfg)

@@ -63,13 +63,14 @@ def vehicles_command(args: argparse.Namespace) -> int:
     from vehicles.monitor import ConflictMonitor
     from vehicles.runner import default_starts, parse_bus, run_fleet
 
-    status_period, faults = 0.1, None
+    status_period, faults, params, charges = 0.1, None, None, None
     if args.config:
         from ..config import load_config
 
         cfg = load_config(args.config)
         plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s
         faults = cfg.faults or None  # the configuration's [faults]: a commissioning test
+        params, charges = cfg.agv, cfg.battery.start  # [simulation] and start charges
     else:
         plant = load_plant(args.plant)
     try:
@@ -106,6 +107,8 @@ def vehicles_command(args: argparse.Namespace) -> int:
             on_step=watch if args.monitor_out else None,
             status_period=status_period,
             faults=faults,
+            params=params,
+            charges=charges,
         )
     except (OSError, ValueError, ImportError, RuntimeError, TimeoutError) as exc:
         raise ConfigError(f"vehicle link: {exc}") from None

@@ -10,6 +10,12 @@ x = 1.5
 y = 0.0
 role = "station"
 functions = [2]
+zone = 2                 # optional: the function whose cluster zone the node lies in
+area = "drill-1"         # optional: a single-vehicle area
+[[nodes]]
+id = 17
+role = "queue"
+queue_for = 16           # a queue node: the station it is a waiting place of
 [[edges]]
 from = 1
 to = 16
@@ -31,7 +37,7 @@ from ..errors import TopologyError
 from ..limits import MAX_FILE_BYTES
 from ..model import Edge, Node, Plant
 
-NODE_KEYS = {"id", "name", "x", "y", "role", "functions"}
+NODE_KEYS = {"id", "name", "x", "y", "role", "functions", "queue_for", "zone", "area"}
 EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable"}
 TOP_KEYS = {"name", "functions", "nodes", "edges"}
 
@@ -152,7 +158,16 @@ def _node(item: Any, i: int, source: str) -> Node:
         y=_typed(item.get("y", 0.0), (int, float), "y", source, where),
         role=_typed(item.get("role", "transit"), str, "role", source, where),
         functions=tuple(_typed(f, int, "function id", source, where) for f in functions),
+        queue_for=_optional(item, "queue_for", int, source, where),
+        zone=_optional(item, "zone", int, source, where),
+        area=_optional(item, "area", str, source, where),
     )
+
+
+def _optional(item: dict[str, Any], key: str, kind: type, source: str, where: str) -> Any:
+    """An optional key's value of the given type; absent (or JSON null) is None."""
+    value = item.get(key)
+    return None if value is None else _typed(value, kind, key, source, where)
 
 
 def _edge(item: Any, i: int, source: str) -> Edge:
@@ -187,6 +202,9 @@ def to_dict(plant: Plant) -> dict[str, Any]:
             node["name"] = n.name
         if n.functions:
             node["functions"] = list(n.functions)
+        for key in ("queue_for", "zone", "area"):
+            if getattr(n, key) is not None:
+                node[key] = getattr(n, key)
         nodes.append(node)
     edges = []
     for e in plant.edges:

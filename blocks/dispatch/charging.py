@@ -1,0 +1,73 @@
+"""ChargePolicy: when a vehicle stops taking orders, goes charging, and comes back.
+
+Thresholds as openTCS names them (state of charge in %):
+
+* ``critical`` (default 15): below it a vehicle takes nothing, not even an order while it is
+  charging;
+* ``good`` (default 35, the seed's threshold): a vehicle takes a new order only if it is
+  expected to end that order at or above it;
+* ``sufficient`` (default 60): a charging vehicle may be taken off the charger for an order
+  (the charge is interruptible) once it has this much;
+* ``full`` (default 95): a charging vehicle with no order leaves the charger.
+
+The seed's policy: estimate the consumption of the next order (learned as the mean drop per
+finished order; ``default_use`` until one is known); if it would end below ``good`` the
+vehicle deregisters, finishes its active order and drives to a free charger, and it
+re-registers when the charge is sufficient. Consumption is learned from what the vehicles
+report, so the controller needs no model of their drives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class ChargePolicy:
+    critical: float = 15.0
+    good: float = 35.0
+    sufficient: float = 60.0
+    full: float = 95.0
+    default_use: float = 2.0  # % per order until the first order was measured
+    window: int = 50  # orders the mean consumption is taken over
+    enabled: bool = True
+    _uses: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        levels = (self.critical, self.good, self.sufficient, self.full)
+        if not all(0.0 <= x <= 100.0 for x in levels) or list(levels) != sorted(levels):
+            raise ValueError(
+                "battery thresholds must satisfy 0 <= critical <= good <= sufficient <= full "
+                f"<= 100, got {levels}"
+            )
+
+    @property
+    def use_per_order(self) -> float:
+        """The expected consumption of one order, in % of the capacity."""
+        return sum(self._uses) / len(self._uses) if self._uses else self.default_use
+
+    def order_used(self, percent: float) -> None:
+        """A finished order used ``percent`` of the capacity (a negative value, charged on
+        the way, counts as 0)."""
+        self._uses.append(max(0.0, float(percent)))
+        del self._uses[: -self.window]
+
+    def may_take(self, battery: float, charging: bool = False) -> bool:
+        """May a vehicle at ``battery`` % take a new order? A charging one only once its
+        charge is sufficient (the charge is interrupted)."""
+        if not self.enabled:
+            return True
+        if battery < self.critical or (charging and battery < self.sufficient):
+            return False
+        return battery - self.use_per_order >= self.good
+
+    def must_charge(self, battery: float) -> bool:
+        """Without an order: must the vehicle go charging? Not once it is full: a vehicle
+        whose orders are expected to use more than ``full - good`` stays idle at full
+        charge rather than shuttling to the charger for ever (the thresholds are too tight
+        for its orders, which the summary's charging figures show)."""
+        return self.enabled and battery < self.full and not self.may_take(battery)
+
+    def charged(self, battery: float) -> bool:
+        """Charging without an order: may it leave the charger?"""
+        return not self.enabled or battery >= self.full

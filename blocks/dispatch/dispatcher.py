@@ -1,0 +1,323 @@
+"""Dispatcher: gives transport orders to vehicles, with bounded work per scan.
+
+The dispatcher decides *what* a vehicle does; routing and traffic decide *how* it drives
+(openTCS's split of dispatcher, router and scheduler). Every scan it
+
+1. checks new orders, and all orders again when the blockades changed: an order whose Put
+   station cannot be reached from its Get station over open segments, or whose Get station
+   no vehicle can reach, is UNROUTABLE; an order whose vehicle can no longer reach its next
+   station goes back to the pool (before the pickup) or FAILS (the load is on board);
+2. with ``two_stage``, notices a running section that took more than ``1 + deviation``
+   times its estimate, and then takes every vehicle's next order back for a new round;
+3. starts an allocation round when a vehicle could take an order and orders wait (not more
+   often than every ``interval_s``), and advances the running round by at most ``budget``
+   (vehicle, order) evaluations; a complete round is applied at once, after checking each
+   assignment still holds (the order still waits, the vehicle is still free).
+
+Vehicles that are offline, stale, faulty or suspect take nothing (``available``); a vehicle
+whose battery would end an order below the ChargePolicy's ``good`` level takes nothing
+either, and a charging one only once its charge is sufficient.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+from plc_runtime import CycleContext, FunctionBlock, Output
+
+from .charging import ChargePolicy
+from .estimates import SectionEstimates
+from .executor import OrderRunner
+from .orders import OrderBook, OrderState, TransportOrder
+from .reachability import Reachability
+from .station_schedule import StationSchedule
+from .strategies import (
+    STRATEGIES,
+    Assignment,
+    Candidate,
+    StationStats,
+    dhht,
+    nearest_idle,
+    two_stage,
+)
+
+
+class Dispatcher(FunctionBlock):
+    rounds = Output(0, doc="allocation rounds completed")
+    evaluations = Output(0, doc="(vehicle, order) pairs evaluated")
+    assignments = Output(0, doc="orders given to a vehicle")
+    reassigned = Output(0, doc="orders taken back from a vehicle and given again")
+    deviations = Output(0, doc="sections that ran over their estimate (two_stage recomputes)")
+    waiting = Output(0, doc="orders waiting for a vehicle")
+
+    def __init__(
+        self,
+        book: OrderBook,
+        runners: Mapping[int, OrderRunner],
+        strategy: str,
+        distance: Callable[[int, int], float],
+        reach: Reachability,
+        schedule: StationSchedule,
+        estimates: SectionEstimates,
+        charging: ChargePolicy,
+        available: Callable[[int], bool],
+        budget: int = 500,
+        interval_s: float = 1.0,
+        deviation: float = 0.3,
+        capacity_per_h: float = 60.0,
+        pool_limit: int = 100,
+    ) -> None:
+        super().__init__()
+        if strategy not in STRATEGIES:
+            raise ValueError(
+                f"dispatch strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}"
+            )
+        if budget < 1:
+            raise ValueError(f"dispatch budget must be >= 1 evaluation per scan, got {budget}")
+        self.book = book
+        self.runners = runners
+        self.strategy = strategy
+        self.distance = distance
+        self.reach = reach
+        self.schedule = schedule
+        self.estimates = estimates
+        self.charging = charging
+        self.available = available
+        self.budget = budget
+        self.interval_ns = round(interval_s * 1e9)
+        self.deviation = deviation
+        self.capacity_per_h = capacity_per_h
+        self.pool_limit = pool_limit
+        self.stats: dict[int, StationStats] = {}
+        self._round = None
+        self._working: StationSchedule | None = None
+        self._last_round_ns: int | None = None
+        self._checked: set[str] = set()
+        self._epoch: int | None = None
+        self._deviated: set[tuple[str, str]] = set()
+        self._origin: dict[str, int] = {}  # order id -> the node its vehicle took it at
+
+    # ----- the scan --------------------------------------------------------------------------
+    def cycle(self, ctx: CycleContext) -> None:
+        self._check_routes(ctx)
+        if self.strategy == "two_stage":
+            self._check_deviations(ctx)
+        if self._round is None and self._due(ctx):
+            self._start_round(ctx)
+        if self._round is not None:
+            self._advance(ctx)
+        self.waiting = sum(1 for o in self.book.dispatchable())
+
+    def _due(self, ctx: CycleContext) -> bool:
+        if self._last_round_ns is not None and ctx.time_ns - self._last_round_ns < self.interval_ns:
+            return False
+        return bool(self.book.dispatchable()) and bool(self._candidates(ctx))
+
+    # ----- routes ------------------------------------------------------------------------------
+    def _check_routes(self, ctx: CycleContext) -> None:
+        blockades_changed = self._epoch != self.reach.blockades.epoch
+        self._epoch = self.reach.blockades.epoch
+        for order in self.book.dispatchable():
+            if order.id in self._checked and not blockades_changed:
+                continue
+            self._checked.add(order.id)
+            why = self._unroutable(order)
+            if why is not None:
+                self.book.transition(order, OrderState.UNROUTABLE, ctx.time, why)
+        if not blockades_changed:
+            return
+        for runner in self.runners.values():
+            order = runner.active
+            if order is None or runner.current is None:
+                continue
+            loaded = runner.phase in ("to_put", "put_queue", "put")
+            station = order.put if loaded else order.get
+            if self.reach.reaches(runner.current, station):
+                continue
+            if loaded:
+                self.book.transition(
+                    order,
+                    OrderState.FAILED,
+                    ctx.time,
+                    f"Put station {order.put} cut off by a blockade",
+                )
+                runner.withdrawn(ctx)
+            else:
+                runner.frozen = False  # not picked up yet: another vehicle may still get there
+                self._give_back(ctx, runner)
+
+    def _unroutable(self, order: TransportOrder) -> str | None:
+        if not self.reach.reaches(order.get, order.put):
+            return f"no route from Get station {order.get} to Put station {order.put}"
+        starts = [r.current for r in self.runners.values() if r.current is not None]
+        if starts and not any(self.reach.reaches(n, order.get) for n in starts):
+            return f"no vehicle can reach Get station {order.get}"
+        return None
+
+    # ----- deviations ----------------------------------------------------------------------------
+    def _check_deviations(self, ctx: CycleContext) -> None:
+        for runner in self.runners.values():
+            order = runner.active
+            if order is None or runner.section not in ("Go_To_Cluster", "Go_To_Get", "Go_To_Put"):
+                continue
+            key = (order.id, runner.section)
+            if key in self._deviated:
+                continue
+            start = order.sections[runner.section][0]
+            to = order.put if runner.section == "Go_To_Put" else order.get
+            origin = order.get if runner.section == "Go_To_Put" else self._origin.get(order.id)
+            if origin is None:
+                continue
+            estimate = self.estimates.travel(origin, to)
+            if estimate > 0 and (ctx.time - start) > (1.0 + self.deviation) * estimate:
+                self._deviated.add(key)
+                self.deviations += 1
+                for other in self.runners.values():
+                    if other.next is not None:
+                        self._cancel(other.next)
+                        back = other.next
+                        other.next = None
+                        back.assigned = None
+                        self.book.transition(back, OrderState.DISPATCHABLE, ctx.time, "recomputed")
+                        self.reassigned += 1
+                self._last_round_ns = None  # recompute now
+
+    # ----- rounds --------------------------------------------------------------------------------
+    def _candidates(self, ctx: CycleContext) -> list[Candidate]:
+        out = []
+        for v, r in self.runners.items():
+            if r.current is None or not self.available(v):
+                continue
+            charging = r.phase in ("to_charger", "charging")
+            if r.active is None:
+                if self.charging.may_take(r.battery, charging):
+                    out.append(Candidate(v, r.current, ctx.time, "active"))
+            elif (
+                self.strategy == "two_stage"
+                and r.next is None
+                and r.frozen
+                and self.charging.may_take(r.battery - self.charging.use_per_order)
+            ):
+                out.append(Candidate(v, r.active.put, self._finish_s(ctx, r), "next"))
+        return out
+
+    def _finish_s(self, ctx: CycleContext, r: OrderRunner) -> float:
+        """When the active order of ``r`` is estimated to end."""
+        o, est, now = r.active, self.estimates, ctx.time
+        put = est.dwell(o.put, "Put")
+        if r.phase in ("to_get", "get_queue"):
+            return (
+                now
+                + est.travel(r.current, o.get)
+                + est.dwell(o.get, "Get")
+                + est.travel(o.get, o.put)
+                + put
+            )
+        if r.phase == "get":
+            return max(now, r.dwell_until_ns / 1e9) + est.travel(o.get, o.put) + put
+        if r.phase in ("to_put", "put_queue"):
+            return now + est.travel(r.current, o.put) + put
+        return max(now, r.dwell_until_ns / 1e9)
+
+    def _pool(self, ctx: CycleContext) -> list[TransportOrder]:
+        orders = self.book.dispatchable()
+        if self.strategy != "two_stage":
+            orders = [o for o in orders if o.start_s <= ctx.time]
+        orders.sort(key=lambda o: (-o.priority, o.end_s, o.start_s, o.id))
+        return orders[: self.pool_limit]
+
+    def _start_round(self, ctx: CycleContext) -> None:
+        self._last_round_ns = ctx.time_ns
+        vehicles, orders = self._candidates(ctx), self._pool(ctx)
+        orders = [o for o in orders if any(self.reach.reaches(c.node, o.get) for c in vehicles)]
+        if not vehicles or not orders:
+            return
+        if self.strategy == "nearest_idle":
+            self._round = nearest_idle(vehicles, orders, self.distance)
+        elif self.strategy == "dhht":
+            self._round = dhht(
+                vehicles,
+                orders,
+                self.distance,
+                self._dhht_stats(ctx),
+                ctx.time,
+                self.capacity_per_h,
+            )
+        else:
+            self.schedule.prune(ctx.time)
+            self._working = self.schedule.copy()
+            self._round = two_stage(vehicles, orders, self._working, self.estimates, ctx.time)
+
+    def _advance(self, ctx: CycleContext) -> None:
+        for _ in range(self.budget):
+            try:
+                next(self._round)
+            except StopIteration as done:
+                self._round = None
+                self.rounds += 1
+                self._apply(ctx, done.value)
+                return
+            self.evaluations += 1
+
+    def _apply(self, ctx: CycleContext, assignments: list[Assignment]) -> None:
+        if self._working is not None:
+            self.schedule, self._working = self._working, None
+        for a in assignments:
+            runner, order = self.runners[a.vehicle], a.order
+            free = runner.active is None or (runner.next is None and runner.frozen)
+            if (
+                order.state is not OrderState.DISPATCHABLE
+                or order.assigned is not None
+                or not free
+                or not self.reach.reaches(runner.current, order.get)
+            ):
+                self._cancel(order)
+                continue
+            if runner.active is None:
+                self._origin[order.id] = runner.current
+            else:
+                self._origin[order.id] = runner.active.put
+            runner.take(ctx, order)
+            self.assignments += 1
+
+    # ----- bookkeeping -------------------------------------------------------------------------
+    def _give_back(self, ctx: CycleContext, runner: OrderRunner) -> None:
+        for order in runner.give_back(ctx):
+            self._cancel(order)
+            self.reassigned += 1
+
+    def _cancel(self, order: TransportOrder) -> None:
+        self.schedule.cancel(order.id)
+
+    def section_done(self, order: TransportOrder, name: str, start_s: float, end_s: float) -> None:
+        """A runner ended a section: learn its duration, count pickups for dhht, and free the
+        order's station reservations once it is done."""
+        duration = end_s - start_s
+        est = self.estimates
+        if name == "Go_To_Get":
+            origin = self._origin.get(order.id)
+            cluster = order.sections.get("Go_To_Cluster")
+            if origin is not None and cluster is not None:
+                est.record_travel(origin, order.get, end_s - cluster[0])
+        elif name == "Get":
+            est.record_dwell(order.get, "Get", duration)
+            s = self.stats.setdefault(order.get, StationStats(pickups_s=[]))
+            s.delivered += 1
+            s.pickups_s.append(end_s)
+            del s.pickups_s[:-200]
+        elif name == "Go_To_Put":
+            est.record_travel(order.get, order.put, duration)
+        elif name == "Put":
+            est.record_dwell(order.put, "Put", duration)
+            self._cancel(order)
+            self._origin.pop(order.id, None)
+
+    def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:
+        hours = max(ctx.time / 3600.0, 1.0 / 60.0)
+        counts: dict[int, int] = {}
+        for order in self.book:
+            counts[order.get] = counts.get(order.get, 0) + 1
+        for station, n in counts.items():
+            s = self.stats.setdefault(station, StationStats(pickups_s=[]))
+            s.supply_per_h = n / hours
+        return self.stats

@@ -1,0 +1,130 @@
+"""SectionEstimates: how long an order's sections take, learned from the orders already run.
+
+The seed's allocation prices every (vehicle, order) pair by the time the vehicle would idle,
+so it needs estimates of every section: the travel time between two nodes (to the Get
+station, Get -> Put, Put -> next Get) and the dwell time of a Get or Put at each station. It
+learns them from history: the mean (or, as the seed suggests, the more robust median) of the
+recorded times per pair of nodes and per station and kind. Before the first record of a key,
+travel falls back to the caller's estimate (the seed's Euclidean distance / mean speed; the
+fleet passes the heuristic table's distance / mean speed) and dwell to a default.
+
+A vehicle stuck behind a blockade records a travel time that says nothing about the route,
+so a sample above ``outlier`` x the current estimate is ignored (and counted in
+``ignored``) -- but only once a key has 3 samples, so the first ones can establish an
+estimate even if the fallback was far off. Only the last ``window`` samples of a key count:
+memory stays bounded over a long run, and the estimates follow a plant that changes.
+
+:meth:`SectionEstimates.deviates` is the seed's re-planning trigger: a section deviates when
+``|(now - planned start) / estimated duration| > 1 + threshold`` (30 % by default).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Hashable
+from numbers import Real
+from statistics import fmean, median
+from typing import Literal
+
+from .arguments import finite_number
+
+KINDS = ("Get", "Put")
+MIN_SAMPLES_FOR_OUTLIERS = 3
+
+
+def _number(where: str, name: str, value: float, minimum: float = -math.inf) -> float:
+    return finite_number("SectionEstimates", where, name, value, minimum)
+
+
+class SectionEstimates:
+    """Learned travel and dwell times per key, with fallbacks before the first sample.
+
+    Keys are ``(a, b)`` node pairs for travel and ``(station, kind)`` for dwell. The outlier
+    rule needs 3 samples in the window, so a ``window`` below 3 switches it off.
+    """
+
+    def __init__(
+        self,
+        travel_fallback: Callable[[int, int], float],
+        dwell_default_s: float,
+        outlier: float = 1.5,
+        method: Literal["median", "mean"] = "median",
+        window: int = 50,
+    ) -> None:
+        if not callable(travel_fallback):
+            raise ValueError("SectionEstimates: travel_fallback must be callable (a, b) -> seconds")
+        self.dwell_default_s = _number("__init__", "dwell_default_s", dwell_default_s, 0.0)
+        # inf switches the outlier rule off; a factor <= 1 would reject every slower sample
+        if not isinstance(outlier, Real) or math.isnan(outlier) or outlier <= 1:
+            raise ValueError(f"SectionEstimates: outlier must be a number > 1, got {outlier!r}")
+        if method not in ("median", "mean"):
+            raise ValueError(f"SectionEstimates: method must be 'median' or 'mean', got {method!r}")
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ValueError(f"SectionEstimates: window must be an integer >= 1, got {window!r}")
+        self.travel_fallback = travel_fallback
+        self.outlier = float(outlier)
+        self.method = method
+        self.window = window
+        self.ignored = 0  # samples dropped by the outlier rule
+        self._samples: dict[Hashable, deque[float]] = {}
+        self._learned: dict[Hashable, float] = {}  # cached estimate per key with samples
+
+    def travel(self, a: int, b: int) -> float:
+        """Seconds from node ``a`` to node ``b``: learned, else the fallback."""
+        learned = self._learned.get(("travel", a, b))
+        return learned if learned is not None else float(self.travel_fallback(a, b))
+
+    def dwell(self, station: int, kind: str) -> float:
+        """Seconds a Get or Put (``kind``) takes at ``station``: learned, else the default."""
+        return self._learned.get((_kind("dwell", kind), station), self.dwell_default_s)
+
+    def record_travel(self, a: int, b: int, seconds: float) -> bool:
+        """Learn one driven time from ``a`` to ``b``; False if ignored as an outlier."""
+        return self._record(("travel", a, b), _number("record_travel", "seconds", seconds, 0.0))
+
+    def record_dwell(self, station: int, kind: str, seconds: float) -> bool:
+        """Learn one Get/Put time at ``station``; False if ignored as an outlier."""
+        key = (_kind("record_dwell", kind), station)
+        return self._record(key, _number("record_dwell", "seconds", seconds, 0.0))
+
+    def travel_samples(self, a: int, b: int) -> tuple[float, ...]:
+        """The samples behind :meth:`travel` (at most ``window``, oldest first)."""
+        return tuple(self._samples.get(("travel", a, b), ()))
+
+    def dwell_samples(self, station: int, kind: str) -> tuple[float, ...]:
+        """The samples behind :meth:`dwell` (at most ``window``, oldest first)."""
+        return tuple(self._samples.get((_kind("dwell_samples", kind), station), ()))
+
+    def _record(self, key: Hashable, seconds: float) -> bool:
+        samples = self._samples.get(key)
+        if samples is None:
+            samples = self._samples[key] = deque(maxlen=self.window)
+        if len(samples) >= MIN_SAMPLES_FOR_OUTLIERS and seconds > self.outlier * self._learned[key]:
+            self.ignored += 1
+            return False
+        samples.append(seconds)
+        self._learned[key] = median(samples) if self.method == "median" else fmean(samples)
+        return True
+
+    @staticmethod
+    def deviates(
+        planned_start_s: float, estimated_s: float, now_s: float, threshold: float = 0.3
+    ) -> bool:
+        """The seed's trigger: ``|(now - planned start) / estimated| > 1 + threshold``.
+
+        A zero estimate deviates as soon as any time has passed (the ratio is infinite).
+        """
+        start = _number("deviates", "planned_start_s", planned_start_s)
+        estimated = _number("deviates", "estimated_s", estimated_s, 0.0)
+        now = _number("deviates", "now_s", now_s)
+        limit = 1 + _number("deviates", "threshold", threshold, 0.0)
+        if estimated == 0:
+            return now != start
+        return abs((now - start) / estimated) > limit
+
+
+def _kind(where: str, kind: str) -> str:
+    if kind not in KINDS:
+        raise ValueError(f"SectionEstimates.{where}: kind must be 'Get' or 'Put', got {kind!r}")
+    return kind

@@ -1,0 +1,422 @@
+"""OrderRunner: one vehicle works off its transport orders, section by section (seed 000).
+
+An order runs through the seed's sections, each time-stamped in the order:
+
+* ``Go_To_Cluster``: from taking the order until the vehicle enters the cluster zone of the
+  Get station (the nodes of the station's units, plant key ``zone``); until then the
+  dispatcher may still give the order to another vehicle (the two-stage allocation);
+* ``Go_To_Get``: inside the zone, until it reaches the station or starts waiting for it;
+* ``Get_Queue``: waiting for the station (at a queue position, off the lanes), until it
+  stands at the station;
+* ``Get``: the dwell at the station (loading);
+* ``Go_To_Put``, ``Put_Queue``, ``Put``: the same for the Put station (unloading).
+
+A transfer station takes one vehicle at a time, first come first served: a vehicle drives
+onto it only while it holds the station's claim (:class:`Claims`), and otherwise waits at a
+free queue position of the station, or, without one, on hold where its released route ends
+(a held vehicle releases nothing more). Routing and traffic
+(VehicleControl and the reservations) decide how it drives; this block only sets the target
+and the hold. Without an order a vehicle charges when its ChargePolicy says so, and
+otherwise parks at a free parking position, out of the others' way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
+from topology import Plant
+
+from .charging import ChargePolicy
+from .orders import OrderBook, OrderState, TransportOrder
+
+PHASES = (
+    "idle",
+    "to_get",
+    "get_queue",
+    "get",
+    "to_put",
+    "put_queue",
+    "put",
+    "to_charger",
+    "charging",
+    "to_parking",
+    "parked",
+)
+
+
+class Claims:
+    """Who may stand at a place that takes one vehicle: stations, queue positions,
+    chargers, parking positions. A station's waiting vehicles are served in the order they
+    asked, so a vehicle in its queue is never overtaken by one arriving later."""
+
+    def __init__(self) -> None:
+        self.holder: dict[int, int] = {}
+        self.waiting: dict[int, list[int]] = {}
+
+    def claim(self, place: int, vehicle: int) -> bool:
+        """Take ``place`` if it is free and nobody asked before; else join its queue."""
+        holder = self.holder.get(place)
+        if holder == vehicle:
+            return True
+        queue = self.waiting.setdefault(place, [])
+        if holder is None and (not queue or queue[0] == vehicle):
+            if queue:
+                queue.pop(0)
+            self.holder[place] = vehicle
+            return True
+        if vehicle not in queue:
+            queue.append(vehicle)
+        return False
+
+    def free(self, place: int) -> bool:
+        return place not in self.holder and not self.waiting.get(place)
+
+    def release(self, place: int, vehicle: int) -> None:
+        if self.holder.get(place) == vehicle:
+            del self.holder[place]
+
+    def forget(self, vehicle: int, keep: frozenset[int] = frozenset()) -> None:
+        """``vehicle`` holds and waits for nothing any more (but the places in ``keep``)."""
+        for place in [p for p, v in self.holder.items() if v == vehicle and p not in keep]:
+            del self.holder[place]
+        for place, queue in self.waiting.items():
+            if vehicle in queue and place not in keep:
+                queue.remove(vehicle)
+
+
+class OrderRunner(FunctionBlock):
+    arrived = Input(False, doc="the vehicle control reports: at the target, nothing left to drive")
+    current = Input(None, doc="the node the vehicle last reported")
+    battery = Input(100, doc="state of charge in %, from the vehicle's info frames")
+
+    target = Output(None, doc="the node the vehicle should drive to")
+    fixed_route = Output(None, doc="never set: orders are planned, not driven on fixed lanes")
+    hold = Output(False, doc="TRUE while loading, unloading or charging")
+    phase = Output("idle", doc="|".join(PHASES))
+    section = Output("", doc="the running section of the active order")
+    priority_ns = Output(0, doc="when the current task was released: older goes first")
+    orders_done = Output(0)
+    stations_visited = Output(0)
+    charges = Output(0, doc="visits to a charger")
+    charging_s = Output(0.0, doc="time spent on a charger, finished visits")
+    min_battery = Output(100, doc="the lowest state of charge seen, %")
+
+    active = Static(None)  # the order being driven (TransportOrder)
+    next = Static(None)  # the order after it, changeable until taken up
+    frozen = Static(False)  # the active order can no longer go to another vehicle
+    dwell_until_ns = Static(0)
+    place = Static(None)  # the charger or parking node it heads for or stands at
+    leaving = Static(None)  # the station it was served at, claimed until it has left it
+    charging_since = Static(None)  # when the current charger visit began (s)
+    battery_at_start = Static(None)
+
+    def __init__(
+        self,
+        vehicle: int,
+        plant: Plant,
+        book: OrderBook,
+        claims: Claims,
+        charging: ChargePolicy,
+        distance: Callable[[int, int], float],
+        get_s: float = 10.0,
+        put_s: float = 10.0,
+        park: bool = True,
+        on_section: Callable[[TransportOrder, str, float, float], None] | None = None,
+    ) -> None:
+        super().__init__()
+        self.vehicle = vehicle
+        self.plant = plant
+        self.book = book
+        self.claims = claims
+        self.charging = charging
+        self.distance = distance
+        self.dwell_s = {"Get": get_s, "Put": put_s}
+        self.park = park
+        self.on_section = on_section  # a finished section: (order, name, start_s, end_s)
+        self.queues = plant.queues
+        self.zones = {
+            s: frozenset().union(*(plant.zones.get(f, ()) for f in plant.node(s).functions)) | {s}
+            for s in plant.with_role("station")
+        }
+        # a station's single-vehicle area (plant key ``area``): its claim covers all of it
+        self.area_of = {node: frozenset(nodes) for nodes in plant.areas.values() for node in nodes}
+        self.chargers = plant.with_role("charger")
+        self.parking = plant.with_role("parking")
+
+    # what reports show of a recipe vehicle, for a vehicle that takes orders
+    recipe_name = ""
+    step = 0
+
+    @property
+    def rounds_done(self) -> int:
+        return self.orders_done
+
+    # ----- what the dispatcher sees and does ---------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        return self.active is not None
+
+    def take(self, ctx: CycleContext, order: TransportOrder) -> None:
+        """The dispatcher gives ``order`` to this vehicle: active if it has none, else next."""
+        order.assigned = self.vehicle
+        if order.state is not OrderState.BEING_PROCESSED:
+            self.book.transition(order, OrderState.BEING_PROCESSED, ctx.time)
+        if self.active is None:
+            self._activate(ctx, order)
+        else:
+            self.next = order
+
+    def give_back(self, ctx: CycleContext) -> list[TransportOrder]:
+        """The orders the dispatcher may still move to another vehicle: the next order, and
+        the active one while the vehicle has not entered its Get zone. They are dispatchable
+        again; the vehicle keeps driving until it gets one."""
+        back = []
+        if self.next is not None:
+            back.append(self.next)
+            self.next = None
+        if self.active is not None and not self.frozen:
+            back.append(self.active)
+            self.active = None
+            self._forget()
+            self.phase, self.section = "idle", ""
+        for order in back:
+            order.assigned = None
+            self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "reassigned")
+        return back
+
+    def withdrawn(self, ctx: CycleContext) -> None:
+        """Drop orders that were withdrawn or failed meanwhile (the book's state says so)."""
+        if self.next is not None and self.next.state.final:
+            self.next = None
+        if self.active is not None and self.active.state.final:
+            self.active, self.hold, self.section = None, False, ""
+            self._forget()
+            self.phase = "idle"
+
+    # ----- the scan --------------------------------------------------------------------------
+    def cycle(self, ctx: CycleContext) -> None:
+        if self.current is None:
+            return
+        self.min_battery = min(self.min_battery, self.battery)
+        if self.leaving is not None and self.current not in self._area(self.leaving):
+            # it has left the station and its single-vehicle area: the next may come
+            self.claims.release(self.leaving, self.vehicle)
+            self.leaving = None
+        if self.charging_since is not None and self.phase != "charging":
+            self.charging_s += ctx.time - self.charging_since
+            self.charging_since = None
+        self.withdrawn(ctx)
+        if self.active is None and self.next is not None:
+            order, self.next = self.next, None
+            self._activate(ctx, order)
+        if self.active is not None:
+            self._drive_order(ctx)
+        else:
+            self._without_order(ctx)
+
+    # ----- an order ----------------------------------------------------------------------------
+    def _activate(self, ctx: CycleContext, order: TransportOrder) -> None:
+        self.active, self.frozen = order, False
+        self.battery_at_start = self.battery
+        self._forget()  # leaves a charger or parking place
+        self.place, self.hold = None, False
+        self.priority_ns = ctx.time_ns
+        self.phase, self.target = "to_get", order.get
+        self._start(ctx, "Go_To_Cluster")
+        self._drive_order(ctx)
+
+    def _drive_order(self, ctx: CycleContext) -> None:
+        order = self.active
+        if self.phase in ("to_get", "get_queue"):
+            self._approach(ctx, order.get, "Get", self.zones.get(order.get, {order.get}))
+        elif self.phase in ("to_put", "put_queue"):
+            self._approach(ctx, order.put, "Put", frozenset({order.put}))
+        elif self.phase in ("get", "put") and ctx.time_ns >= self.dwell_until_ns:
+            self._dwelt(ctx)
+
+    def _approach(self, ctx: CycleContext, station: int, kind: str, zone) -> None:
+        going = f"Go_To_{kind}"
+        if kind == "Get" and self.section == "Go_To_Cluster" and self.current in zone:
+            self.frozen = True  # in the Get zone: the order is this vehicle's for good
+            self._next_section(ctx, going)
+        if self.claims.claim(station, self.vehicle):
+            self._forget(station)  # its queue place is free again
+            self.target, self.hold = station, False
+            if self.arrived and self.current == station:
+                self._arrive(ctx, station, kind)
+            return
+        # the station is someone else's: wait at a queue position, or where it is
+        queue = self._queue_place(station)
+        aside = (
+            self._aside()
+            if queue is None
+            and self.leaving is not None
+            and self.current in self._area(self.leaving)
+            else None
+        )
+        if aside is not None:
+            # it waits, but not on the station it was served at: the next one may need it
+            self.target, self.hold = aside, False
+        elif queue is None:
+            # no queue position free: it stops where its released route ends, and waits
+            self.target, self.hold = station, True
+        else:
+            self.target = queue
+        waiting = f"{kind}_Queue"
+        if self.section != waiting and (queue is None or (self.arrived and self.current == queue)):
+            if kind == "Get" and self.section == "Go_To_Cluster":
+                self.frozen = True
+                self._next_section(ctx, going)
+            self._next_section(ctx, waiting)
+            self.phase = "get_queue" if kind == "Get" else "put_queue"
+
+    def _queue_place(self, station: int) -> int | None:
+        """Where to wait for ``station``, off the lanes: the queue position it holds, or a
+        free one of the station it now claims; when they are all taken, the free parking
+        position nearest to the station (a vehicle stopped on a lane would block every
+        vehicle behind it). None if there is none."""
+        places = self.queues.get(station, ())
+        for q in places:
+            if self.claims.holder.get(q) == self.vehicle:
+                return q
+        for q in places:
+            if q not in self.claims.holder and self.claims.claim(q, self.vehicle):
+                return q
+        if self.place in self.parking and self.claims.holder.get(self.place) == self.vehicle:
+            return self.place
+        free = [p for p in self.parking if self.claims.free(p)]
+        if not free:
+            return None
+        self.place = min(free, key=lambda p: self.distance(p, station))
+        self.claims.claim(self.place, self.vehicle)
+        return self.place
+
+    def _arrive(self, ctx: CycleContext, station: int, kind: str) -> None:
+        if kind == "Get" and not self.frozen:
+            self.frozen = True
+        self._next_section(ctx, kind)
+        self.stations_visited += 1
+        self.phase, self.hold = kind.lower(), True
+        self.dwell_until_ns = ctx.time_ns + round(self.dwell_s[kind] * 1e9)
+
+    def _dwelt(self, ctx: CycleContext) -> None:
+        order = self.active
+        self.hold = False
+        if self.phase == "get":
+            self.leaving = order.get  # its claim ends when the vehicle has left the station
+            self.phase, self.target = "to_put", order.put
+            self._next_section(ctx, "Go_To_Put")
+            return
+        self.leaving = order.put
+        self._end(ctx)
+        self.book.transition(order, OrderState.FINISHED, ctx.time)
+        if self.battery_at_start is not None:
+            self.charging.order_used(self.battery_at_start - self.battery)
+        self.orders_done += 1
+        self.active, self.frozen, self.section = None, False, ""
+        self.phase = "idle"
+
+    def _forget(self, keep: int | None = None) -> None:
+        """Give up every claim and queue place but ``keep`` and the station it still
+        stands at (a station is the vehicle's until it has physically left it)."""
+        self.claims.forget(
+            self.vehicle, frozenset(k for k in (keep, self.leaving) if k is not None)
+        )
+
+    def _start(self, ctx: CycleContext, name: str) -> None:
+        self.book.start_section(self.active, name, ctx.time)
+        self.section = name
+
+    def _end(self, ctx: CycleContext) -> None:
+        if self.section:
+            order = self.active
+            self.book.end_section(order, self.section, ctx.time)
+            if self.on_section is not None:
+                start = order.sections[self.section][0]
+                self.on_section(order, self.section, start, ctx.time)
+
+    def _next_section(self, ctx: CycleContext, name: str) -> None:
+        if self.section == name:
+            return
+        self._end(ctx)
+        self._start(ctx, name)
+
+    # ----- without an order ----------------------------------------------------------------------
+    def _without_order(self, ctx: CycleContext) -> None:
+        battery = self.battery
+        if self.phase in ("to_charger", "charging"):
+            if self.charging.charged(battery):
+                self._forget()
+                self.place, self.hold, self.phase = None, False, "idle"
+            else:
+                self._charge(ctx)
+                return
+        if self.charging.must_charge(battery) and self.chargers:
+            self._charge(ctx)
+            return
+        if self.phase == "idle":
+            self.target = self.current
+        if self.park and self.parking:
+            self._go_parking(ctx)
+        if self.phase == "idle" and self.leaving is not None:
+            aside = self._aside()  # nothing to do, nowhere to park, but on a station
+            if aside is not None:
+                self.target = aside
+
+    def _area(self, station: int) -> frozenset[int]:
+        return self.area_of.get(station, frozenset((station,)))
+
+    def _aside(self) -> int | None:
+        """The nearest node (in hops) outside the station's area, off the stations, to
+        wait at: the station it was served at is then free for the next vehicle (two
+        vehicles each waiting on the other's station would otherwise wait for ever)."""
+        plant = self.plant
+        area = self._area(self.leaving)
+        seen, frontier = {self.current}, [self.current]
+        for _hop in range(4):
+            reached = []
+            for node in frontier:
+                for neighbour, _arc, _length in plant.neighbors[plant.idx(node)]:
+                    n = int(plant.ids[neighbour])
+                    if n in seen:
+                        continue
+                    seen.add(n)
+                    reached.append(n)
+                    role = plant.node(n).role
+                    if (
+                        n not in area
+                        and role in ("transit", "parking")
+                        and n not in self.claims.holder
+                    ):
+                        return n
+            frontier = reached
+        return None
+
+    def _charge(self, ctx: CycleContext) -> None:
+        if self.place is None or self.place not in self.chargers:
+            free = [c for c in self.chargers if self.claims.free(c)]
+            if not free:
+                self.phase, self.target = "to_charger", self.current  # waits for a charger
+                return
+            self.place = min(free, key=lambda c: self.distance(self.current, c))
+            self._forget()
+            self.claims.claim(self.place, self.vehicle)
+            self.phase, self.target, self.hold = "to_charger", self.place, False
+        if self.phase == "to_charger" and self.arrived and self.current == self.place:
+            self.phase, self.hold = "charging", True
+            self.charges += 1
+            self.charging_since = ctx.time
+
+    def _go_parking(self, ctx: CycleContext) -> None:
+        if self.place not in self.parking:
+            if self.current in self.parking and self.claims.claim(self.current, self.vehicle):
+                self.place = self.current
+            else:
+                free = [p for p in self.parking if self.claims.free(p)]
+                if not free:
+                    return  # every parking position is taken: it stays where it is
+                self.place = min(free, key=lambda p: self.distance(self.current, p))
+                self.claims.claim(self.place, self.vehicle)
+        self.target = self.place
+        self.phase = "parked" if self.current == self.place else "to_parking"

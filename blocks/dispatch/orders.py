@@ -1,0 +1,343 @@
+"""Transport orders and the order book: what the fleet is asked to move, and where each order
+stands in its life cycle.
+
+An order is the seed's (and a warehouse system's) unit of work: fetch a load at a Get
+station and deliver it to a Put station, not before its start time (earliest pickup) and
+ideally by its end time (latest delivery). Its life cycle is openTCS's, so operators who know
+openTCS read the states as they expect::
+
+    RAW -> DISPATCHABLE -> BEING_PROCESSED -> FINISHED
+                                         \\-> FAILED | WITHDRAWN
+    RAW | DISPATCHABLE -> UNROUTABLE | WITHDRAWN;  DISPATCHABLE -> FAILED
+    BEING_PROCESSED -> DISPATCHABLE   (taken back before the load was picked up)
+
+The last arrow is what makes the seed's two-stage allocation possible: a vehicle's NEXT order,
+and its active order until it enters the Get station's cluster zone, may still go to another
+vehicle, and a blockade may take an order back from a vehicle that can no longer reach it.
+Once the Get section has started the load is (being) put on the vehicle, so the order can
+only finish, fail or be withdrawn.
+
+The book validates an order completely before it changes anything: a bad order is one
+OrderError naming the order, the field and what is wrong, and the book is as before. Every
+transition is time-stamped in the order's ``history`` with the time the caller passes in
+(the scan's ``ctx.time``): nothing here reads a clock, so a run is reproducible.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
+
+
+class OrderState(StrEnum):
+    """openTCS's states of a transport order; the value is the name (reports, CSV)."""
+
+    RAW = "RAW"
+    DISPATCHABLE = "DISPATCHABLE"
+    BEING_PROCESSED = "BEING_PROCESSED"
+    FINISHED = "FINISHED"
+    FAILED = "FAILED"
+    WITHDRAWN = "WITHDRAWN"
+    UNROUTABLE = "UNROUTABLE"
+
+    @property
+    def final(self) -> bool:
+        """No transition leaves a final state: the order is history."""
+        return self in FINAL_STATES
+
+
+FINAL_STATES = frozenset(
+    {OrderState.FINISHED, OrderState.FAILED, OrderState.WITHDRAWN, OrderState.UNROUTABLE}
+)
+
+TRANSITIONS: dict[OrderState, frozenset[OrderState]] = {
+    OrderState.RAW: frozenset(
+        {OrderState.DISPATCHABLE, OrderState.UNROUTABLE, OrderState.WITHDRAWN}
+    ),
+    OrderState.DISPATCHABLE: frozenset(
+        {
+            OrderState.BEING_PROCESSED,
+            OrderState.UNROUTABLE,
+            OrderState.WITHDRAWN,
+            OrderState.FAILED,
+        }
+    ),
+    OrderState.BEING_PROCESSED: frozenset(
+        {
+            OrderState.FINISHED,
+            OrderState.FAILED,
+            OrderState.WITHDRAWN,
+            OrderState.DISPATCHABLE,
+        }
+    ),
+    **{state: frozenset() for state in FINAL_STATES},
+}
+
+SECTIONS = ("Go_To_Cluster", "Go_To_Get", "Get_Queue", "Get", "Go_To_Put", "Put_Queue", "Put")
+LOADING = SECTIONS.index("Get")  # from this section on the load is the vehicle's
+
+
+class OrderError(ValueError):
+    """A bad order or an illegal step in its life cycle. ``str()`` is the whole message:
+    ``order 'o7': field 'get': station 99 is not a Get/Put station``."""
+
+    def __init__(self, order_id: object, field_name: str, problem: str) -> None:
+        self.order_id = order_id
+        self.field = field_name
+        self.problem = problem
+        super().__init__(f"order {_shown(order_id)}: field '{field_name}': {problem}")
+
+
+@dataclass(eq=False)  # an order is an identity, not a value: two orders are never "equal"
+class TransportOrder:
+    id: str
+    get: int  # Get station (node id): where the load is picked up
+    put: int  # Put station (node id): where it is delivered
+    start_s: float = 0.0  # earliest pickup, simulation seconds
+    end_s: float = math.inf  # latest delivery; inf = no deadline
+    priority: int = 0  # larger = more urgent
+    vehicle: int | None = None  # the intended vehicle, if the order names one
+    # run-time fields, kept by the OrderBook
+    state: OrderState = OrderState.RAW
+    history: list[tuple[float, OrderState]] = field(default_factory=list)
+    sections: dict[str, list[float]] = field(default_factory=dict)  # name -> [start, end]
+    assigned: int | None = None  # the vehicle that has it
+    reason: str = ""  # why the last transition happened (FAILED, WITHDRAWN, taken back ...)
+
+    @property
+    def created_s(self) -> float | None:
+        return self.history[0][0] if self.history else None
+
+    @property
+    def finished_s(self) -> float | None:
+        """When the order reached its final state (whichever), None while it is open."""
+        return self.history[-1][0] if self.state.final and self.history else None
+
+
+def check_order(order: TransportOrder) -> None:
+    """OrderError for what is wrong with ``order`` on its own, without knowing the plant:
+    types, get = put, the time window, a fresh run-time state. The order files run these
+    checks while reading, so a bad file is reported with its line; the book adds the checks
+    that need the plant (stations, vehicles) and the other orders (duplicate ids)."""
+    oid = order.id
+    if not isinstance(oid, str) or not oid:
+        raise OrderError(oid, "id", "must be a non-empty string")
+    if len(oid) > MAX_ID_CHARS:
+        raise OrderError(oid, "id", f"longer than {MAX_ID_CHARS} characters")
+    if not oid.isprintable() or oid != oid.strip():
+        raise OrderError(oid, "id", "has control characters or leading/trailing spaces")
+    for name in ("get", "put"):
+        value = getattr(order, name)
+        if not _is_int(value) or value < 0:
+            raise OrderError(
+                oid, name, f"must be a station node id (an integer >= 0), got {value!r}"
+            )
+    if order.get == order.put:
+        raise OrderError(oid, "put", f"Put station {order.put} is the Get station")
+    start, end = order.start_s, order.end_s
+    if not _is_number(start) or not math.isfinite(start) or start < 0:
+        raise OrderError(oid, "start_s", f"must be a finite number of seconds >= 0, got {start!r}")
+    if not _is_number(end) or math.isnan(end):
+        raise OrderError(oid, "end_s", f"must be a number of seconds (or inf), got {end!r}")
+    if end < start:
+        raise OrderError(oid, "end_s", f"end {end} s is before the start {start} s")
+    if not _is_int(order.priority):
+        raise OrderError(oid, "priority", f"must be an integer, got {order.priority!r}")
+    if order.vehicle is not None and not _is_int(order.vehicle):
+        raise OrderError(
+            oid, "vehicle", f"must be a vehicle id (an integer), got {order.vehicle!r}"
+        )
+    if order.state is not OrderState.RAW or order.history or order.sections or order.assigned:
+        raise OrderError(oid, "state", f"a new order must be RAW and unused, it is {order.state}")
+
+
+class OrderBook:
+    """The pool of orders of a run, open and final: the dispatcher takes orders from it, the
+    executors record their progress in it, reports read it.
+
+    Final orders stay in the book, so an id is never used twice in a run and the history
+    can be written at the end (docs/orders.md, "Size limits").
+    """
+
+    def __init__(self, stations: Mapping[int, str], vehicles: Iterable[int] | None = None) -> None:
+        """``stations``: the valid Get/Put stations (node id -> name for messages);
+        ``vehicles``: the fleet's vehicle ids, if intended vehicles are to be checked."""
+        self.stations = dict(stations)
+        self.vehicles = None if vehicles is None else frozenset(vehicles)
+        self._orders: dict[str, TransportOrder] = {}
+
+    # ----- the pool ------------------------------------------------------------------------
+    def add(self, order: TransportOrder, now_s: float) -> TransportOrder:
+        """Check ``order`` whole, then put it in the book as DISPATCHABLE (RAW and
+        DISPATCHABLE both time-stamped ``now_s``). A bad order raises OrderError and leaves
+        the book unchanged."""
+        check_order(order)
+        oid = order.id
+        for name in ("get", "put"):
+            station = getattr(order, name)
+            if station not in self.stations:
+                raise OrderError(oid, name, f"node {station} is not a Get/Put station")
+        if self.vehicles is not None and order.vehicle is not None:
+            if order.vehicle not in self.vehicles:
+                raise OrderError(oid, "vehicle", f"there is no vehicle {order.vehicle}")
+        if oid in self._orders:
+            raise OrderError(
+                oid, "id", f"already used by an order that is {self._orders[oid].state}"
+            )
+        _check_time(order, now_s)
+        self._orders[oid] = order
+        order.history.append((now_s, OrderState.RAW))
+        self.transition(order, OrderState.DISPATCHABLE, now_s)
+        return order
+
+    def withdraw(self, order_id: str, now_s: float, reason: str = "withdrawn") -> TransportOrder:
+        """Withdraw an open order. A vehicle processing it sees the final state and stops;
+        a final order cannot be withdrawn (OrderError)."""
+        order = self.get(order_id)
+        self.transition(order, OrderState.WITHDRAWN, now_s, reason)
+        return order
+
+    def get(self, order_id: str) -> TransportOrder:
+        """The order with this id; OrderError if the book has none (a typed-in id is wrong)."""
+        try:
+            return self._orders[order_id]
+        except (KeyError, TypeError):
+            raise OrderError(order_id, "id", "no such order") from None
+
+    def __contains__(self, order_id: object) -> bool:
+        return isinstance(order_id, str) and order_id in self._orders
+
+    def __iter__(self) -> Iterator[TransportOrder]:
+        return iter(self._orders.values())
+
+    def __len__(self) -> int:
+        return len(self._orders)
+
+    def dispatchable(self) -> list[TransportOrder]:
+        """Orders waiting for a vehicle: DISPATCHABLE and not assigned, in the order added."""
+        return [
+            o
+            for o in self._orders.values()
+            if o.state is OrderState.DISPATCHABLE and o.assigned is None
+        ]
+
+    def counts(self) -> dict[str, int]:
+        """Orders per state, every state named (zeros included), for reports."""
+        out = {state.value: 0 for state in OrderState}
+        for order in self._orders.values():
+            out[order.state.value] += 1
+        return out
+
+    # ----- the life cycle ------------------------------------------------------------------
+    def transition(
+        self, order: TransportOrder, state: OrderState, now_s: float, reason: str = ""
+    ) -> None:
+        """Move ``order`` to ``state`` at ``now_s`` if the life cycle allows it (else
+        OrderError, nothing changed). ``reason`` is kept as the order's ``reason`` (why it
+        failed, was withdrawn or taken back). Taking an order back to DISPATCHABLE frees it
+        from its vehicle and forgets the sections it ran, as a new vehicle starts afresh."""
+        self._check_member(order)
+        if not isinstance(state, OrderState):
+            raise OrderError(order.id, "state", f"{state!r} is not an order state")
+        if state not in TRANSITIONS[order.state]:
+            raise OrderError(order.id, "state", f"cannot go from {order.state} to {state}")
+        _check_time(order, now_s)
+        if state is OrderState.DISPATCHABLE and order.state is OrderState.BEING_PROCESSED:
+            self.abandon_sections(order)
+            order.assigned = None
+        order.state = state
+        order.reason = reason
+        order.history.append((now_s, state))
+
+    # ----- sections ------------------------------------------------------------------------
+    def start_section(self, order: TransportOrder, name: str, now_s: float) -> None:
+        """Section ``name`` of a BEING_PROCESSED order starts at ``now_s``. Sections run in
+        the seed's order, one at a time; any may be skipped (no queue, already in the zone)."""
+        self._check_member(order)
+        index = _section_index(order, name)
+        if order.state is not OrderState.BEING_PROCESSED:
+            raise OrderError(
+                order.id, "sections", f"{name} cannot start: the order is {order.state}"
+            )
+        if name in order.sections:
+            raise OrderError(order.id, "sections", f"{name} has already run")
+        for other, times in order.sections.items():
+            if SECTIONS.index(other) > index:
+                raise OrderError(order.id, "sections", f"{name} cannot start after {other}")
+            if len(times) == 1:
+                raise OrderError(order.id, "sections", f"{name} starts while {other} still runs")
+            if not now_s >= times[-1]:
+                raise OrderError(
+                    order.id,
+                    "sections",
+                    f"{name} cannot start at {now_s!r} s, before {other} ended",
+                )
+        _check_time(order, now_s)
+        order.sections[name] = [now_s]
+
+    def end_section(self, order: TransportOrder, name: str, now_s: float) -> None:
+        """The running section ``name`` ends at ``now_s``."""
+        self._check_member(order)
+        _section_index(order, name)
+        times = order.sections.get(name)
+        if times is None or len(times) != 1:
+            raise OrderError(order.id, "sections", f"{name} is not running")
+        if not _is_number(now_s) or not times[0] <= now_s < math.inf:
+            raise OrderError(
+                order.id,
+                "sections",
+                f"{name} cannot end at {now_s!r} s (it started at {times[0]} s)",
+            )
+        times.append(now_s)
+
+    def abandon_sections(self, order: TransportOrder) -> None:
+        """Forget the sections of an order taken back from its vehicle. Only before loading:
+        once the Get section started, the load is the vehicle's (OrderError)."""
+        self._check_member(order)
+        if any(SECTIONS.index(name) >= LOADING for name in order.sections):
+            raise OrderError(order.id, "sections", "taken back after its load was picked up")
+        order.sections.clear()
+
+    def _check_member(self, order: TransportOrder) -> None:
+        if self._orders.get(order.id) is not order:
+            raise OrderError(order.id, "id", "not an order of this book")
+
+
+def _check_time(order: TransportOrder, now_s: float) -> None:
+    """Times of an order's history never go backwards: a time from another clock is a bug."""
+    if not _is_number(now_s) or not math.isfinite(now_s):
+        raise OrderError(order.id, "history", f"time {now_s!r} is not a finite number of seconds")
+    if order.history and now_s < order.history[-1][0]:
+        raise OrderError(
+            order.id,
+            "history",
+            f"time {now_s} s is before its last transition at {order.history[-1][0]} s",
+        )
+
+
+def _section_index(order: TransportOrder, name: str) -> int:
+    try:
+        return SECTIONS.index(name)
+    except ValueError:
+        raise OrderError(
+            order.id, "sections", f"unknown section {name!r} (one of {', '.join(SECTIONS)})"
+        ) from None
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _shown(value: object) -> str:
+    """An id quoted for a message, whole if it could be a valid one, else shortened: a
+    5000-character id must not flood the terminal."""
+    text = repr(value)
+    return text if len(text) <= MAX_ID_CHARS + 8 else text[: MAX_ID_CHARS // 2] + "...'"

@@ -1,0 +1,48 @@
+"""Which nodes can reach a station now, with the segments that are closed right now.
+
+The heuristic table holds distances on the whole plant, blockades ignored (it must never
+overestimate). The dispatcher must not give a vehicle an order it cannot drive, and must
+notice when a blockade cuts a station off, so it keeps, per station, the set of nodes from
+which the station is reachable over open segments: one breadth-first search per station
+on the reversed graph, done again only when the blockades change (arrays in, arrays out).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import breadth_first_order
+
+from blocks.routing.constraints import RoutingConstraints
+from topology import Plant
+
+
+class Reachability:
+    def __init__(self, plant: Plant, blockades: RoutingConstraints, targets: Iterable[int]) -> None:
+        self.plant = plant
+        self.blockades = blockades
+        self.targets = sorted(set(targets))
+        self._epoch: int | None = None
+        self._reach: dict[int, np.ndarray] = {}
+
+    def _refresh(self) -> None:
+        if self._epoch == self.blockades.epoch:
+            return
+        self._epoch = self.blockades.epoch
+        src, dst, _ = self.plant.arcs
+        open_ = ~self.blockades.blocked
+        n = self.plant.n
+        # reversed: an arc u -> v lets v be reached from u, so search from the target backwards
+        reverse = sp.csr_array((np.ones(int(open_.sum())), (dst[open_], src[open_])), shape=(n, n))
+        self._reach = {}
+        for t in self.targets:
+            mask = np.zeros(n, dtype=bool)
+            mask[breadth_first_order(reverse, self.plant.idx(t), return_predecessors=False)] = True
+            self._reach[t] = mask
+
+    def reaches(self, node: int, target: int) -> bool:
+        """Can a vehicle at ``node`` (an id) drive to ``target`` over open segments?"""
+        self._refresh()
+        return bool(self._reach[target][self.plant.idx(node)])

@@ -1,0 +1,220 @@
+"""Transport orders on the running fleet program: the life cycle end to end, the entry point
+for orders at run time, unroutable orders, charging, parking, and a property over random
+order sets: every reachable order finishes exactly once, no vehicle's battery runs empty,
+and the independent monitor counts no conflict."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
+from fleet.config import parse_config
+from fleet.program import FleetProgram
+
+WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
+STATIONS = list(range(20, 30))  # the workshop's ten stations
+
+
+def config(orders_csv: str, tmp_path: Path, vehicles=((1, 0), (2, 11), (3, 14)), extra: str = ""):
+    (tmp_path / "orders.csv").write_text(orders_csv, encoding="utf-8")
+    cars = "".join(f"[[vehicles]]\nid = {v}\nstart = {s}\n" for v, s in vehicles)
+    text = f"""
+[plant]
+file = "{WORKSHOP}"
+[runtime]
+cycle_time_ms = 50
+watchdog_ms = 5000
+[orders]
+file = "orders.csv"
+lead_s = 60
+[dispatch]
+strategy = "two_stage"
+buffer_s = 10
+get_s = 5
+put_s = 5
+{extra}
+{cars}"""
+    return parse_config(text, "orders-test.toml", tmp_path)
+
+
+def run(p: FleetProgram, seconds: float) -> None:
+    for _ in range(round(seconds / p.cfg.cycle_time)):
+        p.rt.step()
+        assert p.rt.state == "RUN", p.rt.fault_reason
+
+
+@pytest.fixture
+def made():
+    programs = []
+    yield programs
+    for p in programs:
+        p.close()
+
+
+def start(cfg, made) -> FleetProgram:
+    p = FleetProgram(cfg)
+    made.append(p)
+    p.rt.start()
+    return p
+
+
+ORDERS = """id,get,put,start_s,end_s
+o1,20,29,0,300
+o2,22,27,0,300
+o3,24,21,10,400
+o4,26,23,20,400
+o5,28,25,30,500
+"""
+
+
+@pytest.mark.parametrize("strategy", ["nearest_idle", "dhht", "two_stage"])
+def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strategy, tmp_path, made):
+    cfg = config(ORDERS, tmp_path)
+    cfg.dispatch.strategy = strategy
+    p = start(cfg, made)
+    run(p, 240)
+    book = p.orders.book
+    assert book.counts()["FINISHED"] == 5
+    for order in book:
+        states = [s for _t, s in order.history]
+        assert states[:3] == [OrderState.RAW, OrderState.DISPATCHABLE, OrderState.BEING_PROCESSED]
+        assert states[-1] is OrderState.FINISHED
+        times = [t for t, _s in order.history]
+        assert times == sorted(times)
+        assert {"Get", "Go_To_Put", "Put"} <= set(order.sections)
+        assert all(len(t) == 2 and t[0] <= t[1] for t in order.sections.values())
+        assert order.sections["Get"][0] >= order.start_s
+    assert sum(r.orders_done for r in p.orders.runners.values()) == 5
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+    # with nothing left to do, the vehicles park (two parking places) or stand aside
+    assert sum(r.phase == "parked" for r in p.orders.runners.values()) == 2
+
+
+def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):
+    p = start(config("id,get,put\n", tmp_path), made)
+    run(p, 2)
+    done = p.orders.submit(TransportOrder("late", 20, 25))
+    bad = p.orders.submit(TransportOrder("bad", 20, 20))
+    unknown = p.orders.submit(TransportOrder("nowhere", 20, 3))
+    before = p.orders.book.counts()
+    run(p, 0.1)
+    assert done.result(0).state is OrderState.DISPATCHABLE or done.result(0).assigned
+    with pytest.raises(OrderError, match="field 'put'"):
+        bad.result(0)
+    with pytest.raises(OrderError, match="node 3 is not a Get/Put station"):
+        unknown.result(0)
+    assert len(p.orders.book) == 1  # the bad ones changed nothing
+    dup = p.orders.submit(TransportOrder("late", 21, 25))
+    run(p, 0.1)
+    with pytest.raises(OrderError, match="already used"):
+        dup.result(0)
+    assert before["RAW"] == 0
+    withdrawn = p.orders.submit(TransportOrder("gone", 22, 27))
+    run(p, 0.1)
+    assert withdrawn.result(0)
+    w = p.orders.withdraw("gone")
+    run(p, 0.1)
+    assert w.result(0).state is OrderState.WITHDRAWN
+    run(p, 120)
+    assert p.orders.book.get("late").state is OrderState.FINISHED
+    assert p.orders.book.get("gone").state is OrderState.WITHDRAWN
+    assert not any(
+        r.active is not None and r.active.id == "gone" for r in p.orders.runners.values()
+    )
+
+
+def test_an_order_nobody_can_drive_is_unroutable_and_reported(tmp_path, made):
+    # a blockade closes both segments to station 20 (its only links) before the order comes
+    extra = """
+[[blockades]]
+from = 20
+to = 3
+at_s = 0
+[[blockades]]
+from = 20
+to = 4
+at_s = 0
+"""
+    plant_edges = config(ORDERS, tmp_path).plant.arc_index
+    links = sorted({b for (a, b) in plant_edges if a == 20})
+    extra = "".join(f"[[blockades]]\nfrom = 20\nto = {b}\nat_s = 0\n" for b in links)
+    cfg = config("id,get,put,start_s\nx,20,29,30\nok,22,27,30\n", tmp_path, extra=extra)
+    p = start(cfg, made)
+    run(p, 120)
+    x = p.orders.book.get("x")
+    assert x.state is OrderState.UNROUTABLE and "Get station 20" in x.reason
+    assert x.assigned is None  # no vehicle ever got it
+    assert p.orders.book.get("ok").state is OrderState.FINISHED
+
+
+def test_a_low_battery_vehicle_finishes_its_order_then_charges_and_comes_back(tmp_path, made):
+    extra = "[battery]\ngood = 35\nsufficient = 36\nfull = 42\n"
+    cfg = config("id,get,put\na,20,29\nb,22,27\n", tmp_path, vehicles=((1, 0),), extra=extra)
+    cfg.battery.start = {1: 40.0}
+    p = start(cfg, made)
+    runner, agv = p.orders.runners[1], p.fleet.vehicles[1]
+    assert p.rt.run_until(lambda: runner.active is not None, max_cycles=200)
+    first = runner.active.id
+    # on its way the battery reads low (an older battery than the controller assumed)
+    agv.battery.charge_as = 0.34 * agv.battery.params.capacity_as
+    assert p.rt.run_until(lambda: runner.phase == "charging", max_cycles=round(300 / 0.05))
+    # it finished the order it had, took no other, and went to the charger
+    assert p.orders.book.get(first).state is OrderState.FINISHED
+    other = "b" if first == "a" else "a"
+    assert p.orders.book.get(other).state is OrderState.DISPATCHABLE
+    assert p.cfg.plant.node(runner.current).role == "charger"
+    # the first order seemed to use 6 %: it charges until 42 % (42 - 6 >= 35), about 500 s
+    # at 30 A, then takes the other order
+    run(p, 700)
+    assert runner.charges == 1 and runner.charging_s > 400
+    assert p.orders.book.get(other).state is OrderState.FINISHED
+    assert runner.min_battery == 34
+
+
+@settings(
+    max_examples=6,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(
+    pairs=st.lists(
+        st.tuples(st.sampled_from(STATIONS), st.sampled_from(STATIONS)).filter(
+            lambda t: t[0] != t[1]
+        ),
+        min_size=1,
+        max_size=12,
+    ),
+    starts=st.lists(st.integers(0, 120), min_size=12, max_size=12),
+    strategy=st.sampled_from(["nearest_idle", "dhht", "two_stage"]),
+    fleet=st.integers(1, 3),
+    charge=st.floats(38.0, 100.0),
+)
+def test_every_reachable_order_finishes_once_and_no_battery_runs_empty(
+    pairs, starts, strategy, fleet, charge, tmp_path_factory
+):
+    tmp = tmp_path_factory.mktemp("orders")
+    rows = "".join(f"o{k},{g},{q},{starts[k]}\n" for k, (g, q) in enumerate(pairs))
+    vehicles = ((1, 0), (2, 11), (3, 14))[:fleet]
+    cfg = config("id,get,put,start_s\n" + rows, tmp, vehicles=vehicles)
+    cfg.dispatch.strategy = strategy
+    cfg.battery.start = {v: charge for v, _s in vehicles}
+    p = FleetProgram(cfg)
+    try:
+        p.rt.start()
+        deadline = 200 + 60 * len(pairs)
+        done = p.rt.run_until(
+            lambda: p.orders.book.counts()["FINISHED"] == len(pairs),
+            max_cycles=round(deadline / cfg.cycle_time),
+        )
+        counts = p.orders.book.counts()
+        assert done, counts
+        assert sum(r.orders_done for r in p.orders.runners.values()) == len(pairs)  # once each
+        assert all(r.min_battery > 0 for r in p.orders.runners.values())
+        assert all(a.battery.percent > 0 for a in p.fleet.vehicles.values())
+        assert p.monitor.head_on == 0 and p.monitor.node == 0
+    finally:
+        p.close()
