@@ -11,7 +11,7 @@ program, and a bad order is refused with the book's error and changes nothing.
 from __future__ import annotations
 
 import queue
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Future
 
 from blocks.dispatch.charging import ChargePolicy
@@ -80,15 +80,16 @@ class OrderIntake(FunctionBlock):
     """Puts orders into the book: the released ones of the feed, and those submitted or
     withdrawn from outside the scan (applied here, at the start of the program's scan)."""
 
-    def __init__(self, book: OrderBook, feed: OrderFeed) -> None:
+    def __init__(self, book: OrderBook, feed: OrderFeed, configured: Iterable[str] = ()) -> None:
         super().__init__()
         self.book = book
         self.feed = feed
+        self.configured = frozenset(configured)  # ids the feed will still release
         self.requests: queue.SimpleQueue = queue.SimpleQueue()
 
     def cycle(self, ctx: CycleContext) -> None:
         for order in self.feed.due(ctx.time):
-            self.book.add(_fresh(order), ctx.time)
+            self.book.add(_fresh(order), ctx.time)  # checked against the plant at start
         while True:
             try:
                 action, arg, done = self.requests.get_nowait()
@@ -96,6 +97,10 @@ class OrderIntake(FunctionBlock):
                 return
             try:
                 if action == "add":
+                    if arg.id in self.configured and arg.id not in self.book:
+                        raise OrderError(
+                            arg.id, "id", "used by a configured order not released yet"
+                        )
                     result = self.book.add(arg, ctx.time)
                 else:
                     result = self.book.withdraw(arg, ctx.time)
@@ -116,8 +121,9 @@ class OrderSystem:
         plant, d = cfg.plant, cfg.dispatch
         self.cfg = cfg
         self.book = OrderBook(order_stations(plant), cfg.starts)
-        self.feed = OrderFeed(configured_orders(cfg), cfg.orders.lead_s if cfg.orders else 0.0)
-        self.intake = OrderIntake(self.book, self.feed)
+        configured = configured_orders(cfg)
+        self.feed = OrderFeed(configured, cfg.orders.lead_s if cfg.orders else 0.0)
+        self.intake = OrderIntake(self.book, self.feed, (o.id for o in configured))
         self.claims = Claims()
         self.charging: ChargePolicy = cfg.battery.policy()
         self.table = table

@@ -95,7 +95,8 @@ def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strateg
 
 
 def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):
-    p = start(config("id,get,put\n", tmp_path), made)
+    # one configured order, released only much later (lead 60 s before its start)
+    p = start(config("id,get,put,start_s\no-later,20,25,5000\n", tmp_path), made)
     run(p, 2)
     done = p.orders.submit(TransportOrder("late", 20, 25))
     bad = p.orders.submit(TransportOrder("bad", 20, 20))
@@ -113,6 +114,11 @@ def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):
     with pytest.raises(OrderError, match="already used"):
         dup.result(0)
     assert before["RAW"] == 0
+    # an id the configuration will release later is taken: refused now, not at release
+    taken = p.orders.submit(TransportOrder("o-later", 20, 25))
+    run(p, 0.1)
+    with pytest.raises(OrderError, match="configured order not released yet"):
+        taken.result(0)
     withdrawn = p.orders.submit(TransportOrder("gone", 22, 27))
     run(p, 0.1)
     assert withdrawn.result(0)
