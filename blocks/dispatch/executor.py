@@ -13,10 +13,12 @@ An order runs through the seed's sections, each time-stamped in the order:
 
 A transfer station takes one vehicle at a time, first come first served: a vehicle drives
 onto it only while it holds the station's claim (:class:`Claims`), and otherwise waits at a
-free queue position of the station, or, without one, on hold where its released route ends
-(a held vehicle releases nothing more). Routing and traffic
-(VehicleControl and the reservations) decide how it drives; this block only sets the target
-and the hold. Without an order a vehicle charges when its ChargePolicy says so, and
+free queue position of the station, else at the free parking position nearest to it, and
+only when there is none, on hold where its released route ends (a held vehicle releases
+nothing more). A station's claim covers its single-vehicle area (plant key ``area``) and
+ends only when the vehicle has left that area, so a vehicle leaving a station spur never
+meets the next one in it. Routing and traffic (VehicleControl and the reservations) decide
+how it drives; this block only sets the target and the hold. Without an order a vehicle charges when its ChargePolicy says so, and
 otherwise parks at a free parking position, out of the others' way.
 """
 
