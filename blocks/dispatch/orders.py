@@ -169,6 +169,9 @@ class OrderBook:
         self.stations = dict(stations)
         self.vehicles = None if vehicles is None else frozenset(vehicles)
         self._orders: dict[str, TransportOrder] = {}
+        # the DISPATCHABLE ones, in the order added: a scan asks for them every cycle, and a
+        # long run's book is mostly final orders
+        self._dispatchable: dict[str, TransportOrder] = {}
 
     # ----- the pool ------------------------------------------------------------------------
     def add(self, order: TransportOrder, now_s: float) -> TransportOrder:
@@ -218,12 +221,9 @@ class OrderBook:
         return len(self._orders)
 
     def dispatchable(self) -> list[TransportOrder]:
-        """Orders waiting for a vehicle: DISPATCHABLE and not assigned, in the order added."""
-        return [
-            o
-            for o in self._orders.values()
-            if o.state is OrderState.DISPATCHABLE and o.assigned is None
-        ]
+        """Orders waiting for a vehicle: DISPATCHABLE and not assigned, in the order they
+        became dispatchable. Costs the open orders, not the whole book."""
+        return [o for o in self._dispatchable.values() if o.assigned is None]
 
     def counts(self) -> dict[str, int]:
         """Orders per state, every state named (zeros included), for reports."""
@@ -252,6 +252,10 @@ class OrderBook:
         order.state = state
         order.reason = reason
         order.history.append((now_s, state))
+        if state is OrderState.DISPATCHABLE:
+            self._dispatchable[order.id] = order
+        else:
+            self._dispatchable.pop(order.id, None)
 
     # ----- sections ------------------------------------------------------------------------
     def start_section(self, order: TransportOrder, name: str, now_s: float) -> None:
