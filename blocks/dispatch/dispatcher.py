@@ -21,6 +21,7 @@ either, and a charging one only once its charge is sufficient.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 
 from plc_runtime import CycleContext, FunctionBlock, Output
@@ -169,7 +170,10 @@ class Dispatcher(FunctionBlock):
             if origin is None:
                 continue
             estimate = self.estimates.travel(origin, to)
-            if estimate > 0 and (ctx.time - start) > (1.0 + self.deviation) * estimate:
+            # (no estimate yet, or none possible: nothing to deviate from)
+            if 0 < estimate < math.inf and self.estimates.deviates(
+                start, estimate, ctx.time, self.deviation
+            ):
                 self._deviated.add(key)
                 self.deviations += 1
                 for other in self.runners.values():
