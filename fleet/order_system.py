@@ -17,7 +17,7 @@ from concurrent.futures import Future
 from blocks.dispatch.charging import ChargePolicy
 from blocks.dispatch.dispatcher import Dispatcher
 from blocks.dispatch.estimates import SectionEstimates
-from blocks.dispatch.executor import Claims, OrderRunner
+from blocks.dispatch.executor import Claims, OrderRunner, area_entries
 from blocks.dispatch.generator import OrderFeed, generate_orders
 from blocks.dispatch.order_file import load_orders
 from blocks.dispatch.orders import OrderBook, OrderError, TransportOrder
@@ -196,4 +196,5 @@ def targets(plant: Plant) -> list[int]:
     return sorted(
         set(plant.with_role("station", "charger", "parking", "queue"))
         | {n for nodes in plant.queues.values() for n in nodes}
+        | set(area_entries(plant).values())
     )

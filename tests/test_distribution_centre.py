@@ -121,16 +121,31 @@ def test_parking_places_are_off_the_lanes(plant):
         assert len(neighbours(plant, charger)) == 1
 
 
-def test_one_way_lanes_form_one_ring(plant):
-    one_way = [(e.source, e.target) for e in plant.edges if not e.bidirectional]
-    assert len(one_way) >= 20
-    successor = dict(one_way)
-    assert len(successor) == len(one_way) == len({b for _a, b in one_way})  # in 1, out 1
-    start = one_way[0][0]
+def test_every_lane_is_one_way_and_the_ring_is_one_cycle(plant):
+    lanes = {n.id for n in plant.nodes if n.name.startswith("lane-")}
+    # two-way segments only lead into spurs: no two vehicles can meet head-on on a lane
+    assert all(
+        not (e.source in lanes and e.target in lanes) for e in plant.edges if e.bidirectional
+    )
+    xs = [plant.node(i).x for i in lanes]
+    ys = [plant.node(i).y for i in lanes]
+    west, east, north, south = min(xs), max(xs), min(ys), max(ys)
+    ring = {
+        n.id
+        for n in plant.nodes
+        if n.id in lanes and (n.x in (west, east) or n.y in (north, south))
+    }
+    successor = {
+        e.source: e.target
+        for e in plant.edges
+        if not e.bidirectional and e.source in ring and e.target in ring
+    }
+    assert set(successor) == ring and set(successor.values()) == ring  # in 1, out 1
+    start = min(ring)
     node, steps = successor[start], 1
     while node != start:
         node, steps = successor[node], steps + 1
-    assert steps == len(one_way)  # a single cycle through every one-way segment
+    assert steps == len(ring) >= 40  # a single cycle round the hall
 
 
 def test_every_node_reaches_every_other(plant):

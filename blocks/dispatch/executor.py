@@ -12,14 +12,22 @@ An order runs through the seed's sections, each time-stamped in the order:
 * ``Go_To_Put``, ``Put_Queue``, ``Put``: the same for the Put station (unloading).
 
 A transfer station takes one vehicle at a time, first come first served: a vehicle drives
-onto it only while it holds the station's claim (:class:`Claims`), and otherwise waits at a
-free queue position of the station, else at the free parking position nearest to it, and
-only when there is none, on hold where its released route ends (a held vehicle releases
-nothing more). A station's claim covers its single-vehicle area (plant key ``area``) and
-ends only when the vehicle has left that area, so a vehicle leaving a station spur never
-meets the next one in it. Routing and traffic (VehicleControl and the reservations) decide
-how it drives; this block only sets the target and the hold. Without an order a vehicle charges when its ChargePolicy says so, and
-otherwise parks at a free parking position, out of the others' way.
+onto it only while it holds the station's claim (:class:`Claims`). It asks for the claim
+only once it is near the station (``near_m`` metres of route from it, not of straight
+line: on one-way lanes a station beside the vehicle can be a lap away), so the order of
+service is the order of arrival: a vehicle still far away never keeps one already there
+waiting. Until it holds the claim it heads for the entry of the station's single-vehicle
+area (the node just outside it, :func:`area_entries`), never into the area: what is
+released to a vehicle cannot be taken back, and one that drove into a dead-end spur
+without the claim would stand face to face with the holder. Refused, it waits at a free
+queue position of the station, else at the free parking position nearest to it, and only
+when there is none, where it stands, but not on hold: the deadlock resolver may push it
+out of the holder's way. A station's claim covers its single-vehicle area (plant key
+``area``) and ends only when the vehicle has left that area, so a vehicle leaving a
+station spur never meets the next one in it. Routing and traffic (VehicleControl and the
+reservations) decide how it drives; this block only sets the target and the hold. Without
+an order a vehicle charges when its ChargePolicy says so, and otherwise parks at a free
+parking position, out of the others' way.
 """
 
 from __future__ import annotations
@@ -45,6 +53,28 @@ PHASES = (
     "to_parking",
     "parked",
 )
+
+
+def area_entries(plant: Plant) -> dict[int, int]:
+    """Station -> the entry of its single-vehicle area: the node outside the area from which
+    one drives in (for a station on a spur, the lane junction). Stations whose area has no
+    single entry, and stations without an area, have none."""
+    out: dict[int, int] = {}
+    for nodes in plant.areas.values():
+        area = set(nodes)
+        outside = {
+            int(plant.ids[j])
+            for n in area
+            for j, _arc, _w in plant.neighbors[plant.idx(n)]
+            if int(plant.ids[j]) not in area
+        }
+        if len(outside) != 1:
+            continue
+        (entry,) = outside
+        for n in area:
+            if plant.node(n).role == "station":
+                out[n] = entry
+    return out
 
 
 class Claims:
@@ -110,6 +140,7 @@ class OrderRunner(FunctionBlock):
     dwell_until_ns = Static(0)
     place = Static(None)  # the charger or parking node it heads for or stands at
     leaving = Static(None)  # the station it was served at, claimed until it has left it
+    vacating = Static(None)  # the queue, parking or charger place it stands on, given up
     charging_since = Static(None)  # when the current charger visit began (s)
     battery_at_start = Static(None)
 
@@ -124,6 +155,7 @@ class OrderRunner(FunctionBlock):
         get_s: float = 10.0,
         put_s: float = 10.0,
         park: bool = True,
+        near_m: float = 20.0,
         on_section: Callable[[TransportOrder, str, float, float], None] | None = None,
     ) -> None:
         super().__init__()
@@ -135,6 +167,7 @@ class OrderRunner(FunctionBlock):
         self.distance = distance
         self.dwell_s = {"Get": get_s, "Put": put_s}
         self.park = park
+        self.near_m = near_m
         self.on_section = on_section  # a finished section: (order, name, start_s, end_s)
         self.queues = plant.queues
         self.zones = {
@@ -143,6 +176,7 @@ class OrderRunner(FunctionBlock):
         }
         # a station's single-vehicle area (plant key ``area``): its claim covers all of it
         self.area_of = {node: frozenset(nodes) for nodes in plant.areas.values() for node in nodes}
+        self.entries = area_entries(plant)
         self.chargers = plant.with_role("charger")
         self.parking = plant.with_role("parking")
 
@@ -205,6 +239,10 @@ class OrderRunner(FunctionBlock):
             # it has left the station and its single-vehicle area: the next may come
             self.claims.release(self.leaving, self.vehicle)
             self.leaving = None
+        if self.vacating is not None and self.current != self.vacating:
+            if self.target != self.vacating:  # (unless it took the same place again)
+                self.claims.release(self.vacating, self.vehicle)
+            self.vacating = None
         if self.charging_since is not None and self.phase != "charging":
             self.charging_s += ctx.time - self.charging_since
             self.charging_since = None
@@ -242,6 +280,10 @@ class OrderRunner(FunctionBlock):
         if kind == "Get" and self.section == "Go_To_Cluster" and self.current in zone:
             self.frozen = True  # in the Get zone: the order is this vehicle's for good
             self._next_section(ctx, going)
+        if not self._near(station):
+            # far off: it drives on, claiming nothing, up to the area's entry at most
+            self.target, self.hold = self.entries.get(station, station), False
+            return
         if self.claims.claim(station, self.vehicle):
             self._forget(station)  # its queue place is free again
             self.target, self.hold = station, False
@@ -262,7 +304,7 @@ class OrderRunner(FunctionBlock):
             self.target, self.hold = aside, False
         elif queue is None:
             # no queue position free: it stops where its released route ends, and waits
-            self.target, self.hold = station, True
+            self.target, self.hold = self.current, False
         else:
             self.target = queue
         waiting = f"{kind}_Queue"
@@ -272,6 +314,15 @@ class OrderRunner(FunctionBlock):
                 self._next_section(ctx, going)
             self._next_section(ctx, waiting)
             self.phase = "get_queue" if kind == "Get" else "put_queue"
+
+    def _near(self, station: int) -> bool:
+        """Whether the vehicle is close enough to ``station`` to queue for it: within
+        ``near_m`` of route, or already holding or waiting for it."""
+        if self.vehicle == self.claims.holder.get(station):
+            return True
+        if self.vehicle in self.claims.waiting.get(station, ()):
+            return True
+        return self.distance(self.current, station) <= self.near_m
 
     def _queue_place(self, station: int) -> int | None:
         """Where to wait for ``station``, off the lanes: the queue position it holds, or a
@@ -320,11 +371,15 @@ class OrderRunner(FunctionBlock):
         self.phase = "idle"
 
     def _forget(self, keep: int | None = None) -> None:
-        """Give up every claim and queue place but ``keep`` and the station it still
-        stands at (a station is the vehicle's until it has physically left it)."""
-        self.claims.forget(
-            self.vehicle, frozenset(k for k in (keep, self.leaving) if k is not None)
-        )
+        """Give up every claim and queue place but ``keep``, the station it still stands
+        at, and the place it stands on: a place is the vehicle's until it has physically
+        left it (a queue or parking spur given to the next vehicle while this one still
+        stands in it would put the two face to face)."""
+        kept = {k for k in (keep, self.leaving) if k is not None}
+        if self.current not in kept and self.claims.holder.get(self.current) == self.vehicle:
+            self.vacating = self.current
+            kept.add(self.current)
+        self.claims.forget(self.vehicle, frozenset(kept))
 
     def _start(self, ctx: CycleContext, name: str) -> None:
         self.book.start_section(self.active, name, ctx.time)

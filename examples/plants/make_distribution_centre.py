@@ -1,36 +1,38 @@
 """Write ``distribution-centre.toml``: a plant modelled on the food distribution centre of the
 order-allocation study (docs/plant-format.md): 87 m x 72 m, free-driving pallet shuttles at
-up to 1.5 m/s, transfer stations on the four walls, one-way lanes round the hall and two-way
-cross aisles through it.
+up to 1.5 m/s, transfer stations on the four walls, a one-way ring lane round the hall and
+cross aisles of two one-way lanes through it.
 
 The layout (north at the top; in the file y grows downwards, positions in metres):
 
                   receiving                             control
                    21       22       23       24         71
-     NW >-----------S----+---S--------S--------S----------S----+------> NE
-        ^             P--+--P               P--+--P            |      v hrl 31
-        ^             P--+--P               P--+--P            |      v hrl 32
-        ^             P--+--P               P--+--P            |      v hrl 33
-        H=====C==========+==========C==========+===============+======H
-        ^             P--+--P               P--+--P            |      v hrl 34
-  62    ^             P--+--P               P--+--P            |      v hrl 35
-  61    ^                |                     |               |      v
-     SW <----S--------S--+----S-------S--------S-------S-------S------< SE
+     NW >-----------S----+-+-S--------S--------S-+-+------S----+-+----> NE
+        ^           P-^ v-P              P-^ v-P          ^ v      v hrl 31
+        ^           P-^ v-P              P-^ v-P          ^ v      v hrl 32
+        ^  C        P-^ v-P  C           P-^ v-P          ^ v      v
+        <<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<< v hrl 33
+        >>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>> v
+  62    ^  C        P-^ v-P  C           P-^ v-P          ^ v      v hrl 34
+  61    ^           P-^ v-P              P-^ v-P          ^ v      v hrl 35
+     SW <----S--------S-+-+---S-------S--------S-+-+-----S-+-+----< SE
             54       53      52      51       43      42      41
                     picking                        depalletising
 
   S: a transfer station (61 and 62: empty pallets, 31-35: the high-bay warehouse's five
-  aisles, each beside the lane); C: two chargers, one either side of the middle aisle H;
-  P: parking places; > v < ^: the one-way ring lane; +, |, =: the two-way cross aisles,
-  V1 (x = 28), V2 (x = 52), V3 (x = 70) and H (y = 37.5).
+  aisles, each beside the lane); C: the four chargers, two off each lane of the middle
+  aisle H; P: parking places; > v < ^: one-way lanes. The cross aisles V1 (x = 28 | 32),
+  V2 (52 | 56), V3 (70 | 74) and H (y = 34 | 41) each have a northbound (eastbound) and a
+  southbound (westbound) lane.
 
 * The ring lane is one-way and runs clockwise as drawn: east along the north wall, south
   along the east wall (the high-bay warehouse, its five aisles' transfer points), west
   along the south wall, north along the west wall. The main goods flows follow it:
   receiving -> hrl -> depalletising / picking -> empty pallets.
-* The two-way aisles cut across the hall: the ways back upstream (depalletising -> hrl,
-  picking -> hrl) and short cuts, so every node can reach every other (the routable
-  graph is strongly connected).
+* The cross aisles give the ways back upstream (depalletising -> hrl, picking -> hrl) and
+  short cuts, so every node can reach every other (the routable graph is strongly
+  connected). Each is a dual carriageway driven on the left like the ring, so no lane in
+  the hall is two-way: vehicles never meet head-on on a lane, only queue behind each other.
 * A transfer station sits at the end of a two-way spur, 6 m off the ring lane towards the
   wall: lane junction J -> approach node A (3 m) -> station S (3 m). The station and its
   approach form a single-vehicle area named after the station, so a shuttle docking or
@@ -39,9 +41,9 @@ The layout (north at the top; in the file y grows downwards, positions in metres
   node (role "queue"): a shuttle whose station is occupied waits there, off the lane.
 * Cluster zones (zone = the unit's function id): the lane nodes from a unit's first queue
   junction to its last station junction, with the unit's queue and approach nodes; the
-  chargers' zone is their two junctions.
+  chargers' zone is their four junctions.
 * Four chargers (function 8) and twenty parking places (idle positions) on 3 m spurs off
-  the aisles, off every lane. Lane nodes are at least 3 m apart.
+  the aisles' lanes. Lane nodes are at least 3 m apart.
 
 Node ids: stations function * 10 + k (receiving 21-24, hrl 31-35, depalletising 41-43,
 picking 51-54, empty pallets 61-62, control 71), chargers 81-84, a station's queue node
@@ -79,12 +81,18 @@ CHARGING = 8
 # The ring lane: the lane position (y of the north and south sides, x of the west and east
 # ones) of each side; its corners are where they meet.
 NORTH_Y, SOUTH_Y, WEST_X, EAST_X = 9.0, 63.0, 9.0, 78.0
-H_AISLE = 37.5  # y of the two-way middle aisle
-PARKING_Y = (15.0, 23.0, 30.0, 45.0, 53.0)  # parking junctions on a vertical aisle
-# the two-way vertical aisles: x, and the y of the parking junctions on it. Each ends on a
-# station's lane junction (or queue junction) on both the north and the south side.
-V_AISLES = ((28.0, PARKING_Y), (52.0, PARKING_Y), (70.0, ()))
-CHARGER_X = (16.0, 40.0)  # junctions on the middle aisle with a charger either side
+# The cross aisles are dual carriageways of two one-way lanes, driven on the left like the
+# ring (its stations lie to the left of its traffic). So a shuttle leaving a south-wall
+# station finds the northbound lane of an aisle at or downstream of its junction, and one
+# coming east along H meets the high-bay stations below it. The lanes meet the ring lane at
+# station or queue junctions where they can, so no lane node crowds another. The middle
+# aisle H: the y of its eastbound lane and of its westbound lane.
+H_EAST, H_WEST = 34.0, 41.0
+PARKING_Y = (15.0, 23.0, 30.0, 45.0, 53.0)  # parking junctions on a vertical aisle's lanes
+# the vertical aisles: x of the northbound lane, x of the southbound lane, the y of the
+# parking junctions on them
+V_AISLES = ((28.0, 32.0, PARKING_Y), (52.0, 56.0, PARKING_Y), (70.0, 74.0, ()))
+CHARGER_X = (16.0, 40.0)  # junctions on both lanes of the middle aisle, a charger off each
 QUEUE_GAP = 4.0  # queue junction this far upstream of the station junction
 APPROACH, STATION, QUEUE = 3.0, 6.0, 4.0  # spur lengths off the lane
 CHARGER_SPUR = PARKING_SPUR = 3.0
@@ -103,7 +111,7 @@ UNITS = (
     (7, "north", (64.0,)),
     (3, "east", (16.0, 25.0, 34.0, 45.0, 54.0)),
     (4, "south", (70.0, 61.0, 52.0)),
-    (5, "south", (42.0, 33.0, 24.0, 15.0)),
+    (5, "south", (42.0, 32.0, 24.0, 15.0)),
     (6, "west", (55.0, 46.0)),
 )
 
@@ -181,9 +189,12 @@ def lane_points() -> list[list[tuple[float, float]]]:
     junctions = [
         lane_point(side, p) for _f, side, *positions, _sid in station_junctions() for p in positions
     ]
-    aisles = [[(x, y) for y in sorted((NORTH_Y, H_AISLE, SOUTH_Y, *ys))] for x, ys in V_AISLES]
-    crossings = [x for x, _ys in V_AISLES]
-    aisles.append([(x, H_AISLE) for x in sorted((WEST_X, EAST_X, *crossings, *CHARGER_X))])
+    aisles = []
+    for north_x, south_x, ys in V_AISLES:
+        stops = sorted((NORTH_Y, H_EAST, H_WEST, SOUTH_Y, *ys))
+        aisles += [[(north_x, y) for y in reversed(stops)], [(south_x, y) for y in stops]]
+    crossings = sorted((WEST_X, EAST_X, *CHARGER_X, *(x for a in V_AISLES for x in a[:2])))
+    aisles += [[(x, H_WEST) for x in reversed(crossings)], [(x, H_EAST) for x in crossings]]
     points = set(corners + junctions + [p for aisle in aisles for p in aisle])
     ring = []
     for side, (travel, _wall) in SIDES.items():
@@ -223,12 +234,19 @@ def build() -> Layout:
         queue = Node(100 + sid, f"{name}-queue", *moved(queue_junction, wall, QUEUE), "queue")
         queue.queue_for, queue.zone = sid, function
         layout.spur(queue_junction, queue)
-    chargers = [((x, H_AISLE), (0.0, side)) for x in CHARGER_X for side in (-1.0, 1.0)]
+    chargers = [
+        ((x, y), (0.0, side)) for x in CHARGER_X for y, side in ((H_EAST, -1.0), (H_WEST, 1.0))
+    ]
     for k, (junction, direction) in enumerate(chargers, start=1):
         place = moved(junction, direction, CHARGER_SPUR)
         layout.spur(junction, Node(80 + k, f"charger-{k}", *place, "charger", (CHARGING,)))
         layout.nodes[layout.lane[junction]].zone = CHARGING
-    parking = [((x, y), (side, 0.0)) for x, ys in V_AISLES for y in ys for side in (-1.0, 1.0)]
+    parking = [
+        ((x, y), (side, 0.0))
+        for south_x, north_x, ys in V_AISLES
+        for y in ys
+        for x, side in ((south_x, -1.0), (north_x, 1.0))
+    ]
     for k, (junction, direction) in enumerate(parking, start=1):
         place = moved(junction, direction, PARKING_SPUR)
         layout.spur(junction, Node(300 + k, f"parking-{k}", *place, "parking"))
@@ -320,14 +338,14 @@ def toml_text(layout: Layout) -> str:
     lines += ["]", "", "edges = ["]
     titles = {
         "ring": "the ring lane, one-way: east on the north wall, south, west, north",
-        "aisle": "the cross aisles, two-way",
+        "aisle": "the cross aisles, two one-way lanes each, driven on the left",
         "spur": "spurs to stations, queues, chargers and parking places, two-way",
     }
     for kind, title in titles.items():
         lines.append(f"  # ----- {title}")
         for _kind, a, b in (e for e in layout.edges if e[0] == kind):
             length = math.dist((nodes[a].x, nodes[a].y), (nodes[b].x, nodes[b].y))
-            directed = True if kind == "ring" else None
+            directed = True if kind in ("ring", "aisle") else None
             edge = {
                 "from": a,
                 "to": b,
