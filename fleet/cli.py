@@ -1,4 +1,5 @@
-"""The ``plc-runtime`` command line: ``run``, ``plant``, ``route`` and ``vehicles``.
+"""The ``plc-runtime`` command line: ``run``, ``plant``, ``route``, ``vehicles``, ``tags`` and
+``order``.
 
 ``plc-runtime run`` runs the fleet program (or ``--program demo``) headless, with the
 generic run machinery of ``plc_runtime.cli``. Errors are one line on stderr and exit code 2.
@@ -24,7 +25,7 @@ from plc_runtime.errors import PlcError
 from topology import TopologyError
 
 from . import demo_program
-from .commands import plant, tags, vehicles
+from .commands import orders, plant, tags, vehicles
 from .commands import run as fleet_run
 
 PROGRAMS = {"demo": demo_program.build}
@@ -64,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     plant.add_parsers(sub, positive)
     vehicles.add_parsers(sub, positive)
     tags.add_parsers(sub)
+    orders.add_parsers(sub)
     return parser
 
 
@@ -77,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         "route": plant.route_command,
         "vehicles": vehicles.vehicles_command,
         "tags": tags.tags_command,
+        "order": orders.order_command,
     }
     try:
         return commands[args.command](args)
@@ -98,6 +101,8 @@ def _run(args: argparse.Namespace) -> int:
         raise CliError(f"a configuration file is for the fleet program, not {args.program!r}")
     if args.bus or args.vehicles != "simulated":
         raise CliError(f"--bus and --vehicles are for the fleet program, not {args.program!r}")
+    if args.web or args.web_token:
+        raise CliError(f"--web serves the fleet's transport orders, not {args.program!r}")
     drivers = [modbus_server(args.modbus, args.modbus_writable)] if args.modbus else []
     return run_program(args, args.program, PROGRAMS[args.program], drivers)
 

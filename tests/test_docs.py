@@ -83,7 +83,10 @@ SHORTEN = [  # (pattern, replacement): long runs cut to seconds; every entry mus
     # are make bench-quick and tests/test_bench_quick.py
     (r"(bench/\w+\.py)\b", r"\1 --help"),
 ]
-EXTERNAL_TOOLS = {"mbpoll": "Debian package mbpoll; .ci/run installs it"}
+EXTERNAL_TOOLS = {
+    "mbpoll": "Debian package mbpoll; .ci/run installs it",
+    "curl": "Debian package curl; .ci/run installs it",
+}
 WATCHDOG_MS = 5000
 SETTLE_S = 1.0  # after its first output, how long an until-Ctrl-C command runs before SIGINT
 START_TIMEOUT_S = 60.0  # for a server's port, or an until-Ctrl-C command's first output

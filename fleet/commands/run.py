@@ -52,6 +52,7 @@ from ..config import (
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
 from ..report import check_out_dir, summary, write_all
+from ..web import options as web
 
 VEHICLES_READY_TIMEOUT = 20.0
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
@@ -102,6 +103,7 @@ def add_options(run: argparse.ArgumentParser) -> None:
         metavar="N",
         help="fleet: run only the first N vehicles of the configuration (by id)",
     )
+    web.add_options(run)
 
 
 def run(args: argparse.Namespace, modbus: Any) -> int:
@@ -115,6 +117,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     if args.vehicles_count is not None:
         first_vehicles(cfg, args.vehicles_count)
     setup = plan(args, cfg)
+    web_options = web.web_options(args, cfg)
     if setup.spawn and args.vehicles_count is not None:
         raise ConfigError(
             "--vehicles-count: only with vehicles simulated in this process (the vehicle "
@@ -139,6 +142,8 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     )
     if args.modbus:
         program.rt.add_driver(modbus(args.modbus))
+    if web_options is not None:  # stopped with the runtime, like every driver
+        program.rt.add_driver(web.web_server(web_options, program.orders))
     total = (
         args.cycles
         if args.cycles is not None

@@ -1,0 +1,230 @@
+"""``plc-runtime order add|withdraw|list|show``: the transport orders of a running controller.
+
+The controller is ``plc-runtime run CONFIG --web HOST:PORT``; these commands talk to its
+HTTP API (fleet/web) with the standard library's urllib, so scripts need nothing else.
+``add`` and ``withdraw`` need the token the run was given (``--token``, or the environment
+variable ``PLC_RUNTIME_TOKEN``); reading needs none.
+
+Every failure is one line on stderr and exit code 2: the controller cannot be reached, the
+token is missing or wrong, there is no such order, or the controller refused the order (the
+line names the field and what is wrong, as the order book says it). Requests go straight to
+the URL given: no proxy from the environment sees the token, and a redirect is not followed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import urllib.error
+import urllib.request
+from typing import Any
+from urllib.parse import quote, urlsplit
+
+from rich.console import Console
+from rich.table import Table
+
+from plc_runtime.cli import CliError, non_negative
+
+from ..web.options import TOKEN_ENV, bearer_token
+
+DEFAULT_URL = "http://127.0.0.1:8080"
+PREFIX = "/api/v1"
+PAGE = 500  # orders per request of ``list`` (the API's largest page)
+TIMEOUT_S = 15.0  # the controller answers within two of its 5 s waits for the scan
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    order = sub.add_parser(
+        "order", help="add, withdraw, list or show transport orders of a running controller"
+    )
+    commands = order.add_subparsers(dest="order_command", required=True)
+    add = commands.add_parser("add", help="add a transport order (needs the token)")
+    withdraw = commands.add_parser("withdraw", help="withdraw an open order (needs the token)")
+    listing = commands.add_parser("list", help="every order of the run: a table")
+    show = commands.add_parser("show", help="one order with its history and sections")
+    for parser in (add, withdraw, listing, show):
+        parser.add_argument(
+            "--url",
+            default=DEFAULT_URL,
+            help=f"the controller's HTTP API, as run --web serves it (default {DEFAULT_URL})",
+        )
+    for parser in (add, withdraw):
+        parser.add_argument("--token", help=f"the run's token for writes (default: ${TOKEN_ENV})")
+    for parser in (add, withdraw, listing, show):
+        parser.add_argument("--json", action="store_true", help="print the answer as JSON")
+    add.add_argument("--id", required=True, help="the order's id, unique in the run")
+    add.add_argument("--get", type=int, required=True, help="Get station (node id)")
+    add.add_argument("--put", type=int, required=True, help="Put station (node id)")
+    add.add_argument(
+        "--start", type=non_negative, metavar="S", help="earliest pickup, simulated s (default 0)"
+    )
+    add.add_argument(
+        "--end", type=non_negative, metavar="S", help="latest delivery, simulated s (default none)"
+    )
+    add.add_argument("--priority", type=int, help="larger is more urgent (default 0)")
+    add.add_argument("--vehicle", type=int, help="the only vehicle that may take the order")
+    for parser in (withdraw, show):
+        parser.add_argument("id", help="the order's id")
+
+
+def order_command(args: argparse.Namespace) -> int:
+    api = Api(args.url, getattr(args, "token", None))
+    kind = args.order_command
+    if kind == "list":
+        orders = api.all_orders()
+        if args.json:
+            print(json.dumps(orders))
+        else:
+            Console().print(orders_table(orders, args.url))
+        return 0
+    if kind == "show":
+        order = api.call("GET", f"/orders/{quote(args.id, safe='')}")
+    elif kind == "add":
+        body = {"id": args.id, "get": args.get, "put": args.put}
+        optional = {
+            "start_s": args.start,
+            "end_s": args.end,
+            "priority": args.priority,
+            "vehicle": args.vehicle,
+        }
+        body.update({k: v for k, v in optional.items() if v is not None})
+        order = api.call("POST", "/orders", body)
+    else:
+        order = api.call("DELETE", f"/orders/{quote(args.id, safe='')}")
+    if args.json:
+        print(json.dumps(order))
+    elif kind == "show":
+        Console().print(order_table(order))
+    else:
+        print(f"order {order['id']!r}: {order['state']}")
+    return 0
+
+
+class Api:
+    """The controller's API at ``url`` (its root, or the ``/api/v1`` it announces)."""
+
+    def __init__(self, url: str, token: str | None) -> None:
+        parts = urlsplit(url)
+        if parts.scheme not in ("http", "https") or not parts.hostname:
+            raise CliError(f"--url {url!r}: expected http://HOST:PORT, e.g. {DEFAULT_URL}")
+        self.base = url.rstrip("/").removesuffix(PREFIX)
+        where = "--token" if token is not None else TOKEN_ENV
+        self.token = token if token is not None else os.environ.get(TOKEN_ENV)
+        if self.token is not None and not bearer_token(self.token):
+            raise CliError(f"{where}: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only)")
+        self._open = urllib.request.build_opener(urllib.request.ProxyHandler({}), _NoRedirect).open
+
+    def all_orders(self) -> list[dict[str, Any]]:
+        """Every order, page by page (the book only grows, so pages do not shift)."""
+        orders: list[dict[str, Any]] = []
+        while True:
+            page = self.call("GET", f"/orders?offset={len(orders)}&limit={PAGE}")
+            orders += page["orders"]
+            if not page["orders"] or len(orders) >= page["total"]:
+                return orders
+
+    def call(self, method: str, path: str, body: dict[str, Any] | None = None) -> Any:
+        """The JSON answer of ``method path``; CliError with one line for every failure."""
+        url = f"{self.base}{PREFIX}{path}"
+        headers = {"Accept": "application/json"}
+        data = None
+        if body is not None:
+            data = json.dumps(body).encode()
+            headers["Content-Type"] = "application/json"
+        if method != "GET" and self.token is not None:
+            headers["Authorization"] = f"Bearer {self.token}"
+        request = urllib.request.Request(url, data, headers, method=method)
+        try:
+            with self._open(request, timeout=TIMEOUT_S) as reply:
+                return self._json(reply.read(), f"{method} {url}")
+        except urllib.error.HTTPError as exc:
+            raise CliError(self._refusal(exc)) from None
+        except urllib.error.URLError as exc:
+            reason = exc.reason
+            if isinstance(reason, TimeoutError):
+                raise CliError(f"{self.base}: no answer within {TIMEOUT_S:g} s") from None
+            why = reason.strerror if isinstance(reason, OSError) and reason.strerror else reason
+            raise CliError(
+                f"{self.base}: cannot reach the controller ({why}); is "
+                "`plc-runtime run CONFIG --web HOST:PORT` running there?"
+            ) from None
+        except TimeoutError:
+            raise CliError(f"{self.base}: no answer within {TIMEOUT_S:g} s") from None
+        except ValueError as exc:  # http.client: a URL with characters a request cannot hold
+            raise CliError(f"--url {self.base!r}: {exc}") from None
+        except OSError as exc:  # the connection broke mid-answer
+            raise CliError(f"{self.base}: {exc.strerror or exc}") from None
+
+    def _refusal(self, exc: urllib.error.HTTPError) -> str:
+        """One line for an error answer: the API's own message where it gave one."""
+        try:
+            message = json.loads(exc.read())["error"]
+        except (ValueError, KeyError, TypeError, OSError):
+            message = f"{exc.reason} ({self.base} is not a plc-runtime HTTP API?)"
+        line = f"{message} (HTTP {exc.code})"
+        if exc.code == 401:
+            line += f": give --token or set {TOKEN_ENV}"
+        return line
+
+    def _json(self, raw: bytes, what: str) -> Any:
+        try:
+            return json.loads(raw)
+        except ValueError:
+            raise CliError(
+                f"{what}: the answer is not JSON (not a plc-runtime HTTP API?)"
+            ) from None
+
+
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    """A redirect is an error: the token must not follow it to another address."""
+
+    def redirect_request(self, *args: Any, **kwargs: Any) -> None:
+        return None
+
+
+def _time(value: float | None) -> str:
+    return "-" if value is None else f"{value:g}"
+
+
+def _maybe(value: object) -> str:
+    return "-" if value is None else str(value)
+
+
+def orders_table(orders: list[dict[str, Any]], url: str) -> Table:
+    table = Table(title=f"{len(orders)} orders at {url}")
+    for name in ("id", "get", "put", "start s", "end s", "prio", "vehicle", "state", "assigned"):
+        table.add_column(name, justify="left" if name in ("id", "state") else "right")
+    table.add_column("reason")
+    for o in orders:
+        table.add_row(
+            o["id"],
+            str(o["get"]),
+            str(o["put"]),
+            _time(o["start_s"]),
+            _time(o["end_s"]),
+            str(o["priority"]),
+            _maybe(o["vehicle"]),
+            o["state"],
+            _maybe(o["assigned"]),
+            o["reason"],
+        )
+    return table
+
+
+def order_table(o: dict[str, Any]) -> Table:
+    """One order: its fields, then its history and its sections."""
+    table = Table(title=f"order {o['id']!r}", show_header=False)
+    table.add_column("field")
+    table.add_column("value")
+    for name in ("get", "put", "priority", "vehicle", "state", "assigned", "reason"):
+        table.add_row(name, _maybe(o[name]))
+    table.add_row("start_s", _time(o["start_s"]))
+    table.add_row("end_s", _time(o["end_s"]))
+    history = ", ".join(f"{h['time_s']:g} s {h['state']}" for h in o["history"])
+    table.add_row("history", history)
+    for name, times in o["sections"].items():
+        table.add_row(
+            name, " .. ".join(f"{t:g} s" for t in times) + (" .." if len(times) == 1 else "")
+        )
+    return table

@@ -1,0 +1,102 @@
+"""``plc-runtime run CONFIG --web HOST:PORT [--web-token TOKEN]``: the options and their checks.
+
+The token for writes comes from ``--web-token``, else from the environment variable
+``PLC_RUNTIME_TOKEN`` (not shown by ``ps`` to other users, unlike a command line), else it
+is generated and printed once on stderr. Everything is checked before the program is built:
+a bad address or token, or a configuration in which no vehicle takes transport orders, is
+one line and nothing runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import secrets
+import sys
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from plc_runtime.cli import CliError
+from plc_runtime.errors import ConfigError
+
+from ..config import FleetConfig
+from ..order_system import OrderSystem
+
+if TYPE_CHECKING:
+    from .server import WebServer
+
+TOKEN_ENV = "PLC_RUNTIME_TOKEN"
+MIN_TOKEN_CHARS = 16
+# RFC 6750's b64token: what a bearer token may hold, so it goes into a header unchanged
+_TOKEN = re.compile(r"[A-Za-z0-9\-._~+/]+=*")
+
+
+@dataclass(frozen=True)
+class WebOptions:
+    host: str
+    port: int
+    token: str
+    generated: bool  # nobody knows the token yet: it is printed once
+
+
+def add_options(run: argparse.ArgumentParser) -> None:
+    run.add_argument(
+        "--web",
+        metavar="HOST:PORT",
+        help="fleet: serve the transport orders over HTTP (e.g. 127.0.0.1:8080; "
+        "docs/orders.md); writes need a token",
+    )
+    run.add_argument(
+        "--web-token",
+        metavar="TOKEN",
+        help=f"with --web: the bearer token for writes (default: ${TOKEN_ENV}, else a new "
+        "one printed on stderr)",
+    )
+
+
+def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None:
+    """The checked ``--web`` options, None without ``--web``."""
+    if args.web is None:
+        if args.web_token is not None:
+            raise CliError("--web-token is the token of the HTTP API --web HOST:PORT starts")
+        return None
+    host, sep, port = args.web.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise CliError(f"--web {args.web!r}: expected HOST:PORT, e.g. 127.0.0.1:8080")
+    if not cfg.order_vehicles:
+        raise ConfigError(
+            f"--web: no vehicle of {cfg.source} takes transport orders (every one runs "
+            "recipes), and the HTTP API serves transport orders (docs/orders.md)"
+        )
+    token, where = args.web_token, "--web-token"
+    if token is None:
+        token, where = os.environ.get(TOKEN_ENV), TOKEN_ENV
+    if token is None:
+        return WebOptions(host, int(port), secrets.token_urlsafe(24), True)
+    if len(token) < MIN_TOKEN_CHARS or not bearer_token(token):
+        raise CliError(
+            f"{where}: a bearer token needs {MIN_TOKEN_CHARS} characters or more of "
+            "A-Z a-z 0-9 - . _ ~ + / (got "
+            f"{len(token)} characters{'' if bearer_token(token) else ', some not allowed'})"
+        )
+    return WebOptions(host, int(port), token, False)
+
+
+def bearer_token(text: str) -> bool:
+    """Whether ``text`` can be a bearer token: RFC 6750's characters, nothing else."""
+    return _TOKEN.fullmatch(text) is not None
+
+
+def web_server(options: WebOptions, orders: OrderSystem) -> WebServer:
+    """The server, announcing where it listens (and a generated token) on stderr."""
+    from .server import WebServer  # FastAPI and uvicorn: only for a run that serves HTTP
+
+    def announce(url: str) -> None:
+        line = f"plc-runtime: HTTP API on {url}/api/v1"
+        if options.generated:
+            line += f"; token for writes: {options.token}"
+        print(line, file=sys.stderr, flush=True)
+
+    return WebServer(orders, options.host, options.port, token=options.token, announce=announce)

@@ -1,0 +1,187 @@
+"""WebServer: the HTTP API served by uvicorn in its own thread and event loop, beside the scan.
+
+It is an IoDriver of the runtime, which gives it exactly the life it needs: ``open`` (the
+startup phase) binds the socket and starts the server thread, ``read_inputs`` (every tick's
+quiet point, in the scan thread) answers the requests waiting in the :class:`OrderDesk`, and
+``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
+thread and closes the socket. So a run never leaves the server behind.
+
+The socket is bound here, before the thread starts, so an address in use is a clear error
+at start and port 0 gives a free port (``port`` after ``open``). Binding anything but a
+loopback address warns: the token protects writes, but the API is plain HTTP and anyone who
+reaches it can read the order book (docs/security.md). uvicorn is told to leave logging,
+signals and proxies alone: no access log on the operator's terminal, Ctrl-C stays the run's,
+and ``X-Forwarded-For`` from a client is not believed.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import warnings
+from collections.abc import Callable
+
+import uvicorn
+
+from io_drivers.modbus_server import is_loopback
+from plc_runtime import ConfigError, ProcessImage
+
+from ..order_system import OrderSystem
+from .api import ANSWER_TIMEOUT, build_app
+from .desk import OrderDesk
+from .guard import MAX_BODY, MAX_IN_FLIGHT, Guard
+
+START_TIMEOUT = 10.0  # seconds for the server thread to start serving
+STOP_TIMEOUT = 10.0  # seconds for it to end (it answers what is in flight first, up to 2 s)
+GRACEFUL_S = 2.0
+
+
+class _Server(uvicorn.Server):
+    """uvicorn's server, telling when it serves (or failed to start)."""
+
+    def __init__(self, config: uvicorn.Config) -> None:
+        super().__init__(config)
+        self.serving = threading.Event()
+
+    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
+        await super().startup(sockets)
+        self.serving.set()
+
+
+class WebServer:
+    """The HTTP API of ``orders`` on ``host:port`` (port 0: a free one); POST and DELETE need
+    ``token``. ``announce(url)`` is called once it listens (the command line prints it).
+    ``answer_timeout``, ``max_body`` and ``max_in_flight``: see api.py and guard.py."""
+
+    def __init__(
+        self,
+        orders: OrderSystem,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        token: str,
+        name: str = "web",
+        answer_timeout: float = ANSWER_TIMEOUT,
+        max_body: int = MAX_BODY,
+        max_in_flight: int = MAX_IN_FLIGHT,
+        announce: Callable[[str], None] | None = None,
+    ) -> None:
+        self.name = name
+        self.host, self.requested_port = host, port
+        self.port: int | None = None  # the bound port while open
+        self._orders = orders
+        self.desk = OrderDesk(orders)
+        self._token = token
+        self._answer_timeout = answer_timeout
+        self._max_body = max_body
+        self._max_in_flight = max_in_flight
+        self._announce = announce
+        self._socket: socket.socket | None = None
+        self._server: _Server | None = None
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.answered = 0  # requests answered at quiet points
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}"
+
+    # ----- IoDriver ---------------------------------------------------------------------------
+    def open(self, image: ProcessImage) -> None:
+        loopback = is_loopback(self.host)
+        if not loopback:
+            warnings.warn(
+                f"{self.name}: HTTP API on {self.host or '*'}:{self.requested_port}, not a "
+                "loopback address: writes need the token, but it travels in clear text and "
+                "anyone who reaches the port can read the order book (docs/security.md)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        try:
+            self._socket = _bind(self.host, self.requested_port)
+        except OSError as exc:  # the runtime reports it as "driver web: cannot open: ..."
+            why = os.strerror(exc.errno) if exc.errno and exc.errno > 0 else exc.strerror or exc
+            raise ConfigError(f"HTTP API on {self.host}:{self.requested_port}: {why}") from None
+        self.port = self._socket.getsockname()[1]
+        self.desk = OrderDesk(self._orders)  # a fresh queue for every start
+        app = Guard(
+            build_app(self.desk, self._answer_timeout),
+            token=self._token,
+            where=f"{self.name} {self.host}:{self.port}",
+            loopback=loopback,
+            max_body=self._max_body,
+            max_in_flight=self._max_in_flight,
+        )
+        config = uvicorn.Config(
+            app,
+            log_config=None,
+            log_level="warning",
+            access_log=False,
+            lifespan="off",
+            http="h11",
+            ws="none",
+            loop="asyncio",
+            proxy_headers=False,
+            server_header=False,
+            timeout_graceful_shutdown=GRACEFUL_S,
+        )
+        self._server = _Server(config)
+        self._error = None
+        self._thread = threading.Thread(target=self._serve, name=f"fleet-{self.name}", daemon=True)
+        self._thread.start()
+        if not self._server.serving.wait(START_TIMEOUT) or self._error is not None:
+            why = self._error or f"did not start within {START_TIMEOUT:g} s"
+            self.close()
+            raise ConfigError(f"HTTP API on {self.url}: {why}")
+        if self._announce is not None:
+            self._announce(self.url)
+
+    def _serve(self) -> None:
+        """The server thread: uvicorn's own event loop until ``should_exit``."""
+        server, sock = self._server, self._socket
+        assert server is not None and sock is not None
+        try:
+            server.run([sock])
+        except BaseException as exc:  # a failed start: open() reports it
+            self._error = exc
+        finally:
+            server.serving.set()
+
+    def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
+        self.answered += self.desk.answer()
+
+    def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
+        """Nothing: the API writes no outputs."""
+
+    def close(self) -> None:
+        """Fail what waits, stop the server thread, close the socket. Idempotent."""
+        self.desk.close()
+        server, thread, sock = self._server, self._thread, self._socket
+        self._server = self._thread = self._socket = None
+        if server is not None:
+            server.should_exit = True
+        if thread is not None:
+            thread.join(STOP_TIMEOUT)
+            if thread.is_alive():
+                warnings.warn(
+                    f"{self.name}: HTTP server thread did not stop within {STOP_TIMEOUT:g} s",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+        if sock is not None:
+            sock.close()
+        self.port = None
+
+    def stats(self) -> dict[str, object]:
+        return {"port": self.port, "answered": self.answered, "waiting": self.desk.waiting}
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (IPv4 or IPv6, as the host resolves; an
+    empty host is every IPv4 address)."""
+    if not host:
+        return socket.create_server(("", port), backlog=64)
+    family, _, _, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    return socket.create_server(address, family=family, backlog=64)

@@ -1,0 +1,375 @@
+"""``plc-runtime order add|withdraw|list|show`` and ``plc-runtime run --web``, end to end.
+
+The order commands run in this process against a controller scanning in a background
+thread (web_controller.py); ``run --web`` runs as a reader would start it: in a child
+process (Ctrl-C included), and in this process for the cases that end by themselves. Every
+failure must be one line on stderr, exit code 2, no traceback; every run must leave no
+server thread and nothing listening behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.server
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from web_controller import (
+    CONFIG,
+    ROOT,
+    TOKEN,
+    Controller,
+    assert_port_closed,
+    assert_server_gone,
+)
+
+from fleet.cli import main
+from fleet.commands import orders as order_cli
+from fleet.config import load_config
+from fleet.web.options import TOKEN_ENV, web_options
+from plc_runtime.cli import CliError
+
+ERROR = "plc-runtime: error: "
+ANNOUNCE = re.compile(r"plc-runtime: HTTP API on (http://127\.0\.0\.1:(\d+))/api/v1(.*)")
+FINISH_WALL_S = 120.0
+START_WALL_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def ctl():
+    with Controller() as controller:
+        yield controller
+
+
+@pytest.fixture(autouse=True)
+def wide_and_tokenless(monkeypatch):
+    """Tables as wide as they need (rich reads COLUMNS); no token from the test's shell."""
+    monkeypatch.setenv("COLUMNS", "200")
+    monkeypatch.delenv(TOKEN_ENV, raising=False)
+
+
+def order(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(["order", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def error_line(code: int, err: str) -> str:
+    """The one error line of a failed command, without its prefix."""
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(ERROR), err
+    return lines[0][len(ERROR) :]
+
+
+def closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# ----- the order commands -----------------------------------------------------------------------
+def test_add_show_list_withdraw(ctl, capsys):
+    url = ["--url", ctl.url]
+    code, out, err = order(
+        capsys, "add", *url, "--token", TOKEN, "--id", "cli-1", "--get", "21", "--put", "23",
+        "--start", "5000", "--end", "9000", "--priority", "3", "--vehicle", "2",
+    )  # fmt: skip
+    assert (code, err) == (0, "")
+    assert re.fullmatch(r"order 'cli-1': (DISPATCHABLE|BEING_PROCESSED)\n", out)
+
+    code, out, _ = order(capsys, "show", *url, "cli-1", "--json")
+    shown = json.loads(out)
+    assert code == 0
+    assert {k: shown[k] for k in ("get", "put", "start_s", "end_s", "priority", "vehicle")} == {
+        "get": 21,
+        "put": 23,
+        "start_s": 5000.0,
+        "end_s": 9000.0,
+        "priority": 3,
+        "vehicle": 2,
+    }
+    code, out, _ = order(capsys, "show", *url, "cli-1")
+    assert code == 0
+    assert "order 'cli-1'" in out and "9000" in out and "history" in out
+
+    code, out, _ = order(capsys, "list", *url)
+    assert code == 0
+    assert "cli-1" in out and "saw-1" in out and "orders at" in out
+    code, out, _ = order(capsys, "list", *url, "--json")
+    listed = json.loads(out)
+    assert [o["id"] for o in listed][:2] == ["saw-1", "weld-1"] and "cli-1" in {
+        o["id"] for o in listed
+    }
+
+    code, out, err = order(capsys, "withdraw", *url, "--token", TOKEN, "cli-1")
+    assert (code, out, err) == (0, "order 'cli-1': WITHDRAWN\n", "")
+    code, out, _ = order(capsys, "withdraw", *url, "--token", TOKEN, "cli-1", "--json")
+    assert "cannot go from WITHDRAWN to WITHDRAWN (HTTP 409)" in error_line(code, _)
+
+
+def test_an_order_added_from_the_command_line_is_delivered(ctl, capsys, monkeypatch):
+    monkeypatch.setenv(TOKEN_ENV, TOKEN)  # the token from the environment
+    code, out, err = order(
+        capsys, "add", "--url", f"{ctl.url}/api/v1/", "--id", "cli-2", "--get", "25", "--put",
+        "27", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    assert json.loads(out)["id"] == "cli-2"
+    deadline = time.monotonic() + FINISH_WALL_S
+    while time.monotonic() < deadline:
+        _, out, _ = order(capsys, "show", "--url", ctl.url, "cli-2", "--json")
+        if json.loads(out)["state"] == "FINISHED":
+            break
+        time.sleep(0.05)
+    assert json.loads(out)["state"] == "FINISHED"
+
+
+def test_list_reads_every_page(ctl, capsys, monkeypatch):
+    code, out, _ = order(capsys, "list", "--url", ctl.url, "--json")
+    whole = [o["id"] for o in json.loads(out)]
+    monkeypatch.setattr(order_cli, "PAGE", 2)
+    code, out, _ = order(capsys, "list", "--url", ctl.url, "--json")
+    assert code == 0
+    assert [o["id"] for o in json.loads(out)][: len(whole)] == whole
+
+
+@pytest.mark.parametrize(
+    ("argv", "line"),
+    [
+        (
+            ["add", "--id", "e1", "--get", "21", "--put", "23"],
+            "this request needs the token: Authorization: Bearer TOKEN (HTTP 401): "
+            f"give --token or set {TOKEN_ENV}",
+        ),
+        (
+            [
+                "add",
+                "--token",
+                "wrong-token-0123456789",
+                "--id",
+                "e1",
+                "--get",
+                "21",
+                "--put",
+                "23",
+            ],
+            "wrong token (HTTP 403)",
+        ),
+        (["withdraw", "saw-1"], "this request needs the token"),
+        (["show", "e1"], "order 'e1': field 'id': no such order (HTTP 404)"),
+        (["withdraw", "--token", TOKEN, "e1"], "order 'e1': field 'id': no such order (HTTP 404)"),
+        (
+            ["add", "--token", TOKEN, "--id", "e1", "--get", "99", "--put", "23"],
+            "order 'e1': field 'get': node 99 is not a Get/Put station (HTTP 422)",
+        ),
+        (
+            ["add", "--token", TOKEN, "--id", "e1", "--get", "21", "--put", "21"],
+            "order 'e1': field 'put': Put station 21 is the Get station (HTTP 422)",
+        ),
+        (
+            [
+                "add",
+                "--token",
+                TOKEN,
+                "--id",
+                "e1",
+                "--get",
+                "21",
+                "--put",
+                "23",
+                "--start",
+                "60",
+                "--end",
+                "30",
+            ],
+            "order 'e1': field 'end_s': end 30.0 s is before the start 60.0 s (HTTP 422)",
+        ),  # fmt: skip
+        (
+            ["add", "--token", TOKEN, "--id", "saw-1", "--get", "21", "--put", "23"],
+            "order 'saw-1': field 'id': already used by an order that is",
+        ),
+        (
+            ["add", "--token", "bad\ntoken", "--id", "e1", "--get", "21", "--put", "23"],
+            "--token: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only)",
+        ),
+    ],
+)
+def test_refusals_are_one_line(ctl, capsys, argv, line):
+    code, out, err = order(capsys, argv[0], "--url", ctl.url, *argv[1:])
+    assert line in error_line(code, err) and out == ""
+    code, out, _ = order(capsys, "show", "--url", ctl.url, "e1")
+    assert code == 2  # nothing was added
+
+
+def test_an_unreachable_controller_is_one_line(capsys):
+    port = closed_port()
+    for argv in (["list"], ["show", "x"], ["add", "--token", TOKEN, "--id", "x", "--get", "1",
+                 "--put", "2"], ["withdraw", "--token", TOKEN, "x"]):  # fmt: skip
+        code, _, err = order(capsys, argv[0], "--url", f"http://127.0.0.1:{port}", *argv[1:])
+        assert error_line(code, err) == (
+            f"http://127.0.0.1:{port}: cannot reach the controller (Connection refused); is "
+            "`plc-runtime run CONFIG --web HOST:PORT` running there?"
+        )
+
+
+def test_a_url_that_is_not_http_is_one_line(capsys):
+    code, _, err = order(capsys, "list", "--url", "file:///etc/passwd")
+    assert error_line(code, err) == (
+        "--url 'file:///etc/passwd': expected http://HOST:PORT, e.g. http://127.0.0.1:8080"
+    )
+
+
+class _Quiet(http.server.BaseHTTPRequestHandler):
+    """Serves nothing (501 in HTML to every GET) and logs nothing."""
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+def test_a_server_that_is_not_the_api_is_one_line(capsys):
+    """Something else on the port answers, in HTML."""
+    server = http.server.HTTPServer(("127.0.0.1", 0), _Quiet)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
+    thread.start()
+    try:
+        code, _, err = order(capsys, "show", "--url", f"http://127.0.0.1:{server.server_port}", "x")
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
+    assert "(HTTP 501)" in error_line(code, err) and "not a plc-runtime HTTP API?" in err
+
+
+# ----- run --web --------------------------------------------------------------------------------
+def test_run_serves_until_ctrl_c_and_closes(tmp_path, capsys):
+    """As a reader starts it: a generated token printed once, an order added with it is
+    delivered, Ctrl-C ends the run (130) and the port is closed."""
+    err_file = tmp_path / "run.err"
+    cmd = [sys.executable, "-m", "fleet", "run", str(CONFIG), "--web", "127.0.0.1:0",
+           "--speed", "20", "--duration", "1000", "--watchdog", "30000", "--json",
+           "--out", str(tmp_path / "out")]  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != TOKEN_ENV}
+    with err_file.open("w") as err:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=err)
+    try:
+        deadline = time.monotonic() + START_WALL_S
+        found = None
+        while found is None and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.1)
+            found = ANNOUNCE.search(err_file.read_text())
+        assert found, f"no announcement: {err_file.read_text()}"
+        url, port, rest = found.group(1), int(found.group(2)), found.group(3)
+        token = rest.removeprefix("; token for writes: ")
+        assert len(token) >= 32
+        code, out, err = order(capsys, "add", "--url", url, "--token", token, "--id", "run-1",
+                               "--get", "21", "--put", "23")  # fmt: skip
+        assert code == 0, err
+        deadline = time.monotonic() + FINISH_WALL_S
+        while time.monotonic() < deadline:
+            _, out, _ = order(capsys, "show", "--url", url, "run-1", "--json")
+            if json.loads(out)["state"] == "FINISHED":
+                break
+            time.sleep(0.1)
+        assert json.loads(out)["state"] == "FINISHED"
+        proc.send_signal(signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err_file.read_text()
+    assert json.loads(stdout)["interrupted"] is True
+    assert err_file.read_text().count(token) == 1  # printed once
+    assert_port_closed(port)
+    code, _, err = order(capsys, "list", "--url", url)
+    assert "cannot reach the controller (Connection refused)" in error_line(code, err)
+
+
+def run_in_process(capsys, tmp_path, *extra: str) -> tuple[int, int | None, str]:
+    """``plc-runtime run --web`` here, to its end; (exit code, the port it served, stderr)."""
+    before = set(threading.enumerate())
+    code = main(["run", str(CONFIG), "--web", "127.0.0.1:0", "--web-token", TOKEN,
+                 "--json", "--out", str(tmp_path), *extra])  # fmt: skip
+    _, err = capsys.readouterr()
+    found = ANNOUNCE.search(err)
+    port = int(found.group(2)) if found else None
+    assert_server_gone(port, before)
+    return code, port, err
+
+
+def test_run_closes_the_server_at_its_end(tmp_path, capsys):
+    code, port, err = run_in_process(capsys, tmp_path, "--duration", "2", "--watchdog", "30000")
+    assert code == 0 and port is not None
+    assert ANNOUNCE.search(err).group(3) == ""  # a given token is not printed
+    assert TOKEN not in err
+
+
+def test_run_closes_the_server_after_a_fault(tmp_path, capsys):
+    code, port, err = run_in_process(capsys, tmp_path, "--duration", "2", "--watchdog", "0.001")
+    assert code == 1 and port is not None
+    assert json.loads((tmp_path / "summary.json").read_text())["state"] == "FAULT"
+
+
+def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        before = set(threading.enumerate())
+        code = main(["run", str(CONFIG), "--web", f"127.0.0.1:{port}", "--web-token", TOKEN,
+                     "--duration", "1", "--out", str(tmp_path)])  # fmt: skip
+        _, err = capsys.readouterr()
+        assert_server_gone(None, before)
+    assert error_line(code, err) == (
+        f"driver web: cannot open: HTTP API on 127.0.0.1:{port}: Address already in use"
+    )
+
+
+@pytest.mark.parametrize(
+    ("argv", "line"),
+    [
+        (
+            [str(ROOT / "examples" / "workshop.toml"), "--web", "127.0.0.1:0"],
+            "--web: no vehicle of",
+        ),
+        ([str(CONFIG), "--web", "8080"], "--web '8080': expected HOST:PORT, e.g. 127.0.0.1:8080"),
+        ([str(CONFIG), "--web", "127.0.0.1:99999"], "expected HOST:PORT"),
+        (
+            [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "short"],
+            "--web-token: a bearer token needs 16 characters or more of A-Z a-z 0-9 - . _ ~ + / "
+            "(got 5 characters)",
+        ),
+        (
+            [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "with spaces in the token"],
+            "some not allowed",
+        ),
+        ([str(CONFIG), "--web-token", TOKEN], "--web-token is the token of the HTTP API"),
+        (["--program", "demo", "--web", "127.0.0.1:0"], "--web serves the fleet's transport"),
+    ],
+)
+def test_run_refuses_bad_web_options_in_one_line(tmp_path, capsys, argv, line):
+    code = main(["run", *argv, "--duration", "1", "--out", str(tmp_path)])
+    assert line in error_line(code, capsys.readouterr().err)
+
+
+def test_run_takes_the_token_from_the_environment(monkeypatch):
+    cfg = load_config(CONFIG)
+    args = argparse.Namespace(web="127.0.0.1:0", web_token=None)
+    monkeypatch.setenv(TOKEN_ENV, TOKEN)
+    options = web_options(args, cfg)
+    assert (options.token, options.generated) == (TOKEN, False)
+    monkeypatch.setenv(TOKEN_ENV, "x")
+    with pytest.raises(CliError, match=f"^{TOKEN_ENV}: a bearer token needs 16 characters"):
+        web_options(args, cfg)
+    monkeypatch.delenv(TOKEN_ENV)
+    generated = web_options(args, cfg)
+    assert generated.generated and len(generated.token) == 32
+    assert generated.token != web_options(args, cfg).token
