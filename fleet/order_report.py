@@ -34,6 +34,19 @@ def waiting_s(order: TransportOrder) -> float:
     return total
 
 
+def station_use(system: OrderSystem) -> dict[int, tuple[int, float]]:
+    """Per station: the transport orders' finished visits (Get and Put dwells) and the
+    seconds they took, for the summary's ``station_utilisation``."""
+    use: dict[int, tuple[int, float]] = {}
+    for order in system.book:
+        for name, station in (("Get", order.get), ("Put", order.put)):
+            times = order.sections.get(name)
+            if times is not None and len(times) == 2:
+                visits, busy = use.get(station, (0, 0.0))
+                use[station] = (visits + 1, busy + times[1] - times[0])
+    return use
+
+
 def order_summary(system: OrderSystem) -> dict[str, Any]:
     finished = [o for o in system.book if o.state is OrderState.FINISHED]
     times = [t for o in finished if (t := execution_s(o)) is not None]

@@ -18,7 +18,7 @@ from typing import Any
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
 
-from .order_report import order_summary, write_orders_csv
+from .order_report import order_summary, station_use, write_orders_csv
 from .program import FleetProgram
 
 CSV_COLUMNS = (
@@ -111,7 +111,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "faults": faults(program, stats.get("drivers", {})),
         "events": [e.to_dict() for e in program.events.recent(EVENTS_IN_SUMMARY)],
         "event_counts": dict(sorted(program.events.counts.items())),
-        "station_utilisation": program.chooser.utilisation(sim),
+        "station_utilisation": _utilisation(program, sim),
         "heuristic_table": {
             "build_ms": round(program.table.build_time_s * 1e3, 3),
             "bytes": program.table.nbytes,
@@ -126,6 +126,22 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
 
 INJECTED = ("dropped", "corrupted", "spoofed")
 DETECTED = ("crc_errors", "malformed", "repeated", "out_of_sequence", "resyncs", "unconfirmed")
+
+
+def _utilisation(program: FleetProgram, sim: float) -> dict[str, dict[str, float | int]]:
+    """Per station: recipe assignments, and the visits and busy time of recipes and
+    transport orders together."""
+    out = program.chooser.utilisation(sim)
+    if program.orders is None:
+        return out
+    for station, (visits, busy) in station_use(program.orders).items():
+        row = out.setdefault(
+            str(station), {"assigned": 0, "visits": 0, "busy_s": 0.0, "utilisation": 0.0}
+        )
+        row["visits"] += visits
+        row["busy_s"] = round(row["busy_s"] + busy, 3)
+        row["utilisation"] = round(row["busy_s"] / sim, 4) if sim > 0 else 0.0
+    return out
 
 
 def faults(program: FleetProgram, drivers: dict[str, Any]) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
 from fleet.config import parse_config
 from fleet.program import FleetProgram
+from fleet.report import summary
 
 WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
 STATIONS = list(range(20, 30))  # the workshop's ten stations
@@ -89,6 +90,9 @@ def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strateg
         assert all(len(t) == 2 and t[0] <= t[1] for t in order.sections.values())
         assert order.sections["Get"][0] >= order.start_s
     assert sum(r.orders_done for r in p.orders.runners.values()) == 5
+    use = summary(p, 1.0)["station_utilisation"]  # every Get and Put dwell, 5 s each
+    assert sum(row["visits"] for row in use.values()) == 10
+    assert sum(row["busy_s"] for row in use.values()) == pytest.approx(50.0, abs=0.5)
     assert p.monitor.head_on == 0 and p.monitor.node == 0
     # with nothing left to do, the vehicles park (two parking places) or stand aside
     assert sum(r.phase == "parked" for r in p.orders.runners.values()) == 2
