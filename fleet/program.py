@@ -28,7 +28,13 @@ from blocks.jobs.recipe import RecipeRun, RecipeSequencer, StationChooser
 from blocks.routing.constraints import RoutingConstraints
 from blocks.routing.heuristic import HeuristicTable
 from blocks.traffic.deadlock import DeadlockResolver
-from blocks.traffic.records import RECORD, STATES, RecordArea, VehicleRecordsView
+from blocks.traffic.records import (
+    BATTERY_UNKNOWN,
+    RECORD,
+    STATES,
+    RecordArea,
+    VehicleRecordsView,
+)
 from blocks.traffic.reservation import ReservationMatrix
 from blocks.traffic.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver
@@ -85,7 +91,7 @@ class FleetCycle(FunctionBlock):
         pairs: list[tuple[RecipeSequencer | OrderRunner, VehicleControl]],
         grace_s: float,
         held: set[int] | None = None,
-        battery: Callable[[int], int] | None = None,
+        battery: Callable[[int], int | None] | None = None,
     ) -> None:
         super().__init__()
         self.pairs = pairs
@@ -341,8 +347,10 @@ class FleetProgram:
             vehicle not in self.commands.held
         )
 
-    def _battery(self, vehicle: int) -> int:
-        return int(self.records.inputs(vehicle)["battery"])
+    def _battery(self, vehicle: int) -> int | None:
+        """The vehicle's charge in %, None until its first info frame."""
+        battery = int(self.records.inputs(vehicle)["battery"])
+        return None if battery == BATTERY_UNKNOWN else battery
 
     def _taken_by_other(self, vehicle: int):
         def taken(station: int) -> bool:
@@ -395,7 +403,7 @@ class FleetProgram:
                     "recipe": s.recipe_name,
                     "step": f"{s.step + 1}/{len(recipe.functions)}" if recipe else "-",
                     "phase": s.phase,
-                    "battery": int(rec["battery"]) if rec is not None else None,
+                    "battery": self._battery(v) if rec is not None else None,
                     "rounds": s.rounds_done,
                     "waits": c.waits,
                     "replans": c.replans,

@@ -37,6 +37,7 @@ MAX_VEHICLE_ID = 126
 ALL_VEHICLES = 127
 CONTROLLER = 0
 NO_NODE = 0xFFFF
+BATTERY_UNKNOWN = 0xFF  # the record's battery byte until the vehicle's first info frame
 MAX_NODE_ID = 0xFFFE
 STATES = (
     "IDLE",

@@ -30,7 +30,7 @@ import numpy as np
 from plc_runtime import ConfigError, ProcessImage
 
 from .e2e import COUNTER_MODULO
-from .protocol import MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Info, Status
+from .protocol import BATTERY_UNKNOWN, MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Info, Status
 
 RECORD = 8
 ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
@@ -60,6 +60,8 @@ class VehicleRecords:
                 f"vehicle records up to id {self.vehicles[-1]} do not fit the I/Q sizes {image.sizes}"
             )
         self._in = {v: self._input_writers(image, input_base + RECORD * v) for v in self.vehicles}
+        for writers in self._in.values():  # no reading yet is not an empty battery
+            writers["battery"](BATTERY_UNKNOWN)
         self._out = {
             v: self._output_readers(image, output_base + RECORD * v) for v in self.vehicles
         }

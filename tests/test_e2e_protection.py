@@ -22,6 +22,7 @@ from io_drivers.e2e import (
 )
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from io_drivers.protocol import (
+    BATTERY_UNKNOWN,
     DBC_PATH,
     INFO,
     NO_NODE,
@@ -255,6 +256,16 @@ def test_a_fault_ends_only_when_two_consecutive_frames_say_so():
     assert inputs(image, recs, 3)[3] == ONLINE | FAULT
     recs.received(Status(3, 17, NO_NODE, "IDLE", 0.0, 9), 4)  # 8 and 9: confirmed
     assert inputs(image, recs, 4)[3] == ONLINE
+
+
+def test_the_battery_reads_unknown_until_the_first_info_frame_not_empty():
+    image, recs = records()
+    base = record(3)
+    image.copy_in()
+    assert image.read(f"%IB{base + 5}") == BATTERY_UNKNOWN  # a lost first frame is no 0 %
+    recs.received_info(Info(3, 0, 1))
+    image.copy_in()
+    assert image.read(f"%IB{base + 5}") == 0  # a real empty battery reads 0
 
 
 # ----- the CAN driver ----------------------------------------------------------------------------

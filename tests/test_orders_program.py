@@ -137,6 +137,23 @@ def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):
     )
 
 
+def test_a_load_is_never_taken_before_the_orders_start_time(tmp_path, made):
+    # two_stage gives the order once the estimated arrival is not before its start, and the
+    # estimate here is far too slow (0.1 m/s): the vehicle is there long before 60 s
+    cfg = config(
+        "id,get,put,start_s\nlater,20,29,60\n",
+        tmp_path,
+        vehicles=((1, 3),),
+        extra="mean_speed = 0.1",
+    )
+    p = start(cfg, made)
+    run(p, 200)
+    order = p.orders.book.get("later")
+    assert order.state is OrderState.FINISHED
+    assert order.sections["Get"][0] >= 60.0
+    assert order.sections["Get_Queue"][0] < 60.0  # it waited for the start time
+
+
 def test_an_order_nobody_can_drive_is_unroutable_and_reported(tmp_path, made):
     # a blockade closes both segments to station 20 (its only links) before the order comes
     extra = """

@@ -190,8 +190,8 @@ class Dispatcher(FunctionBlock):
     def _candidates(self, ctx: CycleContext) -> list[Candidate]:
         out = []
         for v, r in self.runners.items():
-            if r.current is None or not self.available(v):
-                continue
+            if r.current is None or r.battery is None or not self.available(v):
+                continue  # (a vehicle whose charge is not known yet takes nothing)
             charging = r.phase in ("to_charger", "charging")
             if r.active is None:
                 if self.charging.may_take(r.battery, charging):

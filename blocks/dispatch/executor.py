@@ -6,8 +6,8 @@ An order runs through the seed's sections, each time-stamped in the order:
   Get station (the nodes of the station's units, plant key ``zone``); until then the
   dispatcher may still give the order to another vehicle (the two-stage allocation);
 * ``Go_To_Get``: inside the zone, until it reaches the station or starts waiting for it;
-* ``Get_Queue``: waiting for the station (at a queue position, off the lanes), until it
-  stands at the station;
+* ``Get_Queue``: waiting for the station (at a queue position, off the lanes), or for the
+  order's start time (the load is not ready before it), until it stands at the station;
 * ``Get``: the dwell at the station (loading);
 * ``Go_To_Put``, ``Put_Queue``, ``Put``: the same for the Put station (unloading).
 
@@ -120,7 +120,9 @@ class Claims:
 class OrderRunner(FunctionBlock):
     arrived = Input(False, doc="the vehicle control reports: at the target, nothing left to drive")
     current = Input(None, doc="the node the vehicle last reported")
-    battery = Input(100, doc="state of charge in %, from the vehicle's info frames")
+    battery = Input(
+        None, doc="state of charge in %, from the vehicle's info frames; None: none yet"
+    )
 
     target = Output(None, doc="the node the vehicle should drive to")
     fixed_route = Output(None, doc="never set: orders are planned, not driven on fixed lanes")
@@ -234,7 +236,8 @@ class OrderRunner(FunctionBlock):
     def cycle(self, ctx: CycleContext) -> None:
         if self.current is None:
             return
-        self.min_battery = min(self.min_battery, self.battery)
+        if self.battery is not None:  # (no reading yet is not an empty battery)
+            self.min_battery = min(self.min_battery, self.battery)
         if self.leaving is not None and self.current not in self._area(self.leaving):
             # it has left the station and its single-vehicle area: the next may come
             self.claims.release(self.leaving, self.vehicle)
@@ -284,7 +287,8 @@ class OrderRunner(FunctionBlock):
             # far off: it drives on, claiming nothing, up to the area's entry at most
             self.target, self.hold = self.entries.get(station, station), False
             return
-        if self.claims.claim(station, self.vehicle):
+        early = kind == "Get" and ctx.time < self.active.start_s  # (the load is not ready)
+        if not early and self.claims.claim(station, self.vehicle):
             self._forget(station)  # its queue place is free again
             self.target, self.hold = station, False
             if self.arrived and self.current == station:
@@ -364,7 +368,7 @@ class OrderRunner(FunctionBlock):
         self.leaving = order.put
         self._end(ctx)
         self.book.transition(order, OrderState.FINISHED, ctx.time)
-        if self.battery_at_start is not None:
+        if self.battery_at_start is not None and self.battery is not None:
             self.charging.order_used(self.battery_at_start - self.battery)
         self.orders_done += 1
         self.active, self.frozen, self.section = None, False, ""
@@ -402,6 +406,12 @@ class OrderRunner(FunctionBlock):
     # ----- without an order ----------------------------------------------------------------------
     def _without_order(self, ctx: CycleContext) -> None:
         battery = self.battery
+        if battery is None:  # nothing known of its charge yet: it parks until it is
+            if self.phase == "idle":
+                self.target = self.current
+            if self.park and self.parking:
+                self._go_parking(ctx)
+            return
         if self.phase in ("to_charger", "charging"):
             if self.charging.charged(battery):
                 self._forget()

@@ -31,6 +31,7 @@ IN_RECORD = np.dtype(
 OUT_RECORD = np.dtype([("nodes", "<u2", (3,)), ("control", "u1"), ("sequence", "u1")])
 RECORD = 8
 NO_NODE = 0xFFFF
+BATTERY_UNKNOWN = 0xFF  # battery byte: no info frame from the vehicle yet
 ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
 # bits 4-6: the link's count of the vehicle's message counter jumps (restart, second sender)
 LINK_JUMPS, LINK_JUMP_SHIFT = 0x70, 4
