@@ -3,8 +3,9 @@ timestamp per section, and the drawing of every vehicle's planned and driven rou
 
 The summary keys ``cycles``, ``overruns``, ``state``, ``sim_time_s``, ``vehicles``,
 ``recipes_completed``, ``stations_visited``, ``replans``, ``waits``, ``deadlocks_resolved``,
-``head_on_conflicts``, ``node_conflicts``, ``station_utilisation`` and ``tasks`` are a
-contract for scripts (docs/fleet-config.md); more keys may be added, none removed.
+``head_on_conflicts``, ``node_conflicts``, ``area_conflicts``, ``station_utilisation`` and
+``tasks`` are a contract for scripts (docs/fleet-config.md); more keys may be added, none
+removed.
 """
 
 from __future__ import annotations
@@ -96,6 +97,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "vehicles_pushed": resolver.pushes,
         "head_on_conflicts": monitor.head_on if monitor else None,
         "node_conflicts": monitor.node if monitor else None,
+        "area_conflicts": monitor.area if monitor else None,
         "conflict_monitor": "simulated positions"
         if monitor
         else "not available (vehicles in another process)",

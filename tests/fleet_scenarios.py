@@ -1,5 +1,6 @@
 """Helpers for fleet tests: build a fleet program from TOML text, step it on the virtual clock
-and check the invariants after every cycle (from the independent monitor and the blocks)."""
+and check the invariants after every cycle (from the independent monitor: no head-on, node
+or single-vehicle area conflict; and from the blocks)."""
 
 from __future__ import annotations
 
@@ -25,8 +26,9 @@ class Trace:
 
 
 def run(program: FleetProgram, seconds: float, check_every_cycle: bool = True) -> Trace:
-    """Run ``seconds`` of simulated time; after every cycle assert zero conflicts and the A*
-    budget, and record every segment a vehicle enters (from the simulated vehicles)."""
+    """Run ``seconds`` of simulated time; after every cycle assert zero conflicts (head-on,
+    node, area) and the A* budget, and record every segment a vehicle enters (from the
+    simulated vehicles)."""
     rt = program.rt
     if rt.state != "RUN":
         rt.start()
@@ -46,6 +48,7 @@ def run(program: FleetProgram, seconds: float, check_every_cycle: bool = True) -
         if check_every_cycle:
             assert program.monitor.head_on == 0, program.monitor.events
             assert program.monitor.node == 0, program.monitor.events
+            assert program.monitor.area == 0, program.monitor.events
             for c in program.controls.values():
                 trace.max_expansions = max(trace.max_expansions, c.astar.expansions_last_cycle)
                 assert c.astar.expansions_last_cycle <= budget

@@ -1,11 +1,11 @@
 """The examples/ folder: every fleet configuration runs, every plant file validates, the
 default job there is the embedded one, and the MovingAI-format map is what its script makes.
 
-A configuration runs on the virtual clock (fleet_scenarios.run: zero head-on and node
-conflicts from the independent monitor after every cycle, the A* budget, no forced
-takeover) for ``SIMULATED_S`` and must complete at least one recipe in that time, or, with
-transport orders, run ``ORDERS_S`` and finish at least one order (a distribution centre's
-transports take minutes, not seconds).
+A configuration runs on the virtual clock (fleet_scenarios.run: zero head-on, node and
+single-vehicle area conflicts from the independent monitor after every cycle, the A*
+budget, no forced takeover) for ``SIMULATED_S`` and must complete at least one recipe in
+that time, or, with transport orders, run ``ORDERS_S`` and finish at least one order (a
+distribution centre's transports take minutes, not seconds).
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ def test_example_config_runs_without_conflicts(path):
         trace = run(program, seconds)
         assert program.rt.state == "RUN"
         assert program.monitor.head_on == 0 and program.monitor.node == 0
+        assert program.monitor.area == 0, program.monitor.events
         assert program.resolver.unresolved == 0
         if seconds == wanted and cfg.order_vehicles:
             finished = program.orders.book.counts()["FINISHED"]

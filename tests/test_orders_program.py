@@ -96,6 +96,9 @@ def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strateg
     assert p.monitor.head_on == 0 and p.monitor.node == 0
     # with nothing left to do, the vehicles park (two parking places) or stand aside
     assert sum(r.phase == "parked" for r in p.orders.runners.values()) == 2
+    for v, r in p.orders.runners.items():  # each on a place of its own, held by it
+        if r.phase == "parked":
+            assert p.orders.claims.holder.get(r.current) == v
 
 
 def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):

@@ -7,7 +7,10 @@ Checked after every simulation step:
 * head-on: two vehicles on the same segment driving towards each other;
 * node conflict: two vehicles in one node's crossing zone at once, where a vehicle is in a
   node's zone when it stands at the node, or on a segment with its body (``length`` long,
-  behind its front) closer than one vehicle length to the node's centre.
+  behind its front) closer than one vehicle length to the node's centre;
+* area conflict: two vehicles in one single-vehicle area (plant key ``area``) at once,
+  where a vehicle is in the area of the node it stands at and, while it drives a segment,
+  in the areas of both of its ends: a segment into or out of an area belongs to it.
 
 Each conflict is counted once when it begins (a pair that stays in conflict is one event).
 """
@@ -23,8 +26,8 @@ from .fleet import Fleet
 @dataclass(frozen=True)
 class Conflict:
     time_s: float
-    kind: str  # "head_on" or "node"
-    where: tuple[int, ...]  # the segment (a, b) or the node (n,)
+    kind: str  # "head_on", "node" or "area"
+    where: tuple[int, ...]  # the segment (a, b), the node (n,) or the area's nodes
     vehicles: tuple[int, int]
 
 
@@ -40,6 +43,10 @@ class ConflictMonitor:
         self.events: list[Conflict] = []
         self.head_on = 0
         self.node = 0
+        self.area = 0
+        # node id -> the node ids of its single-vehicle area (the fleets share one plant)
+        plant = self.fleets[0].plant
+        self.area_of = {n: members for members in plant.areas.values() for n in members}
         self._active: set[tuple] = set()
 
     def _agvs(self):
@@ -61,6 +68,18 @@ class ConflictMonitor:
                 out.setdefault(agv.target, []).append(v)
         return out
 
+    def areas(self) -> dict[tuple[int, ...], set[int]]:
+        """area (its node ids) -> vehicles in it now."""
+        out: dict[tuple[int, ...], set[int]] = {}
+        if not self.area_of:
+            return out
+        for v, agv in self._agvs():
+            for node in (agv.node, agv.target):
+                members = self.area_of.get(node)
+                if members is not None:
+                    out.setdefault(members, set()).add(v)
+        return out
+
     def check(self) -> None:
         now: set[tuple] = set()
         on_segment: dict[tuple[int, int], list[int]] = {}
@@ -77,11 +96,18 @@ class ConflictMonitor:
             for i, v in enumerate(vehicles):
                 for w in vehicles[i + 1 :]:
                     now.add(("node", (node,), (v, w)))
+        for members, vehicles in self.areas().items():
+            vehicles = sorted(vehicles)
+            for i, v in enumerate(vehicles):
+                for w in vehicles[i + 1 :]:
+                    now.add(("area", members, (v, w)))
         for key in sorted(now - self._active):
             kind, where, pair = key
             self.events.append(Conflict(round(self.fleets[0].time, 3), kind, where, pair))
             if kind == "head_on":
                 self.head_on += 1
-            else:
+            elif kind == "node":
                 self.node += 1
+            else:
+                self.area += 1
         self._active = now

@@ -335,12 +335,12 @@ class OrderRunner(FunctionBlock):
         vehicle behind it). None if there is none."""
         places = self.queues.get(station, ())
         for q in places:
-            if self.claims.holder.get(q) == self.vehicle:
+            if self._holds(q):
                 return q
         for q in places:
             if q not in self.claims.holder and self.claims.claim(q, self.vehicle):
                 return q
-        if self.place in self.parking and self.claims.holder.get(self.place) == self.vehicle:
+        if self.place in self.parking and self._holds(self.place):
             return self.place
         free = [p for p in self.parking if self.claims.free(p)]
         if not free:
@@ -431,6 +431,11 @@ class OrderRunner(FunctionBlock):
             if aside is not None:
                 self.target = aside
 
+    def _holds(self, place: int) -> bool:
+        """Whether the vehicle holds the claim of ``place``: the place it last chose may
+        have been given up since (it waited there for a station, then drove on)."""
+        return self.claims.holder.get(place) == self.vehicle
+
     def _area(self, station: int) -> frozenset[int]:
         return self.area_of.get(station, frozenset((station,)))
 
@@ -461,7 +466,7 @@ class OrderRunner(FunctionBlock):
         return None
 
     def _charge(self, ctx: CycleContext) -> None:
-        if self.place is None or self.place not in self.chargers:
+        if self.place not in self.chargers or not self._holds(self.place):
             free = [c for c in self.chargers if self.claims.free(c)]
             if not free:
                 self.phase, self.target = "to_charger", self.current  # waits for a charger
@@ -476,7 +481,7 @@ class OrderRunner(FunctionBlock):
             self.charging_since = ctx.time
 
     def _go_parking(self, ctx: CycleContext) -> None:
-        if self.place not in self.parking:
+        if self.place not in self.parking or not self._holds(self.place):
             if self.current in self.parking and self.claims.claim(self.current, self.vehicle):
                 self.place = self.current
             else:

@@ -17,10 +17,20 @@ inheritance with backtracking (PIBT, Okumura et al.), in its asynchronous form:
   no circle is ever created by the chain itself);
 * a node held by a driving vehicle, or one processing at a station, is waited for: it
   leaves by itself; vehicles that are offline, stale or faulty are walls;
+* a node of a single-vehicle area another vehicle occupies (ReservationMatrix) is waited
+  for, never pushed for: the occupant is the vehicle waited for, and pushing it inside its
+  area would free nothing. Only that occupant, on its way out, may push the waiting vehicle
+  aside: the waiting one cannot move on before the occupant has left, and the occupant
+  can only leave through it. A start into an area is granted only while no other vehicle
+  occupies it, to one vehicle per scan, and a vehicle moved aside (a push or a back-off)
+  is never moved onto a node of an area: moving within its own frees nothing for those
+  waiting for it, and one moved into a free area (a station's dead-end spur) would stand
+  in the way of the next vehicle the station serves;
 * every decision is remade from the current holds next scan; only granted starts commit.
 
-The most urgent vehicle is never pushed, and on a plant where every segment lies on a cycle
-its chain always finds room while there are fewer vehicles than nodes, so it reaches its
+The most urgent vehicle is never pushed (except out of the way of the occupant of the area it
+waits for, which only brings its turn closer), and on a plant where every segment lies on a
+cycle its chain always finds room while there are fewer vehicles than nodes, so it reaches its
 goal; a vehicle's urgency grows while it has not reached its goal, so every vehicle becomes
 the most urgent one in turn. Pushing cannot help where the plant has dead ends (a siding,
 a corridor without a loop): a waits-for circle that remains after the pushes is broken by
@@ -94,6 +104,8 @@ class DeadlockResolver(FunctionBlock):
         self._standing_now: Mapping[int, int] = {}
         self._pushable: set[int] = set()
         self._requests: Mapping[int, int] = {}
+        self._area_given: dict[int, int] = {}  # area index -> the vehicle given a node of it
+        self._area_waits: dict[int, int] = {}  # stays for an area: vehicle -> its occupant
 
     def cycle(self, ctx: CycleContext) -> None:
         standing, pushable = self._standing()
@@ -173,9 +185,9 @@ class DeadlockResolver(FunctionBlock):
         waits = {}
         for v in standing:
             if v in requests:
-                holder = res.holder_of(requests[v])
-                if holder is not None and holder != v:
-                    waits[v] = holder
+                blocker = res.blocker(v, requests[v])  # the holder, or the area's occupant
+                if blocker is not None:
+                    waits[v] = blocker
             elif self.controls[v].state == "waiting" and self.controls[v].waiting_for is not None:
                 waits[v] = self.controls[v].waiting_for  # giving way to it
         return waits
@@ -184,6 +196,7 @@ class DeadlockResolver(FunctionBlock):
         self, standing: Mapping[int, int], pushable: set[int], requests: Mapping[int, int]
     ) -> None:
         self._next, self._reserved, self._pushed = {}, {}, set()
+        self._area_given, self._area_waits = {}, {}
         self._standing_now, self._pushable, self._requests = standing, pushable, requests
         index = self.plant.index
         for v in sorted(requests, key=self.priority):
@@ -196,16 +209,36 @@ class DeadlockResolver(FunctionBlock):
         (``chain``: the vehicles waiting on this decision, ``v`` last). False: it stays."""
         res, standing = self.reservation, self._standing_now
         for node in candidates:
+            if node == self._requests.get(v):
+                occupant = res.area_blocker(v, node)
+                if occupant is not None:
+                    self._area_waits[v] = occupant  # whatever else it waits for
             if node in self._reserved:
                 continue  # given to another vehicle this scan (or it stays there)
             holder = res.holder_of(node)
-            if holder is not None and holder != v and not self._may_follow(holder, route, chain):
-                continue
+            if holder is not None and holder != v:
+                if not self._may_follow(holder, route, chain):
+                    continue
+            elif self._area_taken(v, node) is not None:
+                continue  # an area another vehicle occupies: waited for, not pushed for
+            area = res.area_of[node]
+            if area >= 0:
+                self._area_given.setdefault(area, v)
             self._reserved[node], self._next[v] = v, node
             return True
         here = standing[v]
         self._reserved[here], self._next[v] = v, here
         return False
+
+    def _area_taken(self, v: int, node: int) -> int | None:
+        """The vehicle other than ``v`` that occupies the area of ``node``, or was given a
+        node of it this scan; None when ``v`` may enter it."""
+        occupant = self.reservation.area_blocker(v, node)
+        if occupant is not None:
+            return occupant
+        area = self.reservation.area_of[node]
+        given = self._area_given.get(area) if area >= 0 else None
+        return None if given == v else given
 
     def _may_follow(self, holder: int, route: set[int], chain: tuple) -> bool:
         """May the last vehicle of ``chain`` go to the node ``holder`` holds, waiting for it
@@ -215,10 +248,17 @@ class DeadlockResolver(FunctionBlock):
         standing = self._standing_now
         if holder not in standing:
             return self.controls[holder].state not in WALLS  # driving: it leaves by itself
-        if holder in self._next:
-            return self._next[holder] != standing[holder]  # told to move on: follow it
         if len(chain) >= MAX_CHAIN:
-            return False
+            return holder in self._next and self._next[holder] != standing[holder]
+        if holder in self._next:
+            if self._next[holder] != standing[holder]:
+                return True  # told to move on: follow it
+            if self._area_waits.get(holder) not in chain or holder not in self._pushable:
+                return False  # it stays
+            # it stays, waiting for an area whose occupant is on this chain and leaves
+            # through the node it stands at: it cannot move on before that one has left, so
+            # it makes room (decided again, as a push)
+            del self._next[holder]
         node = standing[holder]
         if holder in self._pushable:
             self._reserved[node], self._next[chain[-1]] = chain[-1], node
@@ -241,7 +281,7 @@ class DeadlockResolver(FunctionBlock):
         res, ids = self.reservation, self.plant.ids
         options = []
         for there, arc, _length in self.plant.neighbors[here]:
-            if self.blockades.blocked[arc]:
+            if self.blockades.blocked[arc] or not self._may_step_aside(there):
                 continue
             key = (
                 there in route,
@@ -252,34 +292,48 @@ class DeadlockResolver(FunctionBlock):
             options.append((key, there))
         return [there for _key, there in sorted(options)]
 
+    def _may_step_aside(self, there: int) -> bool:
+        """May a vehicle be moved aside to node index ``there``? Never
+        onto a node of a single-vehicle area: not into one another vehicle occupies, not
+        within the one it stands in (those waiting for it wait for the whole area), and not
+        into a free one either. An area is a station and its approach, typically a dead-end
+        spur: a vehicle moved in there stands in the way of the next vehicle the station
+        serves (a transport order's vehicle that holds the station may be right behind),
+        and it can only come out through the node that vehicle then waits at."""
+        return self.reservation.area_of[there] < 0
+
     def _execute(
         self, ctx: CycleContext, standing: Mapping[int, int], requests: Mapping[int, int]
     ) -> None:
-        """Grant the starts whose node is free; the rest wait (and are asked again)."""
+        """Grant the starts whose node is free, and its area too; the rest wait (and are
+        asked again)."""
         res, ids = self.reservation, self.plant.ids
-        res.awaited = {
-            node: v
-            for v, node in self._next.items()
-            if node != standing[v] and res.holder_of(node) is not None
-        }
-        res.moving_on = set(res.awaited.values())
+        res.set_awaited(
+            {
+                node: v
+                for v, node in self._next.items()
+                if node != standing[v] and res.holder_of(node) is not None
+            }
+        )
         for v, node in self._next.items():
             control = self.controls[v]
             if node == standing[v]:
                 if v in requests:  # it stays: its node was given away or could not be freed
                     wanted = requests[v]
-                    blocker = res.holder_of(wanted)
-                    if blocker is None or blocker == v:
+                    blocker = res.blocker(v, wanted)  # the holder, or the area's occupant
+                    if blocker is None:  # given to another vehicle this scan, or its area
                         blocker = self._reserved.get(wanted)
+                    if blocker is None:
+                        blocker = self._area_taken(v, wanted)
                     control.wait_for(ctx, blocker, int(ids[wanted]))
                 continue
-            holder = res.holder_of(node)
-            if holder is None:
+            blocker = res.blocker(v, node)  # checked at the grant: earlier grants count
+            if blocker is None:
                 control.grant(ctx, int(ids[node]))
                 if v in self._pushed:
                     self.pushes += 1
             elif v in requests:
-                control.wait_for(ctx, holder, int(ids[node]))
+                control.wait_for(ctx, blocker, int(ids[node]))
 
     def stranded(self) -> list[int]:
         """Vehicles in a waits-for cycle nobody could break (for the summary)."""
@@ -349,7 +403,7 @@ class DeadlockResolver(FunctionBlock):
         for there, arc, _length in self.plant.neighbors[here]:
             if self.blockades.blocked[arc] or there == wanted or there in avoid:
                 continue
-            if res.holder_of(there) is None:
+            if res.holder_of(there) is None and self._may_step_aside(there):
                 # prefer a node nobody waits for, then the lowest id: deterministic
                 waited = any(w == there for w in res.wants.values())
                 options.append((waited, int(self.plant.ids[there])))

@@ -21,6 +21,20 @@ vehicle's holds: :meth:`plausible` says why, and the vehicle's control treats th
 as suspect. A vehicle's first report, while it holds nothing, takes its start node if the
 node is free. Only an operator who has looked can move a suspect vehicle's holds to where
 it really is (:meth:`relocate`).
+
+Single-vehicle areas (plant key ``area``: a transfer station and the node in front of it, a
+corridor) hold at most one vehicle in all of their nodes. A vehicle **occupies** an area
+while it holds one of its nodes, or has reported one and not yet reached the next node
+(``cleared``: it drives the segment out of the area). A node of an area is taken (released,
+granted, claimed) by a vehicle only if it occupies the area already or nobody does; the
+vehicle it then waits for is the occupant (:meth:`blocker`), so the waits-for graph runs
+through areas. A vehicle's true position is always between nodes it holds, or on the
+segment from its ``cleared`` node to its first held node, so a vehicle never truly stands
+or drives in an area another vehicle occupies, segments into and out of the area included.
+Every node's area index is computed once (``area_of``), and who occupies which area is
+updated when a vehicle's holds change, so each check is a lookup. Only a start report or an
+operator's relocation can put a second vehicle into an occupied area (that is where they
+really are); both may then move on inside it, and nobody else enters until both have left.
 """
 
 from __future__ import annotations
@@ -33,6 +47,7 @@ from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
 FREE = -1
+NO_AREA = -1
 
 
 class ReservationMatrix(FunctionBlock):
@@ -58,6 +73,17 @@ class ReservationMatrix(FunctionBlock):
         # node index -> the standing vehicle told to wait for it (set by the resolver each scan)
         self.awaited: dict[int, int] = {}
         self.moving_on: set[int] = set()  # standing vehicles told to move, waiting for the node
+        # single-vehicle areas: node index -> area index (NO_AREA: none; a list, as single
+        # elements are read faster from it than from an array), and per area the vehicles
+        # occupying it (normally at most one)
+        self.area_names = list(plant.areas)
+        self.area_of = [NO_AREA] * plant.n
+        for a, name in enumerate(self.area_names):
+            for n in plant.areas[name]:
+                self.area_of[plant.index[n]] = a
+        self.occupants: list[set[int]] = [set() for _ in self.area_names]
+        self._presence: dict[int, frozenset[int]] = {v: frozenset() for v in self.vehicles}
+        self._awaited_area: dict[int, int] = {}  # area index -> the standing vehicle awaiting it
         src, dst, length = plant.arcs
         longest = float(length.max()) if len(length) else 1.0
         # An oncoming vehicle on the next segment is the thesis' "very high extra weight":
@@ -129,6 +155,7 @@ class ReservationMatrix(FunctionBlock):
             held.append(node)  # its start position
             self.holder[node] = vehicle
             self.cleared[vehicle] = None
+        self._sync_areas(vehicle)
         return True
 
     def relocate(self, vehicle: int, node: int) -> str | None:
@@ -142,34 +169,99 @@ class ReservationMatrix(FunctionBlock):
         self.holds[vehicle][:] = [node]
         self.holder[node] = vehicle
         self.cleared[vehicle] = None
+        self._sync_areas(vehicle)
         return None
 
     def holder_of(self, node: int) -> int | None:
         h = int(self.holder[node])
         return None if h == FREE else h
 
+    def area_blocker(self, vehicle: int, node: int) -> int | None:
+        """Another vehicle occupying the single-vehicle area of node index ``node``, unless
+        ``vehicle`` occupies it itself (it may go on inside it); None: the area is its own,
+        free, or ``node`` is in none. The lowest id if several (deterministic)."""
+        a = self.area_of[node]
+        if a == NO_AREA:
+            return None
+        inside = self.occupants[a]
+        if not inside or vehicle in inside:
+            return None
+        return min(inside)
+
+    def blocker(self, vehicle: int, node: int) -> int | None:
+        """The vehicle ``vehicle`` must wait for before taking node index ``node``: the
+        node's holder, else the occupant of its area; None: it may take the node now."""
+        h = int(self.holder[node])
+        if h != FREE and h != vehicle:
+            return h
+        return self.area_blocker(vehicle, node)
+
     def may_enter(self, vehicle: int, node: int) -> tuple[bool, int | None]:
         """May ``vehicle`` be released into node index ``node`` now? (ok, blocking vehicle)."""
-        h = int(self.holder[node])
-        if h == FREE or h == vehicle:
-            return True, None
-        return False, h
+        b = self.blocker(vehicle, node)
+        return b is None, b
+
+    def set_awaited(self, awaited: dict[int, int]) -> None:
+        """The resolver's decisions of this scan: node index -> the standing vehicle told to
+        go there once its holder has left. Their areas are awaited with them."""
+        self.awaited = awaited
+        self.moving_on = set(awaited.values())
+        self._awaited_area = {
+            self.area_of[n]: v for n, v in awaited.items() if self.area_of[n] != NO_AREA
+        }
 
     def awaited_by(self, vehicle: int, node: int) -> int | None:
-        """The standing vehicle, other than ``vehicle``, waiting for node index ``node``."""
+        """The standing vehicle, other than ``vehicle``, waiting for node index ``node``, or
+        for a node of its single-vehicle area (unless ``vehicle`` occupies that area: it may
+        go on inside it, and must, to leave it)."""
         w = self.awaited.get(node)
-        return None if w is None or w == vehicle else w
+        if w is not None and w != vehicle:
+            return w
+        a = self.area_of[node]
+        w = self._awaited_area.get(a) if a != NO_AREA else None
+        if w is None or w == vehicle or vehicle in self.occupants[a]:
+            return None
+        return w
 
     def making_way(self, vehicle: int) -> bool:
         """Is ``vehicle`` driving (released beyond its node) or told to move on?"""
         return len(self.holds[vehicle]) > 1 or vehicle in self.moving_on
 
     def claim(self, vehicle: int, node: int) -> None:
+        """Node index ``node`` is released to ``vehicle``. Every caller checked
+        :meth:`blocker` first; a claim against it is a programming error, not a wait."""
         h = int(self.holder[node])
         if h != FREE and h != vehicle:
             raise RuntimeError(f"node {self.plant.ids[node]} is held by vehicle {h}")
+        other = self.area_blocker(vehicle, node)
+        if other is not None:
+            name = self.area_names[self.area_of[node]]
+            raise RuntimeError(
+                f"node {self.plant.ids[node]}: area {name!r} is occupied by vehicle {other}"
+            )
         self.holder[node] = vehicle
         self.holds[vehicle].append(node)
+        self._sync_areas(vehicle)
+
+    def _sync_areas(self, vehicle: int) -> None:
+        """Update which areas ``vehicle`` occupies from its holds and the node it has
+        cleared (a few nodes: bounded work)."""
+        if not self.area_names:
+            return
+        area_of = self.area_of
+        now = {area_of[n] for n in self.holds[vehicle]}
+        cleared = self.cleared[vehicle]
+        if cleared is not None:
+            now.add(area_of[cleared])
+        now.discard(NO_AREA)
+        before = self._presence[vehicle]
+        if now == before:
+            return
+        for a in before - now:
+            self.occupants[a].discard(vehicle)
+        for a in now - before:
+            self.occupants[a].add(vehicle)
+        self._presence[vehicle] = frozenset(now)
 
     def held_by(self, vehicle: int) -> list[int]:
         return list(self.holds[vehicle])

@@ -9,6 +9,10 @@ A vehicle standing at a node does not start by itself: it posts its next node
 (``request``) and the DeadlockResolver grants the starts of all standing vehicles in
 priority order (``grant``), pushing standing vehicles out of the way where needed; a
 moving vehicle never extends into a node a standing vehicle was told to wait for.
+A node is released only when the ReservationMatrix says it may be entered: nobody else
+holds it, and nobody else occupies its single-vehicle area (if it has one). So a vehicle
+bound for a station whose area another vehicle is in stops at the last node before the
+area, and waits for that vehicle, whatever sent it there (a recipe, an order, a push).
 
 Verification at every node (5.3.1): when the next node is held by a vehicle coming the
 other way, the less urgent of the two replans with that segment carrying a very high extra
@@ -340,7 +344,8 @@ class VehicleControl(FunctionBlock):
                 not res.may_enter(self.vehicle, idx)[0]
                 or res.awaited_by(self.vehicle, idx) is not None
             ):
-                # held, or a standing vehicle was told to wait for it: stop at the frontier
+                # held, its area occupied, or a standing vehicle was told to wait for it (or
+                # for its area): stop at the frontier
                 break
             res.claim(self.vehicle, idx)
             self.released.append(self.route.pop(0))

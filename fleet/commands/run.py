@@ -188,6 +188,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     if monitor is not None:
         result["head_on_conflicts"] = monitor.get("head_on_conflicts")
         result["node_conflicts"] = monitor.get("node_conflicts")
+        result["area_conflicts"] = monitor.get("area_conflicts")
         result["conflict_monitor"] = "simulated positions, in the vehicles' process"
         result["faults"]["injected"] = monitor.get("faults_injected")
     write_all(program, out, result)

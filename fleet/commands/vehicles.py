@@ -117,6 +117,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
         report = {
             "head_on_conflicts": m.head_on,
             "node_conflicts": m.node,
+            "area_conflicts": m.area,
             "faults_injected": {k: fleet.counters[k] for k in INJECTED},
             "events": [e.__dict__ for e in m.events[:100]],
         }
