@@ -22,9 +22,9 @@ test: $(STAMP)
 # for the fleet ones (docs/benchmarks.md, "Running them"); each script prints its own wall
 # time at the end.
 bench: $(STAMP)
-	@echo "make bench: about 55 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
+	@echo "make bench: about 2 hours in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 36). make bench-quick runs them all reduced in under 3 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 36, allocation 60). make bench-quick runs them all reduced in under 5 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -32,6 +32,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/io_throughput.py
 	$(BIN)/python bench/fleet_scale.py
 	$(BIN)/python bench/warehouse_throughput.py
+	$(BIN)/python bench/allocation.py
 
 # Every benchmark in a reduced form (smaller plants, fewer cycles, timesteps and fleet sizes),
 # with the same tables and ratios: a check that they all still run, not numbers to record.
@@ -43,6 +44,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/io_throughput.py --quick
 	$(BIN)/python bench/fleet_scale.py --quick
 	$(BIN)/python bench/warehouse_throughput.py --quick
+	$(BIN)/python bench/allocation.py --quick
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -95,7 +95,8 @@ def dashboard(program: FleetProgram, total: int | None, width: int | None = None
             f"{counts['DISPATCHABLE'] + counts['BEING_PROCESSED']}"
         )
     if program.monitor is not None:
-        status += f" | conflicts {program.monitor.head_on + program.monitor.node}"
+        m = program.monitor
+        status += f" | conflicts {m.head_on + m.node + m.area}"
     rows = {name: s.to_dict() for name, s in rt.stats.tasks.items()}
     return Group(
         Text(status, no_wrap=True, overflow="ellipsis"),
@@ -149,8 +150,9 @@ def final_tables(result: dict[str, Any]) -> Group:
         "deadlocks_unresolved",
         "head_on_conflicts",
         "node_conflicts",
+        "area_conflicts",
     ):
-        fleet.add_row(key, str(result[key]))
+        fleet.add_row(key, str(result.get(key)))
     util = Table(title="station utilisation")
     for col in ("station", "assigned", "visits", "busy s", "utilisation"):
         util.add_column(col, justify="right")
