@@ -117,14 +117,18 @@ class OrderSystem:
         table: HeuristicTable,
         blockades: RoutingConstraints,
         available: Callable[[int], bool],
+        occupied: Callable[[int, int], bool] | None = None,
     ) -> None:
+        """``occupied(node, vehicle)``: whether a vehicle other than ``vehicle`` stands on
+        ``node`` or in its single-vehicle area (the reservations'): places are given only
+        when empty."""
         plant, d = cfg.plant, cfg.dispatch
         self.cfg = cfg
         self.book = OrderBook(order_stations(plant), cfg.starts)
         configured = configured_orders(cfg)
         self.feed = OrderFeed(configured, cfg.orders.lead_s if cfg.orders else 0.0)
         self.intake = OrderIntake(self.book, self.feed, (o.id for o in configured))
-        self.claims = Claims()
+        self.claims = Claims(occupied)
         self.charging: ChargePolicy = cfg.battery.policy()
         self.table = table
         self.estimates = SectionEstimates(

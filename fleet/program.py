@@ -193,7 +193,9 @@ class FleetProgram:
         self.sequencers: dict[int, RecipeSequencer] = {}
         self.orders: OrderSystem | None = None
         if cfg.order_vehicles:
-            self.orders = OrderSystem(cfg, self.table, self.blockades, self._available)
+            self.orders = OrderSystem(
+                cfg, self.table, self.blockades, self._available, self._occupied
+            )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}
         for v in vehicles:
@@ -351,6 +353,10 @@ class FleetProgram:
         """The vehicle's charge in %, None until its first info frame."""
         battery = int(self.records.inputs(vehicle)["battery"])
         return None if battery == BATTERY_UNKNOWN else battery
+
+    def _occupied(self, node: int, vehicle: int) -> bool:
+        """Whether a vehicle other than ``vehicle`` holds ``node``, or is in its area."""
+        return self.reservation.blocker(vehicle, self.cfg.plant.index[node]) is not None
 
     def _taken_by_other(self, vehicle: int):
         def taken(station: int) -> bool:

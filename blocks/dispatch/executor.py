@@ -80,11 +80,18 @@ def area_entries(plant: Plant) -> dict[int, int]:
 class Claims:
     """Who may stand at a place that takes one vehicle: stations, queue positions,
     chargers, parking positions. A station's waiting vehicles are served in the order they
-    asked, so a vehicle in its queue is never overtaken by one arriving later."""
+    asked, so a vehicle in its queue is never overtaken by one arriving later.
 
-    def __init__(self) -> None:
+    ``occupied(place, vehicle)`` says whether another vehicle than ``vehicle`` stands on
+    the place (or in its single-vehicle area) right now, as the reservations know it: a
+    place is given only when it is physically empty too. A vehicle can be on a place it
+    holds no claim of (it was pushed aside onto it, or it is a recipe vehicle), and one
+    sent to a dead-end spur with someone in it would stand face to face with it."""
+
+    def __init__(self, occupied: Callable[[int, int], bool] | None = None) -> None:
         self.holder: dict[int, int] = {}
         self.waiting: dict[int, list[int]] = {}
+        self.occupied = occupied or (lambda _place, _vehicle: False)
 
     def claim(self, place: int, vehicle: int) -> bool:
         """Take ``place`` if it is free and nobody asked before; else join its queue."""
@@ -92,7 +99,11 @@ class Claims:
         if holder == vehicle:
             return True
         queue = self.waiting.setdefault(place, [])
-        if holder is None and (not queue or queue[0] == vehicle):
+        if (
+            holder is None
+            and (not queue or queue[0] == vehicle)
+            and not self.occupied(place, vehicle)
+        ):
             if queue:
                 queue.pop(0)
             self.holder[place] = vehicle
@@ -101,8 +112,13 @@ class Claims:
             queue.append(vehicle)
         return False
 
-    def free(self, place: int) -> bool:
-        return place not in self.holder and not self.waiting.get(place)
+    def free(self, place: int, vehicle: int) -> bool:
+        """Nobody holds or waits for ``place``, and no vehicle but ``vehicle`` is on it."""
+        return (
+            place not in self.holder
+            and not self.waiting.get(place)
+            and not self.occupied(place, vehicle)
+        )
 
     def release(self, place: int, vehicle: int) -> None:
         if self.holder.get(place) == vehicle:
@@ -342,7 +358,7 @@ class OrderRunner(FunctionBlock):
                 return q
         if self.place in self.parking and self._holds(self.place):
             return self.place
-        free = [p for p in self.parking if self.claims.free(p)]
+        free = [p for p in self.parking if self.claims.free(p, self.vehicle)]
         if not free:
             return None
         self.place = min(free, key=lambda p: self.distance(p, station))
@@ -467,7 +483,7 @@ class OrderRunner(FunctionBlock):
 
     def _charge(self, ctx: CycleContext) -> None:
         if self.place not in self.chargers or not self._holds(self.place):
-            free = [c for c in self.chargers if self.claims.free(c)]
+            free = [c for c in self.chargers if self.claims.free(c, self.vehicle)]
             if not free:
                 self.phase, self.target = "to_charger", self.current  # waits for a charger
                 return
@@ -485,7 +501,7 @@ class OrderRunner(FunctionBlock):
             if self.current in self.parking and self.claims.claim(self.current, self.vehicle):
                 self.place = self.current
             else:
-                free = [p for p in self.parking if self.claims.free(p)]
+                free = [p for p in self.parking if self.claims.free(p, self.vehicle)]
                 if not free:
                     return  # every parking position is taken: it stays where it is
                 self.place = min(free, key=lambda p: self.distance(self.current, p))
