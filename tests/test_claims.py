@@ -1,0 +1,26 @@
+"""Claims: places that take one vehicle (stations, queue, parking and charger places) are
+given first come first served, and only while nobody else physically stands on them."""
+
+from blocks.dispatch.executor import Claims
+
+
+def test_a_place_is_served_in_the_order_asked_and_released_by_its_holder_only():
+    claims = Claims()
+    assert claims.claim(20, 1)
+    assert not claims.claim(20, 2) and not claims.claim(20, 3)
+    claims.release(20, 2)  # not the holder: nothing happens
+    assert claims.holder[20] == 1
+    claims.release(20, 1)
+    assert not claims.claim(20, 3)  # 2 asked first
+    assert claims.claim(20, 2)
+
+
+def test_a_place_someone_stands_on_is_neither_free_nor_given():
+    standing = {30: 7}  # vehicle 7 was pushed onto queue place 30 without its claim
+    claims = Claims(lambda place, vehicle: standing.get(place) not in (None, vehicle))
+    assert not claims.free(30, 1) and claims.free(30, 7)
+    assert not claims.claim(30, 1)  # vehicle 1 would drive into the spur to face it
+    assert claims.waiting[30] == [1]
+    del standing[30]  # vehicle 7 has left
+    assert claims.free(30, 2) is False  # vehicle 1 still waits for it
+    assert claims.claim(30, 1) and claims.holder[30] == 1
