@@ -24,7 +24,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	@echo "make bench: about 115 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 36, allocation 60). make bench-quick runs them all reduced in under 5 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 36, allocation 60). make bench-quick runs them all reduced in about 5 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
