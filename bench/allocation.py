@@ -18,7 +18,8 @@ the lowest charge seen. Each row is the mean over ``--seeds`` seeds with the spr
 Experiments (the seed's, ``docs/benchmarks.md`` "Order allocation"):
 
 1. ``buffer``: B = 8, 18, 28, 38, 48, 58 s, two_stage, 17 vehicles, 150 orders;
-2. ``fleet``: 11, 13, 15, 17 vehicles x {dhht, two_stage, nearest_idle}, 150 orders;
+2. ``fleet``: 11, 13, 15, 17 vehicles x {dhht, two_stage, nearest_idle}, 150 orders
+   (this and the next at the configuration's B, the best of experiment 1);
 3. ``fixed``: 100 orders, 17 vehicles, each strategy, and two_stage with 16 vehicles;
 4. ``battery``: two_stage, 17 vehicles, the generator's arrival (each order known ``lead_s``
    before its start) for ``--battery-s`` seconds at ``--battery-load`` times the seed's
@@ -83,7 +84,7 @@ class Case:
     vehicles: int
     seed: int
     orders: int = 150  # pool size (pool runs)
-    buffer_s: float = 38.0
+    buffer_s: float | None = None  # None: the configuration's B
     battery: bool = False  # part-charged start, charging policy on
     arrival_s: float = 0.0  # > 0: the generator's arrival for that long instead of a pool
     load: float = 1.0  # arrival: a factor on the seed's rates
@@ -128,7 +129,8 @@ def run_case(case: Case) -> Result:
     cfg = load_config(CONFIG)
     first_vehicles(cfg, case.vehicles)
     cfg.dispatch.strategy = case.strategy
-    cfg.dispatch.buffer_s = case.buffer_s
+    if case.buffer_s is not None:
+        cfg.dispatch.buffer_s = case.buffer_s
     cfg.watchdog = 5.0  # a busy machine slows the wall clock, never the virtual one
     orders = orders_for(case, cfg)
     if case.battery:

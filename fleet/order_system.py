@@ -132,7 +132,7 @@ class OrderSystem:
         self.charging: ChargePolicy = cfg.battery.policy()
         self.table = table
         self.estimates = SectionEstimates(
-            self._travel_fallback, d.get_s, outlier=d.outlier, method=d.estimate
+            self.distance, d.get_s, d.mean_speed, outlier=d.outlier, method=d.estimate
         )
         self.reach = Reachability(plant, blockades, targets(plant))
         self.runners: dict[int, OrderRunner] = {}
@@ -169,9 +169,6 @@ class OrderSystem:
         """Exact distance a -> b (ids) in metres; inf while the table has no row for b."""
         d = self.table.distance(a, b)
         return float("inf") if d is None else d
-
-    def _travel_fallback(self, a: int, b: int) -> float:
-        return self.distance(a, b) / self.cfg.dispatch.mean_speed
 
     # ----- the entry point for operators and scripts -------------------------------------------
     def submit(self, order: TransportOrder) -> Future:

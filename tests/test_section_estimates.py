@@ -10,12 +10,12 @@ DISTANCE_M = {(1, 2): 30.0, (2, 1): 45.0, (2, 3): 15.0}
 MEAN_SPEED = 1.5  # the seed's maximum speed, m/s
 
 
-def by_distance(a: int, b: int) -> float:
-    return DISTANCE_M[(a, b)] / MEAN_SPEED
+def distance(a: int, b: int) -> float:
+    return DISTANCE_M.get((a, b), math.inf)
 
 
 def estimates(**kwargs) -> SectionEstimates:
-    return SectionEstimates(by_distance, dwell_default_s=12.0, **kwargs)
+    return SectionEstimates(distance, dwell_default_s=12.0, mean_speed=MEAN_SPEED, **kwargs)
 
 
 def test_fallbacks_before_any_sample():
@@ -25,11 +25,44 @@ def test_fallbacks_before_any_sample():
     assert e.travel_samples(1, 2) == () and e.dwell_samples(5, "Get") == ()
 
 
+def test_the_fallback_learns_the_fleets_mean_speed():
+    """Pairs never driven are priced at distance / the speed the fleet actually drove: a
+    configured top speed would make every trip look short and every section deviate."""
+    e = estimates()
+    assert e.mean_speed == 1.5 and e.travel(2, 3) == 10.0  # 15 m at the configured 1.5 m/s
+    assert e.record_travel(1, 2, 50.0)  # 30 m in 50 s
+    assert e.mean_speed == pytest.approx(0.6)
+    assert e.travel(2, 3) == pytest.approx(25.0)  # 15 m at 0.6 m/s
+    assert e.travel(1, 2) == 50.0  # a driven pair keeps its own time
+    assert e.record_travel(2, 1, 25.0)  # 45 m in 25 s: 75 m in 75 s over both
+    assert e.mean_speed == pytest.approx(1.0)
+    assert e.travel(2, 3) == pytest.approx(15.0)
+
+
+def test_only_the_last_window_of_trips_sets_the_speed():
+    e = estimates(window=2)
+    for seconds in (300.0, 30.0, 30.0):  # a slow first trip of 1 -> 2, then two at 1 m/s
+        e.record_travel(1, 2, seconds)
+    assert e.mean_speed == pytest.approx(1.0)
+
+
+def test_trips_that_say_nothing_about_speed_are_left_out():
+    e = estimates()
+    e.record_travel(1, 1, 5.0)  # no distance (unknown pair: inf)
+    e.record_travel(1, 2, 0.0)  # no time
+    assert e.mean_speed == 1.5
+    for seconds in (10.0, 10.0, 10.0):
+        e.record_travel(2, 3, seconds)
+    assert not e.record_travel(2, 3, 100.0)  # an outlier teaches neither the pair nor the speed
+    assert e.mean_speed == pytest.approx(1.5)
+
+
 def test_each_key_learns_on_its_own():
     e = estimates()
     assert e.record_travel(1, 2, 26.0)
     assert e.travel(1, 2) == 26.0
-    assert e.travel(2, 1) == 30.0  # the way back is another key: still 45 m / 1.5 m/s
+    # the way back is another key: 45 m at the speed of the one trip driven, 30 m in 26 s
+    assert e.travel(2, 1) == pytest.approx(39.0)
     assert e.record_dwell(5, "Get", 8.0)
     assert e.dwell(5, "Get") == 8.0
     assert e.dwell(5, "Put") == 12.0 and e.dwell(6, "Get") == 12.0
@@ -153,11 +186,13 @@ def test_bad_samples_and_queries_are_rejected(call, message):
         ({"method": "mode"}, "method must be 'median' or 'mean', got 'mode'"),
         ({"window": 0}, "window must be an integer >= 1, got 0"),
         ({"window": 2.5}, "window must be an integer"),
-        ({"travel_fallback": 20.0}, "travel_fallback must be callable"),
+        ({"distance": 20.0}, "distance must be callable"),
+        ({"mean_speed": 0.0}, "mean_speed must be > 0 m/s, got 0"),
+        ({"mean_speed": -1.0}, "mean_speed must be a finite number >= 0"),
     ],
 )
 def test_bad_configuration_is_rejected(kwargs, message):
-    arguments = {"travel_fallback": by_distance, "dwell_default_s": 12.0, **kwargs}
+    arguments = {"distance": distance, "dwell_default_s": 12.0, **kwargs}
     with pytest.raises(ValueError, match=message):
         SectionEstimates(**arguments)
 

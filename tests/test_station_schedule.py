@@ -1,12 +1,15 @@
-"""Station reservation lists: next free slot, buffer, waiting time, copies, cancel, prune."""
+"""Station reservation lists: next free slot, buffer, waiting time."""
 
 import math
+from types import SimpleNamespace
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from blocks.dispatch.station_schedule import Reservation, StationSchedule
+from blocks.dispatch.estimates import SectionEstimates
+from blocks.dispatch.orders import TransportOrder
+from blocks.dispatch.station_schedule import Reservation, StationSchedule, live_schedule
 
 STATION = 7
 
@@ -85,70 +88,6 @@ def test_wait_grows_with_the_buffer_at_a_busy_station():
     assert waits == sorted(waits) and len(set(waits)) == len(waits)
 
 
-def test_a_copy_is_independent():
-    original = two_visits()
-    clone = original.copy()
-    assert clone.reservations(STATION) == original.reservations(STATION)
-    assert clone.buffer_s == original.buffer_s == 10.0
-
-    clone.reserve(STATION, 3, "c", 95.0, 5.0)
-    clone.reserve(STATION + 1, 3, "c", 0.0, 5.0)
-    clone.cancel("a")
-    clone.prune(1000.0)
-    assert [r.order for r in original.reservations(STATION)] == ["a", "b"]
-    assert original.reservations(STATION + 1) == ()
-    assert original.slot(STATION, 95.0, 5.0) == 120.0
-
-    original.reserve(STATION, 4, "d", 0.0, 5.0)
-    assert clone.reservations(STATION) == ()  # pruned, and the original's booking is not here
-
-
-def test_cancel_drops_an_orders_visits_at_every_station():
-    s = two_visits()
-    s.reserve(STATION + 1, 1, "a", 130.0, 10.0)  # the Put of order a
-    assert len(s) == 3
-    assert s.cancel("a") == 2
-    assert [r.order for r in s.reservations(STATION)] == ["b"]
-    assert s.reservations(STATION + 1) == ()
-    assert s.slot(STATION, 95.0, 5.0) == 95.0  # the gap before b is open now
-    assert s.cancel("a") == 0
-    assert s.cancel("unknown") == 0
-
-
-def test_cancel_vehicle_drops_only_that_vehicles_visits():
-    s = two_visits()
-    s.reserve(STATION + 1, 2, "e", 0.0, 10.0)
-    assert s.cancel_vehicle(2) == 2
-    assert s.reservations(STATION) == (Reservation(1, "a", 100.0, 110.0),)
-    assert s.reservations(STATION + 1) == ()
-    assert s.cancel_vehicle(2) == 0
-
-
-def test_prune_drops_visits_that_can_no_longer_delay_anyone():
-    """B = 10, visits [0, 10], [20, 30], [40, 50]. A visit starting at t >= now is padded from
-    t - 5, so a visit ending at e (padded to e + 5) delays it only while now < e + 10: at 25
-    the first goes (10 + 10 <= 25), at 39.5 nothing more, at 40 the second, at 60 the third."""
-    s = StationSchedule(10.0)
-    for n, arrival in enumerate((0.0, 20.0, 40.0)):
-        s.reserve(STATION, n, f"o{n}", arrival, 10.0)
-    for now, dropped, left in [(25.0, 1, 2), (39.5, 0, 2), (40.0, 1, 1), (60.0, 1, 0)]:
-        arrivals = [now + dt for dt in (0.0, 2.0, 6.0, 13.0, 30.0)]
-        slots_before = [s.slot(STATION, t, 3.0) for t in arrivals]
-        assert s.prune(now) == dropped
-        assert len(s) == len(s.reservations(STATION)) == left
-        assert [s.slot(STATION, t, 3.0) for t in arrivals] == slots_before
-    assert s.reservations(STATION) == ()
-
-
-def test_memory_stays_bounded_over_a_long_run():
-    s = StationSchedule(10.0)
-    for n in range(10_000):
-        now = 30.0 * n
-        s.reserve(n % 5, n, f"o{n}", now, 15.0)
-        s.prune(now)
-        assert len(s) <= 5
-
-
 @pytest.mark.parametrize(
     ("call", "message"),
     [
@@ -159,7 +98,6 @@ def test_memory_stays_bounded_over_a_long_run():
         (lambda: StationSchedule(10).wait(1, math.inf, 5.0), "arrival_s must be a finite number"),
         (lambda: StationSchedule(10).reserve(1, 1, "o", 0.0, math.nan), "dwell_s must be"),
         (lambda: StationSchedule(10).slot(1, "10", 5.0), "arrival_s must be a finite number"),
-        (lambda: StationSchedule(10).prune(math.nan), "prune: now_s must be a finite number"),
     ],
 )
 def test_bad_arguments_are_rejected_with_a_clear_message(call, message):
@@ -215,3 +153,81 @@ def test_reservations_never_overlap_and_never_start_before_arrival(buffer_s, req
                     first.end_s + buffer_s <= second.start_s
                     or second.end_s + buffer_s <= first.start_s
                 ), (first, second)
+
+
+# ----- the lists as the vehicles stand: rebuilt for every allocation round --------------------
+GET, PUT, OTHER = 10, 20, 30
+METRES = {(1, GET): 40.0, (GET, PUT): 60.0, (PUT, OTHER): 30.0, (OTHER, PUT): 30.0}
+
+
+def metres(a: int, b: int) -> float:
+    return 0.0 if a == b else METRES.get((a, b), 100.0)
+
+
+def vehicle(phase, current, active=None, next_=None, dwell_until_s=0.0):
+    return SimpleNamespace(
+        phase=phase,
+        current=current,
+        active=active,
+        next=next_,
+        dwell_until_ns=round(dwell_until_s * 1e9),
+    )
+
+
+def live(runners, now_s=0.0, buffer_s=0.0):
+    estimates = SectionEstimates(metres, dwell_default_s=10.0, mean_speed=1.0)
+    return live_schedule(runners, estimates, buffer_s, now_s)
+
+
+def test_a_late_vehicle_keeps_its_visits():
+    """Long after any plan would have had it at the station, it is booked from where it is."""
+    o = TransportOrder("a", GET, PUT)
+    schedule, finish = live({1: vehicle("to_get", 1, o)}, now_s=500.0)
+    assert schedule.reservations(GET) == (Reservation(1, "a", 540.0, 550.0),)
+    assert schedule.reservations(PUT) == (Reservation(1, "a", 610.0, 620.0),)
+    assert finish == {1: 620.0}
+
+
+def test_a_queue_in_front_of_a_station_is_seen():
+    """One vehicle at the station until 105, two waiting beside it: served one after the
+    other, B apart, and each one's order ends one visit later than the one before."""
+    orders = [TransportOrder(f"o{n}", GET, PUT) for n in range(3)]
+    runners = {
+        1: vehicle("get", GET, orders[0], dwell_until_s=105.0),
+        2: vehicle("get_queue", GET, orders[1]),
+        3: vehicle("get_queue", GET, orders[2]),
+    }
+    schedule, finish = live(runners, now_s=100.0, buffer_s=4.0)
+    starts = [(r.vehicle, r.start_s, r.end_s) for r in schedule.reservations(GET)]
+    assert starts == [(1, 100.0, 105.0), (2, 109.0, 119.0), (3, 123.0, 133.0)]
+    # Put stations: 60 s on, 10 s there; 1 at 165, 2 at 179 (just after 1's padded end)
+    assert finish == {1: 175.0, 2: 189.0, 3: 203.0}
+    # the next vehicle sent there would wait behind all three
+    assert schedule.wait(GET, 100.0, 10.0) == 37.0
+
+
+def test_the_next_order_follows_the_active_one_as_booked():
+    active, nxt = TransportOrder("a", GET, PUT), TransportOrder("b", OTHER, PUT)
+    runners = {
+        1: vehicle("to_put", GET, active, nxt),
+        2: vehicle("put", PUT, TransportOrder("c", GET, PUT), dwell_until_s=70.0),
+    }
+    schedule, finish = live(runners)
+    # vehicle 2 holds the Put station until 70, so 1 (due at 60) starts there at 70
+    assert [(r.vehicle, r.start_s) for r in schedule.reservations(PUT)] == [
+        (2, 0.0),
+        (1, 70.0),
+        (1, 80.0 + 30.0 + 10.0 + 30.0),  # the next order's Put: via OTHER and back
+    ]
+    assert schedule.reservations(OTHER) == (Reservation(1, "b", 110.0, 120.0),)
+    assert finish == {1: 80.0, 2: 70.0}
+
+
+def test_vehicles_without_an_order_book_nothing():
+    runners = {
+        1: vehicle("parked", 5),
+        2: vehicle("charging", 6),
+        3: vehicle("to_get", None, TransportOrder("a", GET, PUT)),  # position not known yet
+    }
+    schedule, finish = live(runners)
+    assert len(schedule) == 0 and finish == {}

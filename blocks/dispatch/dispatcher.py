@@ -31,7 +31,7 @@ from .estimates import SectionEstimates
 from .executor import OrderRunner
 from .orders import OrderBook, OrderState, TransportOrder
 from .reachability import Reachability
-from .station_schedule import StationSchedule
+from .station_schedule import StationSchedule, live_schedule
 from .strategies import (
     STRATEGIES,
     Assignment,
@@ -112,7 +112,7 @@ class Dispatcher(FunctionBlock):
     def _due(self, ctx: CycleContext) -> bool:
         if self._last_round_ns is not None and ctx.time_ns - self._last_round_ns < self.interval_ns:
             return False
-        return bool(self.book.dispatchable()) and bool(self._candidates(ctx))
+        return bool(self.book.dispatchable()) and bool(self._candidates(ctx, {}))
 
     # ----- routes ------------------------------------------------------------------------------
     def _check_routes(self, ctx: CycleContext) -> None:
@@ -178,7 +178,6 @@ class Dispatcher(FunctionBlock):
                 self.deviations += 1
                 for other in self.runners.values():
                     if other.next is not None:
-                        self._cancel(other.next)
                         back = other.next
                         other.next = None
                         back.assigned = None
@@ -187,7 +186,9 @@ class Dispatcher(FunctionBlock):
                 self._last_round_ns = None  # recompute now
 
     # ----- rounds --------------------------------------------------------------------------------
-    def _candidates(self, ctx: CycleContext) -> list[Candidate]:
+    def _candidates(self, ctx: CycleContext, finish: Mapping[int, float]) -> list[Candidate]:
+        """Who may take an order; a busy vehicle (two_stage's next order) from its active
+        order's Put station at its estimated ``finish``."""
         out = []
         for v, r in self.runners.items():
             if r.current is None or r.battery is None or not self.available(v):
@@ -202,26 +203,8 @@ class Dispatcher(FunctionBlock):
                 and r.frozen
                 and self.charging.may_take(r.battery - self.charging.use_per_order)
             ):
-                out.append(Candidate(v, r.active.put, self._finish_s(ctx, r), "next"))
+                out.append(Candidate(v, r.active.put, finish.get(v, ctx.time), "next"))
         return out
-
-    def _finish_s(self, ctx: CycleContext, r: OrderRunner) -> float:
-        """When the active order of ``r`` is estimated to end."""
-        o, est, now = r.active, self.estimates, ctx.time
-        put = est.dwell(o.put, "Put")
-        if r.phase in ("to_get", "get_queue"):
-            return (
-                now
-                + est.travel(r.current, o.get)
-                + est.dwell(o.get, "Get")
-                + est.travel(o.get, o.put)
-                + put
-            )
-        if r.phase == "get":
-            return max(now, r.dwell_until_ns / 1e9) + est.travel(o.get, o.put) + put
-        if r.phase in ("to_put", "put_queue"):
-            return now + est.travel(r.current, o.put) + put
-        return max(now, r.dwell_until_ns / 1e9)
 
     def _pool(self, ctx: CycleContext) -> list[TransportOrder]:
         orders = self.book.dispatchable()
@@ -232,9 +215,15 @@ class Dispatcher(FunctionBlock):
 
     def _start_round(self, ctx: CycleContext) -> None:
         self._last_round_ns = ctx.time_ns
-        vehicles, orders = self._candidates(ctx), self._pool(ctx)
+        finish: dict[int, float] = {}
+        if self.strategy == "two_stage":
+            self._working, finish = live_schedule(
+                self.runners, self.estimates, self.schedule.buffer_s, ctx.time
+            )
+        vehicles, orders = self._candidates(ctx, finish), self._pool(ctx)
         orders = [o for o in orders if any(self.reach.reaches(c.node, o.get) for c in vehicles)]
         if not vehicles or not orders:
+            self._working = None
             return
         if self.strategy == "nearest_idle":
             self._round = nearest_idle(vehicles, orders, self.distance)
@@ -248,8 +237,6 @@ class Dispatcher(FunctionBlock):
                 self.capacity_per_h,
             )
         else:
-            self.schedule.prune(ctx.time)
-            self._working = self.schedule.copy()
             self._round = two_stage(vehicles, orders, self._working, self.estimates, ctx.time)
 
     def _advance(self, ctx: CycleContext) -> None:
@@ -275,7 +262,6 @@ class Dispatcher(FunctionBlock):
                 or not free
                 or not self.reach.reaches(runner.current, order.get)
             ):
-                self._cancel(order)
                 continue
             if runner.active is None:
                 self._origin[order.id] = runner.current
@@ -286,16 +272,10 @@ class Dispatcher(FunctionBlock):
 
     # ----- bookkeeping -------------------------------------------------------------------------
     def _give_back(self, ctx: CycleContext, runner: OrderRunner) -> None:
-        for order in runner.give_back(ctx):
-            self._cancel(order)
-            self.reassigned += 1
-
-    def _cancel(self, order: TransportOrder) -> None:
-        self.schedule.cancel(order.id)
+        self.reassigned += len(runner.give_back(ctx))
 
     def section_done(self, order: TransportOrder, name: str, start_s: float, end_s: float) -> None:
-        """A runner ended a section: learn its duration, count pickups for dhht, and free the
-        order's station reservations once it is done."""
+        """A runner ended a section: learn its duration and count pickups for dhht."""
         duration = end_s - start_s
         est = self.estimates
         if name == "Go_To_Get":
@@ -313,7 +293,6 @@ class Dispatcher(FunctionBlock):
             est.record_travel(order.get, order.put, duration)
         elif name == "Put":
             est.record_dwell(order.put, "Put", duration)
-            self._cancel(order)
             self._origin.pop(order.id, None)
 
     def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:

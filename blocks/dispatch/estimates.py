@@ -5,8 +5,17 @@ so it needs estimates of every section: the travel time between two nodes (to th
 station, Get -> Put, Put -> next Get) and the dwell time of a Get or Put at each station. It
 learns them from history: the mean (or, as the seed suggests, the more robust median) of the
 recorded times per pair of nodes and per station and kind. Before the first record of a key,
-travel falls back to the caller's estimate (the seed's Euclidean distance / mean speed; the
-fleet passes the heuristic table's distance / mean speed) and dwell to a default.
+travel falls back to distance / mean speed (the seed's fallback; the fleet passes the
+heuristic table's route distance) and dwell to a default.
+
+The mean speed of that fallback is learned too: every recorded travel also counts as
+metres driven in seconds, and the fallback's speed is the total distance over the total
+time of the last ``window`` travels (``mean_speed``, the configured one, only until then).
+Most (vehicle position, station) pairs are driven rarely or never, so the fallback prices
+most pairs; a configured top-speed figure would make every trip look shorter than it is
+(acceleration, turn stops, waits in traffic), every section "deviate" from its estimate
+and the allocation recompute over and over. A trip of no distance says nothing about
+speed and is left out of it.
 
 A vehicle stuck behind a blockade records a travel time that says nothing about the route,
 so a sample above ``outlier`` x the current estimate is ignored (and counted in
@@ -46,15 +55,19 @@ class SectionEstimates:
 
     def __init__(
         self,
-        travel_fallback: Callable[[int, int], float],
+        distance: Callable[[int, int], float],
         dwell_default_s: float,
+        mean_speed: float = 1.0,
         outlier: float = 1.5,
         method: Literal["median", "mean"] = "median",
         window: int = 50,
     ) -> None:
-        if not callable(travel_fallback):
-            raise ValueError("SectionEstimates: travel_fallback must be callable (a, b) -> seconds")
+        if not callable(distance):
+            raise ValueError("SectionEstimates: distance must be callable (a, b) -> metres")
         self.dwell_default_s = _number("__init__", "dwell_default_s", dwell_default_s, 0.0)
+        self.configured_speed = _number("__init__", "mean_speed", mean_speed, 0.0)
+        if self.configured_speed == 0:
+            raise ValueError("SectionEstimates: mean_speed must be > 0 m/s, got 0")
         # inf switches the outlier rule off; a factor <= 1 would reject every slower sample
         if not isinstance(outlier, Real) or math.isnan(outlier) or outlier <= 1:
             raise ValueError(f"SectionEstimates: outlier must be a number > 1, got {outlier!r}")
@@ -62,18 +75,21 @@ class SectionEstimates:
             raise ValueError(f"SectionEstimates: method must be 'median' or 'mean', got {method!r}")
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise ValueError(f"SectionEstimates: window must be an integer >= 1, got {window!r}")
-        self.travel_fallback = travel_fallback
+        self.distance = distance
         self.outlier = float(outlier)
         self.method = method
         self.window = window
         self.ignored = 0  # samples dropped by the outlier rule
         self._samples: dict[Hashable, deque[float]] = {}
         self._learned: dict[Hashable, float] = {}  # cached estimate per key with samples
+        self._trips: deque[tuple[float, float]] = deque(maxlen=window)  # (metres, seconds)
+        self.mean_speed = self.configured_speed
+        """The fallback's speed in m/s: learned from the recorded travels, else configured."""
 
     def travel(self, a: int, b: int) -> float:
-        """Seconds from node ``a`` to node ``b``: learned, else the fallback."""
+        """Seconds from node ``a`` to node ``b``: learned, else distance / mean speed."""
         learned = self._learned.get(("travel", a, b))
-        return learned if learned is not None else float(self.travel_fallback(a, b))
+        return learned if learned is not None else float(self.distance(a, b)) / self.mean_speed
 
     def dwell(self, station: int, kind: str) -> float:
         """Seconds a Get or Put (``kind``) takes at ``station``: learned, else the default."""
@@ -81,7 +97,14 @@ class SectionEstimates:
 
     def record_travel(self, a: int, b: int, seconds: float) -> bool:
         """Learn one driven time from ``a`` to ``b``; False if ignored as an outlier."""
-        return self._record(("travel", a, b), _number("record_travel", "seconds", seconds, 0.0))
+        seconds = _number("record_travel", "seconds", seconds, 0.0)
+        if not self._record(("travel", a, b), seconds):
+            return False
+        metres = float(self.distance(a, b))
+        if 0 < metres < math.inf and seconds > 0:
+            self._trips.append((metres, seconds))
+            self.mean_speed = sum(m for m, _ in self._trips) / sum(s for _, s in self._trips)
+        return True
 
     def record_dwell(self, station: int, kind: str, seconds: float) -> bool:
         """Learn one Get/Put time at ``station``; False if ignored as an outlier."""

@@ -10,21 +10,28 @@ fewer vehicles blocking each other in front of a station (the seed's buffer swee
 shortest execution time near B = 38 s).
 
 A slot may fall into a gap between two visits when the gap is wide enough, else it follows
-the last visit. Tentative evaluations (which vehicle should get this order?) reserve on a
-:meth:`copy`; the winner's copy replaces the working schedule. ``prune`` drops visits that can
-no longer delay anyone, so memory stays bounded over a long run.
+the last visit. The dispatcher builds a new schedule for every allocation round from the
+vehicles' live state (their remaining visits, :func:`live_schedule`) and commits the round's assignments into it,
+so it holds only the visits still to come, and memory stays bounded over a long run.
 
 All times are simulation seconds passed in by the caller; nothing here reads a clock.
 """
 
 from __future__ import annotations
 
+import heapq
 import math
 from bisect import bisect_right, insort
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from .arguments import finite_number
+
+if TYPE_CHECKING:
+    from .estimates import SectionEstimates
+    from .executor import OrderRunner
+    from .orders import TransportOrder
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,40 +99,6 @@ class StationSchedule:
         insort(self._lists.setdefault(station, []), r, key=_order_key)
         return r
 
-    def cancel(self, order: str) -> int:
-        """Drop every reservation of ``order`` (all stations); returns how many."""
-        return self._drop(lambda r: r.order == order)
-
-    def cancel_vehicle(self, vehicle: int) -> int:
-        """Drop every reservation of ``vehicle`` (all stations); returns how many."""
-        return self._drop(lambda r: r.vehicle == vehicle)
-
-    def prune(self, now_s: float) -> int:
-        """Drop reservations ended before ``now_s - B``; returns how many.
-
-        Their padded end is past, so they cannot delay any visit arriving at ``now_s`` or
-        later, which is every visit the dispatcher still plans.
-        """
-        now_s = _time("prune", "now_s", now_s)
-        b = self._buffer
-        dropped = 0
-        for station in list(self._lists):
-            visits = self._lists[station]
-            n = bisect_right(visits, now_s, key=lambda r: r.end_s + b)
-            if n:
-                del visits[:n]
-                dropped += n
-            if not visits:
-                del self._lists[station]
-        return dropped
-
-    def copy(self) -> StationSchedule:
-        """An independent clone for tentative evaluation (reservations are immutable)."""
-        clone = StationSchedule.__new__(StationSchedule)
-        clone._buffer = self._buffer
-        clone._lists = {station: list(visits) for station, visits in self._lists.items()}
-        return clone
-
     def reservations(self, station: int) -> tuple[Reservation, ...]:
         """The station's reservations, sorted by start."""
         return tuple(self._lists.get(station, ()))
@@ -133,14 +106,57 @@ class StationSchedule:
     def __len__(self) -> int:
         return sum(len(visits) for visits in self._lists.values())
 
-    def _drop(self, doomed: Callable[[Reservation], bool]) -> int:
-        dropped = 0
-        for station in list(self._lists):
-            visits = self._lists[station]
-            kept = [r for r in visits if not doomed(r)]
-            dropped += len(visits) - len(kept)
-            if kept:
-                self._lists[station] = kept
-            else:
-                del self._lists[station]
-        return dropped
+
+def live_schedule(
+    runners: Mapping[int, OrderRunner],
+    estimates: SectionEstimates,
+    buffer_s: float,
+    now_s: float,
+) -> tuple[StationSchedule, dict[int, float]]:
+    """The reservation lists as the vehicles stand at ``now_s``, and when each busy
+    vehicle's active order is estimated to end (its Put visit's end).
+
+    The dispatcher builds them anew for every allocation round rather than keeping the
+    rounds' plans: a vehicle running late would otherwise drop out of the lists once its
+    planned visit is over, and more vehicles be sent to a station it has yet to reach; a
+    queue that formed in front of a station would go unseen. Every remaining visit of every
+    active and next order is booked, earliest estimated arrival first, and each arrival
+    follows from the vehicle's previous visit as booked: a vehicle third in a station's
+    queue ends its order two visits later, and its next order starts later too. A vehicle
+    standing at its station stays there until its dwell ends.
+    """
+    schedule = StationSchedule(buffer_s)
+    chains: dict[int, list[tuple[int, str, TransportOrder]]] = {}
+    due: list[tuple[float, int, int, float]] = []  # (arrival, vehicle, step, dwell)
+    for v, r in runners.items():
+        o = r.active
+        if o is None or r.current is None:
+            continue
+        if r.phase in ("to_get", "get_queue", "get"):
+            chain = [(o.get, "Get", o), (o.put, "Put", o)]
+        elif r.phase in ("to_put", "put_queue", "put"):
+            chain = [(o.put, "Put", o)]
+        else:
+            continue
+        if r.next is not None:
+            chain += [(r.next.get, "Get", r.next), (r.next.put, "Put", r.next)]
+        chains[v] = chain
+        if r.phase in ("get", "put"):
+            due.append((now_s, v, 0, max(0.0, r.dwell_until_ns / 1e9 - now_s)))
+        else:
+            station, kind, _ = chain[0]
+            arrival = now_s + estimates.travel(r.current, station)
+            due.append((arrival, v, 0, estimates.dwell(station, kind)))
+    heapq.heapify(due)
+    finish: dict[int, float] = {}
+    while due:
+        arrival, v, step, dwell = heapq.heappop(due)
+        station, kind, order = chains[v][step]
+        booked = schedule.reserve(station, v, order.id, arrival, dwell)
+        if kind == "Put" and order is runners[v].active:
+            finish[v] = booked.end_s
+        if step + 1 < len(chains[v]):
+            after, then, _ = chains[v][step + 1]
+            at = booked.end_s + estimates.travel(station, after)
+            heapq.heappush(due, (at, v, step + 1, estimates.dwell(after, then)))
+    return schedule, finish
