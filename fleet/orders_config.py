@@ -64,11 +64,17 @@ class BatteryConfig:
     good: float = 35.0
     sufficient: float = 60.0
     full: float = 95.0
+    top_up: bool = True
     start: dict[int, float] = field(default_factory=dict)  # vehicle -> start charge %
 
     def policy(self) -> ChargePolicy:
         return ChargePolicy(
-            self.critical, self.good, self.sufficient, self.full, enabled=self.enabled
+            self.critical,
+            self.good,
+            self.sufficient,
+            self.full,
+            enabled=self.enabled,
+            top_up=self.top_up,
         )
 
 
@@ -165,6 +171,7 @@ def parse_battery(r: TableReader) -> BatteryConfig:
         good=r.number("good", 35.0, 0.0, 100.0),
         sufficient=r.number("sufficient", 60.0, 0.0, 100.0),
         full=r.number("full", 95.0, 0.0, 100.0),
+        top_up=r.get("top_up", bool, True),
     )
     r.finish()
     try:

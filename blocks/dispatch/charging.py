@@ -15,6 +15,12 @@ finished order; ``default_use`` until one is known); if it would end below ``goo
 vehicle deregisters, finishes its active order and drives to a free charger, and it
 re-registers when the charge is sufficient. Consumption is learned from what the vehicles
 report, so the controller needs no model of their drives.
+
+Idle vehicles top up (openTCS's "recharge idle vehicles"): with ``top_up`` on, a vehicle that
+has no order and is below ``sufficient`` charges instead of parking, while one charger stays
+free for a vehicle that must charge. Such a vehicle is charging by choice, not by need, so it
+stays available: it takes an order by the plain ``good`` rule, off the charger at once. A
+fleet that charges in its idle minutes seldom has to stop working to charge.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ class ChargePolicy:
     default_use: float = 2.0  # % per order until the first order was measured
     window: int = 50  # orders the mean consumption is taken over
     enabled: bool = True
+    top_up: bool = True
     _uses: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -53,8 +60,8 @@ class ChargePolicy:
         del self._uses[: -self.window]
 
     def may_take(self, battery: float, charging: bool = False) -> bool:
-        """May a vehicle at ``battery`` % take a new order? A charging one only once its
-        charge is sufficient (the charge is interrupted)."""
+        """May a vehicle at ``battery`` % take a new order? One charging because it had to
+        (``charging``) only once its charge is sufficient (the charge is interrupted)."""
         if not self.enabled:
             return True
         if battery < self.critical or (charging and battery < self.sufficient):
@@ -67,6 +74,10 @@ class ChargePolicy:
         charge rather than shuttling to the charger for ever (the thresholds are too tight
         for its orders, which the summary's charging figures show)."""
         return self.enabled and battery < self.full and not self.may_take(battery)
+
+    def tops_up(self, battery: float) -> bool:
+        """Without an order: may the vehicle charge by choice (a charger free to spare)?"""
+        return self.enabled and self.top_up and battery < self.sufficient
 
     def charged(self, battery: float) -> bool:
         """Charging without an order: may it leave the charger?"""

@@ -193,7 +193,8 @@ class Dispatcher(FunctionBlock):
         for v, r in self.runners.items():
             if r.current is None or r.battery is None or not self.available(v):
                 continue  # (a vehicle whose charge is not known yet takes nothing)
-            charging = r.phase in ("to_charger", "charging")
+            # (a vehicle charging by choice while idle stays available as if it were not)
+            charging = r.phase in ("to_charger", "charging") and not r.topping_up
             if r.active is None:
                 if self.charging.may_take(r.battery, charging):
                     out.append(Candidate(v, r.current, ctx.time, "active"))

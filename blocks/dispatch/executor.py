@@ -26,8 +26,9 @@ out of the holder's way. A station's claim covers its single-vehicle area (plant
 ``area``) and ends only when the vehicle has left that area, so a vehicle leaving a
 station spur never meets the next one in it. Routing and traffic (VehicleControl and the
 reservations) decide how it drives; this block only sets the target and the hold. Without
-an order a vehicle charges when its ChargePolicy says so, and otherwise parks at a free
-parking position, out of the others' way.
+an order a vehicle charges when its ChargePolicy says it must, tops up when it is below
+``sufficient`` and a charger is to spare (still available for orders), and otherwise parks at
+a free parking position, out of the others' way.
 """
 
 from __future__ import annotations
@@ -160,6 +161,7 @@ class OrderRunner(FunctionBlock):
     leaving = Static(None)  # the station it was served at, claimed until it has left it
     vacating = Static(None)  # the queue, parking or charger place it stands on, given up
     charging_since = Static(None)  # when the current charger visit began (s)
+    topping_up = Static(False)  # charging by choice while idle, not by need: still available
     battery_at_start = Static(None)
 
     def __init__(
@@ -277,6 +279,7 @@ class OrderRunner(FunctionBlock):
     # ----- an order ----------------------------------------------------------------------------
     def _activate(self, ctx: CycleContext, order: TransportOrder) -> None:
         self.active, self.frozen = order, False
+        self.topping_up = False
         self.battery_at_start = self.battery
         self._forget()  # leaves a charger or parking place
         self.place, self.hold = None, False
@@ -432,10 +435,18 @@ class OrderRunner(FunctionBlock):
             if self.charging.charged(battery):
                 self._forget()
                 self.place, self.hold, self.phase = None, False, "idle"
+                self.topping_up = False
             else:
+                if self.topping_up and self.charging.must_charge(battery):
+                    self.topping_up = False  # (its orders turned out to need more)
                 self._charge(ctx)
                 return
         if self.charging.must_charge(battery) and self.chargers:
+            self.topping_up = False
+            self._charge(ctx)
+            return
+        if self.charging.tops_up(battery) and self._spare_charger():
+            self.topping_up = True
             self._charge(ctx)
             return
         if self.phase == "idle":
@@ -480,6 +491,11 @@ class OrderRunner(FunctionBlock):
                         return n
             frontier = reached
         return None
+
+    def _spare_charger(self) -> bool:
+        """Whether a charger is free for charging by choice: two free, so that one stays
+        free for a vehicle that must charge."""
+        return sum(1 for c in self.chargers if self.claims.free(c, self.vehicle)) >= 2
 
     def _charge(self, ctx: CycleContext) -> None:
         if self.place not in self.chargers or not self._holds(self.place):

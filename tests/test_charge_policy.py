@@ -1,0 +1,123 @@
+"""The charging policy: its thresholds, the seed's rule, and idle vehicles topping up.
+
+Unit tests of ChargePolicy, then the fleet program on the sample distribution centre (four
+chargers): idle vehicles below ``sufficient`` charge while a charger is to spare, leave one
+free for a vehicle that must charge, and take an order off the charger at once."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from blocks.dispatch.charging import ChargePolicy
+from blocks.dispatch.orders import OrderState
+from fleet.config import first_vehicles, load_config
+from fleet.program import FleetProgram
+
+DISTRIBUTION_CENTRE = (
+    Path(__file__).resolve().parent.parent / "examples" / "distribution-centre.toml"
+)
+
+
+def test_thresholds_must_be_ordered():
+    with pytest.raises(ValueError, match="critical <= good <= sufficient <= full"):
+        ChargePolicy(critical=40.0, good=35.0)
+
+
+def test_the_seeds_rule_with_the_learned_use_per_order():
+    policy = ChargePolicy()  # 15 / 35 / 60 / 95, 2 % per order until one is measured
+    assert policy.may_take(37.0) and not policy.may_take(36.9)
+    policy.order_used(5.0)
+    policy.order_used(-1.0)  # charged on the way: counts as 0
+    assert policy.use_per_order == 2.5
+    assert policy.may_take(37.5) and not policy.may_take(37.4)
+    assert policy.must_charge(37.4) and not policy.must_charge(37.5)
+    # a vehicle charging because it had to comes off the charger only once sufficient
+    assert not policy.may_take(59.0, charging=True) and policy.may_take(60.0, charging=True)
+    assert not policy.may_take(14.0)  # below critical nothing, whatever the use
+
+
+def test_idle_vehicles_top_up_below_sufficient():
+    policy = ChargePolicy()
+    assert policy.tops_up(59.9) and not policy.tops_up(60.0)
+    assert not ChargePolicy(top_up=False).tops_up(10.0)
+    assert not ChargePolicy(enabled=False).tops_up(10.0)
+    assert policy.charged(95.0) and not policy.charged(94.9)
+
+
+@pytest.fixture
+def program():
+    made: list[FleetProgram] = []
+
+    def build(vehicles: int, charge: float, tmp_path: Path, top_up: bool = True) -> FleetProgram:
+        cfg = load_config(DISTRIBUTION_CENTRE)
+        first_vehicles(cfg, vehicles)
+        cfg.watchdog = 5.0
+        orders = tmp_path / "orders.csv"
+        orders.write_text("id,get,put,start_s\nlate,31,41,300\n", encoding="utf-8")
+        cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
+        cfg.battery.start = {v: charge for v in cfg.starts}
+        cfg.battery.top_up = top_up
+        p = FleetProgram(cfg)
+        made.append(p)
+        p.rt.start()
+        return p
+
+    yield build
+    for p in made:
+        p.close()
+
+
+def run(p: FleetProgram, seconds: float) -> None:
+    for _ in range(round(seconds / p.cfg.cycle_time)):
+        p.rt.step()
+        assert p.rt.state == "RUN", p.rt.fault_reason
+
+
+def released(p: FleetProgram):
+    """The order of the file once the book has it (at its start time, 300 s)."""
+    return next(iter(p.orders.book), None)
+
+
+def test_idle_vehicles_top_up_and_leave_one_charger_free(program, tmp_path):
+    p = program(4, 50.0, tmp_path)
+    run(p, 250.0)
+    runners = p.orders.runners
+    charging = sorted(v for v, r in runners.items() if r.phase == "charging")
+    assert len(charging) == 3  # four chargers: one stays free for a vehicle that must charge
+    assert all(runners[v].topping_up for v in charging)
+    (other,) = set(runners) - set(charging)
+    assert runners[other].phase == "parked"
+    held = {place for place, v in p.orders.claims.holder.items() if v in charging}
+    assert held == {runners[v].current for v in charging}
+    assert set(p.cfg.plant.with_role("charger")) - held  # (a charger is free)
+
+
+def test_a_vehicle_topping_up_takes_an_order_off_the_charger(program, tmp_path):
+    p = program(1, 50.0, tmp_path)
+    runner = p.orders.runners[1]
+    run(p, 295.0)
+    assert runner.phase == "charging" and runner.battery < 60  # below sufficient
+    assert p.rt.run_until(lambda: released(p) is not None, max_cycles=round(10 / 0.05))
+    order = released(p)
+    assert p.rt.run_until(lambda: order.assigned == 1, max_cycles=round(10 / 0.05))
+    assert p.rt.run_until(lambda: order.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
+    assert runner.charges == 1
+
+
+def test_without_top_up_idle_vehicles_park(program, tmp_path):
+    p = program(2, 50.0, tmp_path, top_up=False)
+    run(p, 250.0)
+    assert [r.phase for r in p.orders.runners.values()] == ["parked", "parked"]
+
+
+def test_a_vehicle_that_must_charge_waits_for_the_sufficient_charge(program, tmp_path):
+    """Below good + the use of an order it charges by need: no order until 60 %."""
+    p = program(1, 36.0, tmp_path)
+    runner = p.orders.runners[1]
+    run(p, 400.0)
+    assert runner.phase == "charging" and not runner.topping_up
+    assert runner.battery < 60
+    order = released(p)
+    assert order.state is OrderState.DISPATCHABLE and order.assigned is None
