@@ -12,7 +12,9 @@ The dispatcher decides *what* a vehicle does; routing and traffic decide *how* i
 3. starts an allocation round when a vehicle could take an order and orders wait (not more
    often than every ``interval_s``), and advances the running round by at most ``budget``
    (vehicle, order) evaluations; a complete round is applied at once, after checking each
-   assignment still holds (the order still waits, the vehicle is still free).
+   assignment still holds (the order still waits, the vehicle is still free). A two_stage
+   round starts from the station reservation lists as the vehicles stand
+   (:func:`live_schedule`), so a late vehicle or a queue in front of a station is priced in.
 
 Vehicles that are offline, stale, faulty or suspect take nothing (``available``); a vehicle
 whose battery would end an order below the ChargePolicy's ``good`` level takes nothing
