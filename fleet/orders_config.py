@@ -68,14 +68,8 @@ class BatteryConfig:
     start: dict[int, float] = field(default_factory=dict)  # vehicle -> start charge %
 
     def policy(self) -> ChargePolicy:
-        return ChargePolicy(
-            self.critical,
-            self.good,
-            self.sufficient,
-            self.full,
-            enabled=self.enabled,
-            top_up=self.top_up,
-        )
+        levels = (self.critical, self.good, self.sufficient, self.full)
+        return ChargePolicy(*levels, enabled=self.enabled, top_up=self.top_up)
 
 
 def parse_orders(reader: TableReader, base: Path, plant: Plant) -> OrdersConfig:
