@@ -363,16 +363,25 @@ def start(text: str, cwd: Path, isolated: bool) -> Process:
     return Process(text, proc, log)
 
 
+def runs_on(proc: subprocess.Popen, seconds: float) -> bool:
+    """Wait up to ``seconds`` for ``proc`` to end; True if it is still running. (Waiting on
+    the process, not sleeping: an early exit is seen at once.)"""
+    try:
+        proc.wait(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        return True
+    return False
+
+
 def wait_for_port(server: Process, port: int) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
-        if server.proc.poll() is not None:
-            pytest.fail(f"{server.text!r} exited {server.proc.returncode}:\n{server.output()}")
         try:
             with socket.create_connection(("127.0.0.1", port), timeout=0.5):
                 return
         except OSError:
-            time.sleep(0.1)
+            if not runs_on(server.proc, 0.1):
+                pytest.fail(f"{server.text!r} exited {server.proc.returncode}:\n{server.output()}")
     pytest.fail(f"{server.text!r}: port {port} not open after {START_TIMEOUT_S} s")
 
 
@@ -383,12 +392,11 @@ def run_foreground(cmd: Command, text: str, cwd: Path, isolated: bool) -> None:
             deadline = time.monotonic() + START_TIMEOUT_S
             while (
                 not process.log.stat().st_size
-                and process.proc.poll() is None
                 and time.monotonic() < deadline
+                and runs_on(process.proc, 0.05)
             ):
-                time.sleep(0.05)
-            time.sleep(SETTLE_S)
-            if process.proc.poll() is not None:
+                pass
+            if not runs_on(process.proc, SETTLE_S):
                 pytest.fail(f"{text!r} should run until Ctrl-C but ended:\n{process.output()}")
             code = process.interrupt()
             assert code in INTERRUPTED, f"{text!r} exited {code} on Ctrl-C:\n{process.output()}"

@@ -183,22 +183,33 @@ def spur_line(room_beyond: bool) -> Plant:
     return build(nodes, pairs, "spur-line")
 
 
+def spur_program(room_beyond: bool, starts, functions, stations, recipes) -> FleetProgram:
+    """One round of each vehicle's recipe on the spur line, 1 s at every station."""
+    cfg = make_config(
+        spur_line(room_beyond=room_beyond),
+        starts,
+        functions,
+        stations,
+        vehicle_recipes=recipes,
+        rounds=1,
+        processing_s=1.0,
+        cycle_time=0.05,
+    )
+    return FleetProgram(cfg)
+
+
 def test_a_standing_vehicle_is_pushed_along_the_route_not_into_an_occupied_area():
     """Vehicle 1 works at the cell and stays there. Vehicle 2 stops at the junction, its
     station; vehicle 3 needs the junction to reach station 4. Off vehicle 3's route, the
     free approach of the cell would be the best place to push vehicle 2 to, but the cell's
     area is vehicle 1's: vehicle 2 is pushed ahead along the lane instead."""
-    cfg = make_config(
-        spur_line(room_beyond=True),
+    p = spur_program(
+        True,
         {1: 5, 2: 2, 3: 1},
         {"cell": [2], "junction": [4], "end": [3]},
         {2: [7], 3: [4], 4: [3]},
-        vehicle_recipes={1: ["cell"], 2: ["junction"], 3: ["end"]},
-        rounds=1,
-        processing_s=1.0,
-        cycle_time=0.05,
+        {1: ["cell"], 2: ["junction"], 3: ["end"]},
     )
-    p = FleetProgram(cfg)
     try:
         step(p, 60)
         assert sorted(r.vehicle for r in p.completed) == [1, 2, 3]
@@ -214,17 +225,13 @@ def test_where_the_only_room_is_an_occupied_area_the_deadlock_is_reported():
     """Vehicles 2 and 3 meet head-on on a line of three nodes; the only node either could
     give way to is the approach of the cell, where vehicle 1 stays. Nobody is backed off
     into it: the deadlock is reported, both are stranded, and nothing collides."""
-    cfg = make_config(
-        spur_line(room_beyond=False),
+    p = spur_program(
+        False,
         {1: 7, 2: 1, 3: 3},
         {"cell": [2], "west": [3], "junction": [4]},
         {2: [7], 3: [1], 4: [3]},
-        vehicle_recipes={1: ["cell"], 2: ["junction"], 3: ["west"]},
-        rounds=1,
-        processing_s=1.0,
-        cycle_time=0.05,
+        {1: ["cell"], 2: ["junction"], 3: ["west"]},
     )
-    p = FleetProgram(cfg)
     try:
         step(p, 60)
         assert [r.vehicle for r in p.completed] == [1]
