@@ -4,7 +4,7 @@ sample plants. Imports nothing else of this project."""
 from .errors import TopologyError
 from .formats import load, load_scenarios
 from .model import PORTS, ROLES, TARGET_ROLES, Edge, Node, Plant, route_cost
-from .samples import SAMPLES, grid, model_plant, warehouse
+from .samples import SAMPLES, grid, kiva, model_plant, warehouse
 
 __all__ = [
     "PORTS",
@@ -16,6 +16,7 @@ __all__ = [
     "Plant",
     "TopologyError",
     "grid",
+    "kiva",
     "load",
     "load_scenarios",
     "model_plant",

@@ -18,6 +18,7 @@ precomputed something for one plant can tell when it is handed another.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -134,6 +135,18 @@ class Plant:
             np.array(dst, dtype=np.int64),
             np.array(length, dtype=np.float64),
         )
+
+    @cached_property
+    def arc_max_speed(self) -> np.ndarray:
+        """Speed limit of every arc in m/s, in the order of ``arcs`` (inf where its segment
+        sets none)."""
+        limits = []
+        for e in self.edges:
+            if not e.routable:
+                continue
+            limit = math.inf if e.max_speed is None else e.max_speed
+            limits.extend((limit, limit) if e.bidirectional else (limit,))
+        return np.array(limits, dtype=np.float64)
 
     @property
     def n_arcs(self) -> int:

@@ -1,4 +1,4 @@
-"""Sample plants shipped with the package: ``model-plant``, ``warehouse`` and ``grid``.
+"""Sample plants shipped with the package: ``model-plant``, ``warehouse``, ``grid`` and ``kiva``.
 
 ``model_plant()`` reconstructs the thesis' 25-node plant (Hochschule Muenchen, 2016): a 3 x 5
 matrix of crossings (a 2 x 4 matrix of lanes), the entry (node 0) as the middle crossing of
@@ -176,4 +176,42 @@ def grid(
     )
 
 
-SAMPLES = {"model-plant": model_plant, "warehouse": warehouse, "grid": grid}
+KIVA_WIDTH, KIVA_HEIGHT = 46, 33
+KIVA_SHELF_COLUMNS = ((7, 16), (18, 27), (29, 38))  # inclusive: three shelf blocks per band
+KIVA_HOME_COLUMNS = (1, 2, 4, 5, 40, 41, 43, 44)
+
+
+def kiva() -> Plant:
+    """The "kiva" fulfilment map of RHCR (Li et al., "Lifelong Multi-Agent Path Finding in
+    Large-Scale Warehouses"), cell for cell: the reference map of lifelong MAPF results, so a
+    throughput measured on it compares with the published ones directly, which the
+    ``warehouse`` sample (same size, a layout of its own) does not allow.
+
+    33 rows x 46 columns of 1 m cells. Every fourth row (0, 4, .., 32) is open; the three rows
+    between two open rows form a band: its middle row holds three shelf blocks of ten cells
+    (columns 7-16, 18-27, 29-38; blocked), the rows above and below them are the shelves'
+    endpoints (stations, function 2 "pick"), and columns 1-2, 4-5, 40-41 and 43-44 of all three
+    band rows are the robots' home cells (parking). Everything else is open floor. 8 bands:
+    480 endpoints, 240 shelf cells, 192 home cells, 1278 passable cells."""
+    passable = np.ones((KIVA_HEIGHT, KIVA_WIDTH), dtype=bool)
+    roles: dict[int, tuple[str, tuple[int, ...]]] = {}
+    for top in range(0, KIVA_HEIGHT - 1, 4):  # the open row above each band
+        for row in (top + 1, top + 2, top + 3):
+            for first, last in KIVA_SHELF_COLUMNS:
+                if row == top + 2:
+                    passable[row, first : last + 1] = False
+                else:
+                    for x in range(first, last + 1):
+                        roles[row * KIVA_WIDTH + x] = ("station", (2,))
+            for x in KIVA_HOME_COLUMNS:
+                roles[row * KIVA_WIDTH + x] = ("parking", ())
+    return grid_plant(
+        passable,
+        1.0,
+        roles,
+        name=f"kiva-{KIVA_HEIGHT}x{KIVA_WIDTH}",
+        functions={2: "pick"},
+    )
+
+
+SAMPLES = {"model-plant": model_plant, "warehouse": warehouse, "grid": grid, "kiva": kiva}

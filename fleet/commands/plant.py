@@ -11,11 +11,12 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from topology import Plant, load
+from topology import SAMPLES, Plant, load
 
 from ..route import find_route, load_plant, parse_segment
 
 EXIT_NO_ROUTE = 1
+FILE_HELP = f"plant file or sample name ({', '.join(SAMPLES)})"
 
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
@@ -28,7 +29,7 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     )
     show = plant_sub.add_parser("show", help="summarise a plant, optionally draw it")
     for parser in (validate, show):
-        parser.add_argument("file", help="plant file or sample name (model-plant, warehouse, grid)")
+        parser.add_argument("file", help=FILE_HELP)
         parser.add_argument(
             "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
         )
@@ -40,7 +41,7 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     route = sub.add_parser(
         "route", help="find a route with the heuristic-table and A* blocks inside a runtime"
     )
-    route.add_argument("file", help="plant file or sample name (model-plant, warehouse, grid)")
+    route.add_argument("file", help=FILE_HELP)
     route.add_argument("--from", dest="start", type=int, required=True, help="start node id")
     route.add_argument("--to", dest="goal", type=int, required=True, help="goal node id")
     route.add_argument(

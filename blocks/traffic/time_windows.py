@@ -1,0 +1,253 @@
+"""TimeWindowTable: who will be on which node and segment, and when.
+
+Reactive traffic (:class:`ReservationMatrix`) knows who holds which node *now*. Planning in
+time needs more: every node and every directed segment a vehicle's plan uses, with the
+interval it will be there. Plans are then searched only through free windows (the
+constraint of time-window planning: a segment is never used in opposite directions at
+overlapping times), so the plans of different vehicles are conflict-free by construction,
+and the executor only has to keep the order they fix.
+
+Rules between the windows of two *different* vehicles, ``gap`` being the safety gap in
+seconds:
+
+* **node**: the windows are disjoint, at least ``gap`` apart. One vehicle on a node at a
+  time, and the next arrives ``gap`` after the previous one left, when its body has cleared
+  the crossing.
+* **segment, opposite directions**: disjoint, at least ``gap`` apart (no head-on).
+* **segment, same direction**: the follower enters at least ``gap`` after the leader
+  entered and leaves at least ``gap`` after it left: vehicles keep their order and distance
+  on a segment, never overtake; how many fit on it follows from its travel time and the gap.
+
+A vehicle's own windows never conflict with each other: consecutive windows of one plan
+touch. Memory stays bounded by the plans: :meth:`book` replaces a vehicle's windows,
+:meth:`release` drops them, :meth:`expire` drops every window that ended before a time.
+
+A window that never ends (``end = inf``) is a vehicle staying at its goal; nobody can be
+planned through that node after its arrival until the vehicle is given a new plan.
+
+The gap is never zero: two vehicles passing one node at the same instant have windows of no
+length that touch, and only a gap tells them apart. On a unit-time grid a gap of one step is
+the usual multi-agent path-finding model: no two on a node at once, no swaps, following one
+step behind allowed.
+
+Times are seconds on the controller's clock. Comparisons allow ``EPS`` so that a time
+computed as ``(t - travel) + travel`` still meets the window it was computed from.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Iterable
+from typing import NamedTuple
+
+EPS = 1e-9
+# A vehicle passing a node without stopping has a window of no length: only a gap > 0 keeps
+# two such passes at the same instant apart, so the gap can never be zero.
+MIN_GAP_S = 1e-6
+
+
+class Window(NamedTuple):
+    start: float
+    end: float
+    vehicle: int
+
+
+class WindowConflict(ValueError):
+    """A booking would break a rule against another vehicle's window."""
+
+
+class TimeWindowTable:
+    """Node and directed-segment windows of every vehicle's plan, sorted by start."""
+
+    def __init__(self, gap_s: float = 0.5) -> None:
+        if not (math.isfinite(gap_s) and gap_s >= MIN_GAP_S):
+            raise ValueError(
+                f"gap_s must be a finite number of seconds >= {MIN_GAP_S:g}, got {gap_s!r}"
+            )
+        self.gap = float(gap_s)
+        self._nodes: dict[int, list[Window]] = {}
+        self._segments: dict[tuple[int, int], list[Window]] = {}
+        # what each vehicle booked: the keys, so release never scans the whole table
+        self._booked: dict[int, tuple[list[int], list[tuple[int, int]]]] = {}
+
+    # ----- reading -------------------------------------------------------------------------
+    def node_windows(self, node: int) -> tuple[Window, ...]:
+        return tuple(self._nodes.get(node, ()))
+
+    def segment_windows(self, a: int, b: int) -> tuple[Window, ...]:
+        """Windows on the directed segment a -> b."""
+        return tuple(self._segments.get((a, b), ()))
+
+    @property
+    def vehicles(self) -> frozenset[int]:
+        return frozenset(self._booked)
+
+    def __len__(self) -> int:
+        """The number of windows held: what bounds the table's memory."""
+        return sum(len(w) for w in self._nodes.values()) + sum(
+            len(w) for w in self._segments.values()
+        )
+
+    def safe_intervals(self, node: int, vehicle: int | None = None) -> list[tuple[float, float]]:
+        """The intervals in which ``vehicle`` may stand on ``node``: the gaps between the
+        other vehicles' windows, each kept ``gap`` clear of them. Sorted, disjoint, possibly of
+        no length (a pass at one instant); the last one ends at inf unless a window there
+        never ends."""
+        out: list[tuple[float, float]] = []
+        free_from = -math.inf
+        for w in self._nodes.get(node, ()):
+            if w.vehicle == vehicle:
+                continue
+            if w.start - self.gap >= free_from - EPS:  # (of no length: passing through is safe)
+                out.append((free_from, w.start - self.gap))
+            free_from = max(free_from, w.end + self.gap)
+            if free_from == math.inf:
+                return out
+        out.append((free_from, math.inf))
+        return out
+
+    def earliest_entry(
+        self,
+        a: int,
+        b: int,
+        earliest: float,
+        travel: float,
+        vehicle: int | None = None,
+        latest: float = math.inf,
+    ) -> float | None:
+        """The earliest time >= ``earliest`` at which ``vehicle`` may set off along a -> b
+        and take ``travel`` seconds to reach b, by the segment rules (nodes not checked);
+        None if that is later than ``latest``.
+
+        Each window allows the times before some bound and after another; a time between
+        them is refused and the next time that window allows is its after-bound. So jumping
+        to the after-bound of whichever window refuses, until none does, finds the earliest
+        allowed time, and ends after at most one jump per window."""
+        t = earliest
+        ahead = self._segments.get((a, b), ())
+        oncoming = self._segments.get((b, a), ())
+        gap = self.gap
+        while t <= latest + EPS and t < math.inf:
+            jump = None
+            for w in oncoming:
+                if (
+                    w.vehicle != vehicle
+                    and t < w.end + gap - EPS
+                    and w.start < t + travel + gap - EPS
+                ):
+                    jump = w.end + gap
+                    break
+            if jump is None:
+                for w in ahead:
+                    if w.vehicle != vehicle and not (
+                        _follows(t, t + travel, w, gap) or _leads(t, t + travel, w, gap)
+                    ):
+                        jump = max(w.start + gap, w.end + gap - travel)
+                        break
+            if jump is None:
+                return t
+            t = jump
+        return None
+
+    # ----- writing -------------------------------------------------------------------------
+    def book(
+        self,
+        vehicle: int,
+        nodes: Iterable[tuple[int, float, float]],
+        segments: Iterable[tuple[int, int, float, float]],
+    ) -> None:
+        """Replace ``vehicle``'s windows by these: (node, start, end) and (a, b, start, end).
+        All or nothing: on a conflict with another vehicle's window, WindowConflict names
+        it and the table, the vehicle's old windows included, is left as it was."""
+        nodes, segments = list(nodes), list(segments)
+        for node, start, end in nodes:
+            _check_interval(start, end, f"node {node}")
+            for w in self._nodes.get(node, ()):
+                if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
+                    raise WindowConflict(
+                        f"vehicle {vehicle} on node {node} during [{start:g}, {end:g}] meets "
+                        f"vehicle {w.vehicle}'s window [{w.start:g}, {w.end:g}] (gap {self.gap:g} s)"
+                    )
+        for a, b, start, end in segments:
+            _check_interval(start, end, f"segment {a}->{b}")
+            for w in self._segments.get((b, a), ()):
+                if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
+                    raise WindowConflict(
+                        f"vehicle {vehicle} on {a}->{b} during [{start:g}, {end:g}] meets "
+                        f"vehicle {w.vehicle} head-on ({b}->{a} during [{w.start:g}, {w.end:g}])"
+                    )
+            for w in self._segments.get((a, b), ()):
+                if w.vehicle != vehicle and not (
+                    _follows(start, end, w, self.gap) or _leads(start, end, w, self.gap)
+                ):
+                    raise WindowConflict(
+                        f"vehicle {vehicle} on {a}->{b} during [{start:g}, {end:g}] would overtake "
+                        f"or crowd vehicle {w.vehicle} ([{w.start:g}, {w.end:g}], gap {self.gap:g} s)"
+                    )
+        self.release(vehicle)
+        for node, start, end in nodes:
+            bisect.insort(self._nodes.setdefault(node, []), Window(start, end, vehicle))
+        for a, b, start, end in segments:
+            bisect.insort(self._segments.setdefault((a, b), []), Window(start, end, vehicle))
+        self._booked[vehicle] = ([n for n, _, _ in nodes], [(a, b) for a, b, _, _ in segments])
+
+    def release(self, vehicle: int) -> None:
+        """Drop every window of ``vehicle`` (its plan is void: replanned, withdrawn)."""
+        nodes, segments = self._booked.pop(vehicle, ((), ()))
+        for node in set(nodes):
+            _drop(self._nodes, node, lambda w: w.vehicle == vehicle)
+        for key in set(segments):
+            _drop(self._segments, key, lambda w: w.vehicle == vehicle)
+
+    def expire(self, now: float) -> int:
+        """Drop the windows that ended before ``now`` (minus the gap, which still guards
+        them); returns how many. A vehicle's later windows stay."""
+        before = len(self)
+        cutoff = now - self.gap
+        for table in (self._nodes, self._segments):
+            for key in list(table):
+                _drop(table, key, lambda w: w.end < cutoff)
+        for vehicle, (nodes, segments) in list(self._booked.items()):
+            kept_nodes = [
+                n for n in set(nodes) if any(w.vehicle == vehicle for w in self._nodes.get(n, ()))
+            ]
+            kept_segments = [
+                s
+                for s in set(segments)
+                if any(w.vehicle == vehicle for w in self._segments.get(s, ()))
+            ]
+            if kept_nodes or kept_segments:
+                self._booked[vehicle] = (kept_nodes, kept_segments)
+            else:
+                del self._booked[vehicle]
+        return before - len(self)
+
+
+def _check_interval(start: float, end: float, where: str) -> None:
+    if math.isnan(start) or math.isnan(end) or start == math.inf or end < start:
+        raise ValueError(
+            f"{where}: a window needs start <= end and a finite start, got [{start}, {end}]"
+        )
+
+
+def _overlap(start: float, end: float, w: Window, gap: float) -> bool:
+    """Do [start, end] and w come closer than ``gap``?"""
+    return start < w.end + gap - EPS and w.start < end + gap - EPS
+
+
+def _follows(start: float, end: float, w: Window, gap: float) -> bool:
+    """Does a traversal [start, end] keep ``gap`` behind w on the same segment?"""
+    return start >= w.start + gap - EPS and end >= w.end + gap - EPS
+
+
+def _leads(start: float, end: float, w: Window, gap: float) -> bool:
+    return w.start >= start + gap - EPS and w.end >= end + gap - EPS
+
+
+def _drop(table: dict, key, gone) -> None:
+    windows = [w for w in table[key] if not gone(w)]
+    if windows:
+        table[key] = windows
+    else:
+        del table[key]

@@ -1,0 +1,258 @@
+"""SafeIntervalSearch against a brute-force time-expanded search on small grids.
+
+The model of these tests: 1 m cells, 1 m/s, turns of 1 s (90 degrees) and 2 s (U-turn), a
+gap of 1 s, so every time is a whole second and a search over (cell, heading, second) with
+waits of one second finds the earliest arrival by exhaustion. Its conflict rules are written
+here from their definitions, not taken from the table, so the two are checked against each
+other: the search must find exactly the brute force's earliest arrival, and its plan must be
+a drivable path that breaks no rule against any other vehicle's windows.
+"""
+
+import math
+import random
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes, plan_path
+from blocks.traffic.time_windows import TimeWindowTable, WindowConflict
+from topology.grid import grid_plant
+
+GAP = 1.0
+TURNS = TurnTimes(1.0, 2.0)
+HORIZON = 80
+
+
+def grid(passable) -> object:
+    return grid_plant(np.asarray(passable, dtype=bool))
+
+
+def direction(plant, a, b):
+    na, nb = plant.node(a), plant.node(b)
+    return (nb.x - na.x, nb.y - na.y)
+
+
+def turn(before, after) -> float:
+    """90-degree grid turns by their definition: straight 0, a quarter turn 1, back 2."""
+    if before is None:
+        return 0.0
+    dot = before[0] * after[0] + before[1] * after[1]
+    return 0.0 if dot > 0 else (2.0 if dot < 0 else 1.0)
+
+
+class Others:
+    """The other vehicles' windows as plain lists, and the rules, from their definitions."""
+
+    def __init__(self):
+        self.nodes: dict[int, list[tuple[float, float]]] = {}
+        self.segments: dict[tuple[int, int], list[tuple[float, float]]] = {}
+
+    def add(self, plan: TimedPlan):
+        for n, a, d in plan.node_windows():
+            self.nodes.setdefault(n, []).append((a, d))
+        for u, v, s, e in plan.segment_windows():
+            self.segments.setdefault((u, v), []).append((s, e))
+
+    def node_free(self, n, start, end) -> bool:
+        return all(not (start < e + GAP and s < end + GAP) for s, e in self.nodes.get(n, ()))
+
+    def segment_free(self, u, v, start, end) -> bool:
+        if any(start < e + GAP and s < end + GAP for s, e in self.segments.get((v, u), ())):
+            return False  # head-on
+        for s, e in self.segments.get((u, v), ()):
+            behind = start >= s + GAP and end >= e + GAP
+            ahead = s >= start + GAP and e >= end + GAP
+            if not (behind or ahead):
+                return False
+        return True
+
+
+def brute_force(plant, others: Others, start, goal, t0, heading=None) -> float | None:
+    """Earliest arrival at ``goal`` with a stay for good, by breadth-first search over
+    (cell, heading, second, seconds waited so far capped at 2)."""
+    frontier = {(start, heading, 0)} if others.node_free(start, t0, t0) else set()
+    t = t0
+    seen = set()
+    while frontier and t <= t0 + HORIZON:
+        nxt = set()
+        for node, head, waited in frontier:
+            if node == goal and all(e + GAP <= t for _, e in others.nodes.get(goal, ())):
+                return t
+            if (node, head, waited, t) in seen:
+                continue
+            seen.add((node, head, waited, t))
+            if others.node_free(node, t, t + 1):
+                nxt.add((node, head, min(waited + 1, 2)))
+            for v in plant.neighbors[plant.idx(node)]:
+                to = int(plant.ids[v[0]])
+                d = direction(plant, node, to)
+                if waited < turn(head, d):
+                    continue
+                if others.segment_free(node, to, t, t + 1) and others.node_free(to, t + 1, t + 1):
+                    nxt.add((to, d, 0))
+        frontier = nxt
+        t += 1
+    return None
+
+
+def check_drivable(plant, plan: TimedPlan, start, goal, t0, heading=None):
+    assert plan.nodes[0] == start and plan.nodes[-1] == goal
+    assert plan.arrive[0] == t0
+    head = heading
+    for i in range(len(plan.nodes) - 1):
+        a, b = plan.nodes[i], plan.nodes[i + 1]
+        assert plant.arcs_between(a, b, both_ways=False)
+        d = direction(plant, a, b)
+        assert plan.depart[i] >= plan.arrive[i] + turn(head, d) - 1e-9
+        assert plan.arrive[i + 1] == pytest.approx(plan.depart[i] + 1.0)
+        head = d
+    assert plan.depart[-1] == math.inf
+
+
+def check_no_conflict(others: Others, plan: TimedPlan):
+    for n, a, d in plan.node_windows():
+        assert others.node_free(n, a, d), f"node {n} [{a}, {d}]"
+    for u, v, s, e in plan.segment_windows():
+        assert others.segment_free(u, v, s, e), f"segment {u}->{v} [{s}, {e}]"
+
+
+def random_others(plant, rng: random.Random, count: int, table: TimeWindowTable, others: Others):
+    """Other vehicles on random walks with random waits, booked where the table takes them
+    (a walk that conflicts with an earlier one is left out)."""
+    ids = [int(i) for i in plant.ids]
+    for vehicle in range(100, 100 + count):
+        node, t = rng.choice(ids), float(rng.randrange(0, 6))
+        nodes, arrive, depart = [node], [t], []
+        for _ in range(rng.randrange(1, 12)):
+            out = plant.neighbors[plant.idx(node)]
+            if not out:
+                break
+            t += rng.choice((0, 0, 1, 2))
+            depart.append(t)
+            node = int(plant.ids[rng.choice(out)[0]])
+            t += 1.0
+            nodes.append(node)
+            arrive.append(t)
+        depart.append(math.inf if rng.random() < 0.3 else t + rng.randrange(0, 4))
+        plan = TimedPlan(vehicle, tuple(nodes), tuple(arrive), tuple(depart), 0.0)
+        try:
+            plan.book(table)
+        except WindowConflict:
+            continue
+        others.add(plan)
+
+
+def search(plant, table, start, goal, t0, heading=None):
+    return plan_path(plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading)
+
+
+def test_an_empty_grid_gives_the_shortest_path_with_one_turn():
+    plant = grid(np.ones((4, 4)))
+    plan = search(plant, TimeWindowTable(GAP), 0, 15, 0.0)
+    assert len(plan.nodes) == 7
+    assert plan.arrival == 7.0  # six cells and one quarter turn
+    check_drivable(plant, plan, 0, 15, 0.0)
+
+
+def test_the_start_heading_costs_a_turn_or_a_u_turn():
+    plant = grid(np.ones((1, 5)))
+    east, west = (1.0, 0.0), (-1.0, 0.0)
+    assert search(plant, TimeWindowTable(GAP), 0, 4, 0.0, heading=east).arrival == 4.0
+    assert search(plant, TimeWindowTable(GAP), 0, 4, 0.0, heading=west).arrival == 6.0
+
+
+def test_in_a_corridor_it_steps_into_a_bay_to_let_an_oncoming_vehicle_pass():
+    """A 1 x 6 corridor: vehicle 2 drives 5 -> 0 and stays. Vehicle 1, at 0 and bound for 5,
+    has no way past it; with a bay below cell 1 it steps in, lets vehicle 2 pass, and
+    goes on."""
+    corridor = grid(np.ones((1, 6)))
+    table = TimeWindowTable(GAP)
+    plan_path(corridor, table, 2, 5, 0, 0.0, speed=1.0, turns=TURNS).book(table)
+    search_ = SafeIntervalSearch(corridor, table, 1, 0, 5, 0.0, speed=1.0, turns=TURNS)
+    search_.step(None)
+    assert search_.plan is None and "no conflict-free path" in search_.reason
+    bay = grid([[1, 1, 1, 1, 1, 1], [0, 1, 0, 0, 0, 0]])
+    table, others = TimeWindowTable(GAP), Others()
+    oncoming = plan_path(bay, table, 2, 5, 0, 0.0, speed=1.0, turns=TURNS)
+    oncoming.book(table)
+    others.add(oncoming)
+    plan = search(bay, table, 0, 5, 0.0)
+    assert plan.nodes[:3] == (0, 1, 7) and 7 not in plan.nodes[3:]
+    check_drivable(bay, plan, 0, 5, 0.0)
+    check_no_conflict(others, plan)
+    assert plan.arrival == brute_force(bay, others, 0, 5, 0.0)
+
+
+def test_a_start_node_booked_by_another_vehicle_is_reported():
+    plant = grid(np.ones((2, 2)))
+    table = TimeWindowTable(GAP)
+    table.book(7, [(0, 0.0, 10.0)], [])
+    s = SafeIntervalSearch(plant, table, 1, 0, 3, 5.0, speed=1.0)
+    assert s.done and s.plan is None and "booked by another vehicle" in s.reason
+
+
+def test_the_search_runs_in_bounded_steps_and_publishes_only_a_complete_plan():
+    plant = grid(np.ones((10, 10)))
+    s = SafeIntervalSearch(plant, TimeWindowTable(GAP), 1, 0, 99, 0.0, speed=1.0, turns=TURNS)
+    steps = 0
+    while not s.step(budget=3):
+        steps += 1
+        assert s.plan is None
+        assert s.expansions <= 3 * steps
+    assert s.plan.arrival == 19.0  # 18 cells, one turn
+    assert steps >= 5
+
+
+def test_path_heat_weights_steer_off_a_hot_row_at_a_time_cost():
+    plant = grid(np.ones((3, 6)))
+    hot = [1.0] * plant.n_arcs
+    src, dst, _ = plant.arcs
+    for arc, (u, v) in enumerate(zip(src.tolist(), dst.tolist(), strict=True)):
+        if u // 6 == 0 and v // 6 == 0:
+            hot[arc] = 5.0  # the top row is congested
+    cold = plan_path(plant, TimeWindowTable(GAP), 1, 0, 5, 0.0, speed=1.0, turns=TURNS)
+    warm = plan_path(plant, TimeWindowTable(GAP), 1, 0, 5, 0.0, speed=1.0, turns=TURNS, weights=hot)
+    assert cold.nodes == (0, 1, 2, 3, 4, 5)
+    assert all(n >= 6 for n in warm.nodes[1:-1])  # round through the row below
+    assert warm.arrival > cold.arrival and warm.cost < 5 * 5.0
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 10**6),
+    width=st.integers(2, 6),
+    height=st.integers(1, 5),
+    others_count=st.integers(0, 8),
+    blocked=st.floats(0.0, 0.3),
+    t0=st.sampled_from([0.0, 1.0, 3.0]),
+    heading=st.sampled_from([None, (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0)]),
+)
+def test_sipp_finds_the_brute_force_earliest_arrival(
+    seed, width, height, others_count, blocked, t0, heading
+):
+    rng = random.Random(seed)
+    passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
+    passable[0, 0] = True
+    if passable.sum() < 2:
+        passable[:] = True
+    plant = grid(passable)
+    table, others = TimeWindowTable(GAP), Others()
+    random_others(plant, rng, others_count, table, others)
+    ids = [int(i) for i in plant.ids]
+    start, goal = rng.choice(ids), rng.choice(ids)
+    expected = brute_force(plant, others, start, goal, t0, heading)
+    s = SafeIntervalSearch(
+        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading
+    )
+    s.step(None)
+    if expected is None:
+        # nothing within the horizon: the search may still find a later arrival
+        assert s.plan is None or s.plan.arrival > t0 + HORIZON
+        return
+    assert s.plan is not None, s.reason
+    assert s.plan.arrival == pytest.approx(expected)
+    check_drivable(plant, s.plan, start, goal, t0, heading)
+    check_no_conflict(others, s.plan)
+    s.plan.book(table)  # and the table takes it
