@@ -24,7 +24,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	@echo "make bench: about 115 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 36, allocation 60). make bench-quick runs them all reduced in about 5 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 36, allocation 60, time_windows 0.1). make bench-quick runs them all reduced in about 5 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/fleet_scale.py
 	$(BIN)/python bench/warehouse_throughput.py
 	$(BIN)/python bench/allocation.py
+	$(BIN)/python bench/time_windows.py
 
 # Every benchmark in a reduced form (smaller plants, fewer cycles, timesteps and fleet sizes),
 # with the same tables and ratios: a check that they all still run, not numbers to record.
@@ -45,6 +46,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/fleet_scale.py --quick
 	$(BIN)/python bench/warehouse_throughput.py --quick
 	$(BIN)/python bench/allocation.py --quick
+	$(BIN)/python bench/time_windows.py --quick
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -20,6 +20,8 @@ from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes, plan_p
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict
 from topology.grid import grid_plant
 
+from plan_monitor import PlanMonitor
+
 GAP = 1.0
 TURNS = TurnTimes(1.0, 2.0)
 HORIZON = 80
@@ -42,34 +44,7 @@ def turn(before, after) -> float:
     return 0.0 if dot > 0 else (2.0 if dot < 0 else 1.0)
 
 
-class Others:
-    """The other vehicles' windows as plain lists, and the rules, from their definitions."""
-
-    def __init__(self):
-        self.nodes: dict[int, list[tuple[float, float]]] = {}
-        self.segments: dict[tuple[int, int], list[tuple[float, float]]] = {}
-
-    def add(self, plan: TimedPlan):
-        for n, a, d in plan.node_windows():
-            self.nodes.setdefault(n, []).append((a, d))
-        for u, v, s, e in plan.segment_windows():
-            self.segments.setdefault((u, v), []).append((s, e))
-
-    def node_free(self, n, start, end) -> bool:
-        return all(not (start < e + GAP and s < end + GAP) for s, e in self.nodes.get(n, ()))
-
-    def segment_free(self, u, v, start, end) -> bool:
-        if any(start < e + GAP and s < end + GAP for s, e in self.segments.get((v, u), ())):
-            return False  # head-on
-        for s, e in self.segments.get((u, v), ()):
-            behind = start >= s + GAP and end >= e + GAP
-            ahead = s >= start + GAP and e >= end + GAP
-            if not (behind or ahead):
-                return False
-        return True
-
-
-def brute_force(plant, others: Others, start, goal, t0, heading=None) -> float | None:
+def brute_force(plant, others: PlanMonitor, start, goal, t0, heading=None) -> float | None:
     """Earliest arrival at ``goal`` with a stay for good, by breadth-first search over
     (cell, heading, second, seconds waited so far capped at 2)."""
     frontier = {(start, heading, 0)} if others.node_free(start, t0, t0) else set()
@@ -78,7 +53,7 @@ def brute_force(plant, others: Others, start, goal, t0, heading=None) -> float |
     while frontier and t <= t0 + HORIZON:
         nxt = set()
         for node, head, waited in frontier:
-            if node == goal and all(e + GAP <= t for _, e in others.nodes.get(goal, ())):
+            if node == goal and all(e + GAP <= t for _, e, _ in others.nodes.get(goal, ())):
                 return t
             if (node, head, waited, t) in seen:
                 continue
@@ -111,14 +86,13 @@ def check_drivable(plant, plan: TimedPlan, start, goal, t0, heading=None):
     assert plan.depart[-1] == math.inf
 
 
-def check_no_conflict(others: Others, plan: TimedPlan):
-    for n, a, d in plan.node_windows():
-        assert others.node_free(n, a, d), f"node {n} [{a}, {d}]"
-    for u, v, s, e in plan.segment_windows():
-        assert others.segment_free(u, v, s, e), f"segment {u}->{v} [{s}, {e}]"
+def check_no_conflict(others: PlanMonitor, plan: TimedPlan):
+    assert others.conflicts(plan) == []
 
 
-def random_others(plant, rng: random.Random, count: int, table: TimeWindowTable, others: Others):
+def random_others(
+    plant, rng: random.Random, count: int, table: TimeWindowTable, others: PlanMonitor
+):
     """Other vehicles on random walks with random waits, booked where the table takes them
     (a walk that conflicts with an earlier one is left out)."""
     ids = [int(i) for i in plant.ids]
@@ -174,7 +148,7 @@ def test_in_a_corridor_it_steps_into_a_bay_to_let_an_oncoming_vehicle_pass():
     search_.step(None)
     assert search_.plan is None and "no conflict-free path" in search_.reason
     bay = grid([[1, 1, 1, 1, 1, 1], [0, 1, 0, 0, 0, 0]])
-    table, others = TimeWindowTable(GAP), Others()
+    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
     oncoming = plan_path(bay, table, 2, 5, 0, 0.0, speed=1.0, turns=TURNS)
     oncoming.book(table)
     others.add(oncoming)
@@ -238,7 +212,7 @@ def test_sipp_finds_the_brute_force_earliest_arrival(
     if passable.sum() < 2:
         passable[:] = True
     plant = grid(passable)
-    table, others = TimeWindowTable(GAP), Others()
+    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
     random_others(plant, rng, others_count, table, others)
     ids = [int(i) for i in plant.ids]
     start, goal = rng.choice(ids), rng.choice(ids)

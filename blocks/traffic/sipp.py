@@ -18,6 +18,8 @@ Cost is time, plus an optional congestion term per arc: ``weights[arc]`` >= 1 mu
 arc's travel time in the cost only (path heat). With all weights 1 the search returns the
 earliest possible arrival, which tests check against a brute-force time-expanded search.
 The heuristic is the exact distance to the goal over the top speed: a lower bound on time.
+``allowed[arc]`` False keeps the search off an arc: a vehicle held to a given route (it may
+only wait), or to a corridor round it.
 
 The search runs in bounded steps (:meth:`step`, ``budget`` expansions), like the A* block,
 and publishes only a complete plan. A goal is reached when the vehicle can stay there for
@@ -126,6 +128,7 @@ class SafeIntervalSearch:
         hold_s: float = math.inf,
         to_goal: np.ndarray | None = None,
         weights: Sequence[float] | None = None,
+        allowed: Sequence[bool] | None = None,
         geometry: ArcGeometry | None = None,
     ) -> None:
         if not (math.isfinite(speed) and speed > 0):
@@ -135,6 +138,7 @@ class SafeIntervalSearch:
         self.speed, self.turns, self.hold_s = float(speed), turns, float(hold_s)
         self.geometry = geometry or ArcGeometry(plant)
         self.weights = list(weights) if weights is not None else None
+        self.allowed = list(allowed) if allowed is not None else None
         row = to_goal if to_goal is not None else distances_to(plant, [goal])[0]
         self._h = (np.asarray(row, dtype=np.float64) / self.speed).tolist()
         self._safe: dict[int, list[tuple[float, float]]] = {}
@@ -189,6 +193,8 @@ class SafeIntervalSearch:
         geometry, ids = self.geometry, self.plant.ids
         before = self._heading if arc_in < 0 else geometry.direction[arc_in]
         for v, arc, length in self.plant.neighbors[node]:
+            if self.allowed is not None and not self.allowed[arc]:
+                continue
             travel = length / min(self.speed, geometry.max_speed[arc])
             set_off = t + self.turns.between(before, geometry.direction[arc])
             if set_off > leave_by + 1e-9:
