@@ -36,7 +36,6 @@ Ratios against the study's published figures are printed in the same run.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import dataclass

@@ -15,12 +15,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from plan_monitor import PlanMonitor
 
 from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes, plan_path
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict
 from topology.grid import grid_plant
-
-from plan_monitor import PlanMonitor
 
 GAP = 1.0
 TURNS = TurnTimes(1.0, 2.0)
