@@ -1,0 +1,99 @@
+"""PassOrder: execute timed plans by order, not by time (an action dependency graph).
+
+Plans made in time are conflict-free only if every vehicle keeps to its times, and real
+vehicles do not: batteries, turns, acceleration and traffic make them early or late. What a
+conflict-free joint plan fixes for certain is the *order* in which vehicles pass each node
+(Hoenig et al. 2019, "Persistent and robust execution of MAPF schedules"; Ma et al. 2017).
+So the controller keeps, per node, the visits of every plan sorted by planned arrival, and
+lets a vehicle enter a node only when every visit before its own has passed (the vehicle has
+left the node). Then:
+
+* no two vehicles are on a node at once (the one before has left);
+* no two meet head-on on a segment: the plans never cross a segment in opposite directions
+  at overlapping times, so the two ends' orders agree, and a vehicle enters the far end
+  only after the oncoming one has left it;
+* no deadlock: every wait points from a later planned visit to an earlier one, and planned
+  times are one global order, so the waits form no cycle;
+
+for any delays. Delays are absorbed, not repaired: a late vehicle makes the ones after it
+at shared nodes late, never unsafe. Its own visits are passed in plan order.
+
+A vehicle's plan starts with the node it stands on (step 0), and is replaced whole when it
+is replanned (:meth:`set_plan`); the replacement must come from the same consistent set of
+windows (the time-window table) for the order to stay acyclic.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Sequence
+
+
+class PassOrder:
+    """Per node, the pending visits (planned time, vehicle, step) of every plan, in order."""
+
+    def __init__(self) -> None:
+        self._queues: dict[int, list[tuple[float, int, int]]] = {}
+        self._plans: dict[int, tuple[tuple[int, ...], tuple[float, ...]]] = {}
+        self._passed: dict[int, int] = {}  # vehicle -> steps passed (its first pending step)
+
+    def set_plan(self, vehicle: int, nodes: Sequence[int], arrive: Sequence[float]) -> None:
+        """``vehicle`` now follows ``nodes`` (step 0: where it stands), planned to arrive at
+        ``arrive``; its earlier pending visits are dropped."""
+        if len(nodes) != len(arrive) or not nodes:
+            raise ValueError(
+                f"a plan needs one arrival time per node, got {len(nodes)} and {len(arrive)}"
+            )
+        self.drop(vehicle)
+        self._plans[vehicle] = (tuple(nodes), tuple(arrive))
+        self._passed[vehicle] = 0
+        for step, (node, t) in enumerate(zip(nodes, arrive, strict=True)):
+            bisect.insort(self._queues.setdefault(node, []), (t, vehicle, step))
+
+    def drop(self, vehicle: int) -> None:
+        """Forget ``vehicle``'s pending visits (its plan is void)."""
+        plan = self._plans.pop(vehicle, None)
+        first = self._passed.pop(vehicle, 0)
+        if plan is None:
+            return
+        nodes, arrive = plan
+        for step in range(first, len(nodes)):
+            self._remove(nodes[step], (arrive[step], vehicle, step))
+
+    def passed(self, vehicle: int, step: int) -> None:
+        """``vehicle`` has left the node of ``step`` (and so every step before it)."""
+        nodes, arrive = self._plans[vehicle]
+        first = self._passed[vehicle]
+        for s in range(first, min(step + 1, len(nodes))):
+            self._remove(nodes[s], (arrive[s], vehicle, s))
+        self._passed[vehicle] = max(first, step + 1)
+
+    def may_enter(self, vehicle: int, step: int) -> bool:
+        """May ``vehicle`` drive onto the node of its plan's ``step``: has every visit
+        planned there before its own passed?"""
+        return self.blocker(vehicle, step) is None
+
+    def blocker(self, vehicle: int, step: int) -> int | None:
+        """The vehicle whose earlier visit to that node has not passed yet (None: nobody)."""
+        nodes, arrive = self._plans[vehicle]
+        queue = self._queues.get(nodes[step], ())
+        if not queue:
+            return None
+        first = queue[0]
+        if first[1] == vehicle and first[2] <= step:
+            return None
+        return first[1]
+
+    def pending(self, node: int) -> list[tuple[float, int, int]]:
+        """The visits still to pass ``node``, first first."""
+        return list(self._queues.get(node, ()))
+
+    def progress(self, vehicle: int) -> int:
+        """Steps of its plan ``vehicle`` has passed."""
+        return self._passed.get(vehicle, 0)
+
+    def _remove(self, node: int, visit: tuple[float, int, int]) -> None:
+        queue = self._queues[node]
+        queue.pop(bisect.bisect_left(queue, visit))
+        if not queue:
+            del self._queues[node]
