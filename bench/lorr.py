@@ -1,0 +1,377 @@
+"""League of Robot Runners 2023: our time-window traffic control on the competition's model.
+
+Reads an instance of ``../shared/data/lorr2023/`` (its README: map, agents, tasks, round-robin
+assignment, the MAPF_T action model: each timestep a robot moves forward one cell, turns 90
+degrees or waits), runs ``--steps`` timesteps and writes the competition's output JSON
+(``actionModel``, ``AllValid``, ``teamSize``, ``start``, ``numTaskFinished``, ``sumOfCost``,
+``makespan``, ``actualPaths`` as F/R/C/W strings, ``plannerTimes``, ``errors``, ``events``,
+``tasks``), which any validator of the competition can replay. tests/test_lorr.py replays it
+with its own rules and recounts tasks and conflicts.
+
+The traffic control is the time-window planner of the fleet (``blocks/traffic``):
+safe-interval search over (cell, heading) through a time-window table, with the model's
+timing: a move and a quarter turn take one timestep, a U-turn two, and a gap of one timestep
+(a robot may follow another into the cell it leaves, as the rules allow; never two in a
+cell, never a swap). Plans are prioritised by task release: a robot plans when its task is
+revealed, through the windows of every plan made before, and keeps its plan; a robot
+without a plan stands still with a window that never ends on its cell, so nobody plans
+through it. A robot that finds no plan tries again next timestep, and after three failures
+steps aside to the nearest free cell it can reach for good, then plans for its task again.
+The simulator executes actions exactly, so plans run by time here; on real vehicles the
+fleet executes them by order (``PassOrder``).
+
+Planning stops for the timestep once ``--plan-budget-s`` of it is used (the robots left
+plan next timestep), so a step's planning time stays bounded, as the competition's 1 s
+limit demands; ``plannerTimes`` records it per step.
+
+    .venv/bin/python bench/lorr.py INSTANCE.json [--steps N] [--traffic time_windows]
+        [--out result.json] [--plan-budget-s 0.9] [--table] [--quick]
+
+Without INSTANCE: the README's three random-32-32-20 instances and the three warehouse_small
+ones, with the steps of the README (500 / 500 / 1000 and 500), printed as a table beside the
+published best-known figures (``--quick``: 100 robots, 50 steps each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
+from blocks.traffic.time_windows import TimeWindowTable  # noqa: E402
+from topology import Plant  # noqa: E402
+from topology.grid import grid_plant  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data" / "lorr2023"
+HEADINGS = ((1, 0), (0, 1), (-1, 0), (0, -1))  # E, S, W, N as (dx, dy), y down: clockwise
+NAMES = "ESWN"
+TURNS = TurnTimes(1.0, 2.0)
+GAP = 1.0
+FAILS_BEFORE_STEPPING_ASIDE = 3
+# best known tasks finished, 2023 main round (README of the data)
+PUBLISHED = {("random-32-32-20", 100, 500): 1741, ("random-32-32-20", 200, 500): 3042}
+PUBLISHED[("random-32-32-20", 400, 1000)] = 7432
+RUNS = (
+    ("random/EI23-random_100.json", 500),
+    ("random/EI23-random_200.json", 500),
+    ("random/EI23-random_400.json", 1000),
+    ("warehouse_small/EI23-warehouse_small_60.json", 500),
+    ("warehouse_small/EI23-warehouse_small_100.json", 500),
+    ("warehouse_small/EI23-warehouse_small_200.json", 500),
+)
+
+
+class InstanceError(ValueError):
+    """An instance file that cannot be read: names the file and what is wrong."""
+
+
+@dataclass
+class Instance:
+    name: str
+    passable: np.ndarray
+    starts: list[int]
+    tasks: list[int]
+    team: int
+
+
+def read_instance(path: Path) -> Instance:
+    try:
+        spec = json.loads(path.read_text())
+        base = path.parent
+        passable = read_map(base / spec["mapFile"])
+        starts = read_locations(base / spec["agentFile"])
+        tasks = read_locations(base / spec["taskFile"])
+        team = int(spec["teamSize"])
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise InstanceError(f"{path}: {e}") from e
+    if spec.get("taskAssignmentStrategy", "roundrobin") != "roundrobin":
+        raise InstanceError(f"{path}: only roundrobin task assignment is modelled")
+    if len(starts) < team:
+        raise InstanceError(f"{path}: {len(starts)} start locations for a team of {team}")
+    cells = passable.size
+    for what, locations in (("start", starts), ("task", tasks)):
+        for k, loc in enumerate(locations):
+            if not (0 <= loc < cells and passable.flat[loc]):
+                raise InstanceError(f"{path}: {what} {k} at {loc} is not a free cell of the map")
+    return Instance(Path(spec["mapFile"]).stem, passable, starts[:team], tasks, team)
+
+
+def read_map(path: Path) -> np.ndarray:
+    lines = path.read_text().splitlines()
+    header = {}
+    for i, line in enumerate(lines):
+        if line.strip() == "map":
+            rows = lines[i + 1 : i + 1 + int(header["height"])]
+            break
+        key, _, value = line.partition(" ")
+        header[key] = value
+    else:
+        raise ValueError(f"{path}: no 'map' line")
+    width = int(header["width"])
+    for y, row in enumerate(rows):
+        if len(row) != width or set(row) - set(".ESGT@"):
+            raise ValueError(f"{path}: map row {y} is not {width} cells of . E S @ T")
+    return np.array([[c in ".ESG" for c in row] for row in rows], dtype=bool)
+
+
+def read_locations(path: Path) -> list[int]:
+    values = [int(v) for v in path.read_text().split()]
+    if not values or len(values) - 1 < values[0]:
+        raise ValueError(f"{path}: the first number is the count, then that many locations")
+    return values[1 : 1 + values[0]]
+
+
+@dataclass
+class Robot:
+    id: int
+    node: int
+    heading: int  # index into HEADINGS
+    task: int  # the task cell it works on
+    task_index: int  # index into the task list
+    nodes: list[int] = field(default_factory=list)  # plan: cells, arrive, depart times
+    arrive: list[float] = field(default_factory=list)
+    depart: list[float] = field(default_factory=list)
+    step: int = 0  # index in the plan of the cell it is at
+    fails: int = 0
+    replan: bool = False  # plan again once the current plan has ended
+    aside: int | None = None  # the cell it steps aside to, when it does
+
+
+class TimeWindowTraffic:
+    """Lifelong prioritised time-window planning with the fleet's table and search."""
+
+    def __init__(self, plant: Plant, budget_s: float) -> None:
+        self.plant, self.budget_s = plant, budget_s
+        self.table = TimeWindowTable(GAP)
+        self.geometry = ArcGeometry(plant)
+        self.queue: deque[int] = deque()  # robots waiting for a plan, by task release
+        self.waiting: set[int] = set()  # the same, as a set
+        self.searches = self.failures = self.asides = 0
+
+    def stay(self, r: Robot, now: float) -> None:
+        """Stand still on the cell until the next plan, with a window that never ends."""
+        r.nodes, r.arrive, r.depart, r.step = [r.node], [now], [math.inf], 0
+        self.table.book(r.id, [(r.node, now, math.inf)], [])
+
+    def plan(self, robots: list[Robot], now: float) -> None:
+        begin = time.perf_counter()
+        self.table.expire(now)
+        for _ in range(len(self.queue)):
+            if time.perf_counter() - begin > self.budget_s:
+                break
+            r = robots[self.queue.popleft()]
+            if self._search(r, r.aside if r.aside is not None else r.task, now):
+                r.fails = 0
+                self.waiting.discard(r.id)
+                continue
+            r.fails += 1
+            self.failures += 1
+            if r.fails >= FAILS_BEFORE_STEPPING_ASIDE and r.aside is None:
+                r.aside = self._aside(r, now)
+                if r.aside is not None:
+                    self.asides += 1
+                    self.waiting.discard(r.id)
+                    continue
+            self.queue.append(r.id)
+
+    def _search(self, r: Robot, goal: int, now: float) -> bool:
+        self.searches += 1
+        s = SafeIntervalSearch(
+            self.plant,
+            self.table,
+            r.id,
+            r.node,
+            goal,
+            now,
+            speed=1.0,
+            heading=HEADINGS[r.heading],
+            turns=TURNS,
+            geometry=self.geometry,
+        )
+        s.step(None)
+        if s.plan is None:
+            return False
+        s.plan.book(self.table)
+        r.nodes, r.arrive, r.depart = list(s.plan.nodes), list(s.plan.arrive), list(s.plan.depart)
+        r.step = 0
+        return True
+
+    def _aside(self, r: Robot, now: float) -> int | None:
+        """The nearest cell (breadth-first) it can reach and stay on for good."""
+        seen, frontier = {r.node}, deque([r.node])
+        tried = 0
+        while frontier and tried < 8:
+            n = frontier.popleft()
+            for v, _, _ in self.plant.neighbors[self.plant.idx(n)]:
+                cell = int(self.plant.ids[v])
+                if cell in seen:
+                    continue
+                seen.add(cell)
+                frontier.append(cell)
+                if self.table.safe_intervals(cell, r.id)[-1][1] == math.inf:
+                    tried += 1
+                    if self._search(r, cell, now):
+                        return cell
+        return None
+
+
+def action(r: Robot, t: int, width: int) -> str:
+    """The robot's action for timestep t -> t+1 from its plan: turn as late as the plan
+    allows, set off at the planned departure, else wait."""
+    if r.step + 1 >= len(r.nodes):
+        return "W"
+    a, b = r.nodes[r.step], r.nodes[r.step + 1]
+    want = HEADINGS.index(((b % width) - (a % width), (b // width) - (a // width)))
+    depart = round(r.depart[r.step])
+    if t == depart:
+        if want != r.heading:
+            raise AssertionError(f"robot {r.id} sets off at {t} facing {NAMES[r.heading]}")
+        return "F"
+    quarter_turns = min((want - r.heading) % 4, (r.heading - want) % 4)
+    if want != r.heading and t >= depart - quarter_turns:
+        return "R" if (want - r.heading) % 4 in (1, 2) else "C"
+    return "W"
+
+
+def run(instance: Instance, steps: int, budget_s: float) -> dict:
+    width = instance.passable.shape[1]
+    plant = grid_plant(instance.passable, 1.0, name=instance.name)
+    traffic = TimeWindowTraffic(plant, budget_s)
+    tasks = instance.tasks
+    robots = [
+        Robot(i, s, 0, tasks[i % len(tasks)], i) for i, s in enumerate(instance.starts)
+    ]
+    paths: list[list[str]] = [[] for _ in robots]
+    events, planner_times = [], []
+    finished = 0
+    for r in robots:
+        traffic.stay(r, 0.0)
+        events.append([r.task_index, 0, "assigned", r.id])
+        r.replan = True
+    for t in range(steps):
+        for r in robots:
+            if r.node == r.task:  # standing on it finishes it, passing through included
+                finished += 1
+                events.append([r.task_index, t, "finished", r.id])
+                r.task_index += instance.team
+                r.task = tasks[r.task_index % len(tasks)]
+                events.append([r.task_index, t, "assigned", r.id])
+                r.replan = True
+            if r.step + 1 >= len(r.nodes):  # its plan has ended: a new one from here
+                if r.aside is not None and r.node == r.aside:
+                    r.aside, r.replan = None, True
+                if r.replan and r.id not in traffic.waiting:
+                    traffic.stay(r, float(t))
+                    traffic.queue.append(r.id)
+                    traffic.waiting.add(r.id)
+                r.replan = False
+        begin = time.perf_counter()
+        traffic.plan(robots, float(t))
+        planner_times.append(time.perf_counter() - begin)
+        for r in robots:
+            a = action(r, t, width)
+            paths[r.id].append(a)
+            if a == "F":
+                r.step += 1
+                r.node = r.nodes[r.step]
+            elif a == "R":
+                r.heading = (r.heading + 1) % 4
+            elif a == "C":
+                r.heading = (r.heading - 1) % 4
+    for r in robots:  # the last timestep's finishes
+        if r.node == r.task:
+            finished += 1
+            events.append([r.task_index, steps, "finished", r.id])
+    return {
+        "actionModel": "MAPF_T",
+        "AllValid": "Yes",
+        "teamSize": instance.team,
+        "start": [[s // width, s % width, "E"] for s in instance.starts],
+        "numTaskFinished": finished,
+        "sumOfCost": sum(sum(1 for a in p if a != "W") for p in paths),
+        "makespan": steps,
+        "actualPaths": [",".join(p) for p in paths],
+        "plannerPaths": [",".join(p) for p in paths],
+        "plannerTimes": planner_times,
+        "errors": [],
+        "events": [[e[:3] for e in events if e[3] == r.id] for r in robots],
+        "tasks": [[k, loc // width, loc % width] for k, loc in enumerate(tasks)],
+        "_stats": {
+            "searches": traffic.searches,
+            "failures": traffic.failures,
+            "asides": traffic.asides,
+        },
+    }
+
+
+def summary(result: dict) -> dict:
+    times = result["plannerTimes"]
+    return {
+        "tasks_finished": result["numTaskFinished"],
+        "plan_mean_s": sum(times) / len(times),
+        "plan_max_s": max(times),
+        **result["_stats"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("instance", nargs="?", type=Path)
+    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--traffic", choices=["time_windows"], default="time_windows")
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--plan-budget-s", type=float, default=0.9)
+    ap.add_argument("--quick", action="store_true", help="100 robots, 50 steps per instance")
+    args = ap.parse_args()
+    begin = time.perf_counter()
+    if args.instance is not None:
+        try:
+            instance = read_instance(args.instance)
+        except InstanceError as e:
+            sys.exit(f"lorr.py: {e}")
+        result = run(instance, args.steps or 500, args.plan_budget_s)
+        stats = result.pop("_stats")
+        if args.out:
+            args.out.write_text(json.dumps(result))
+        print(json.dumps({"instance": str(args.instance), "steps": args.steps or 500,
+                          "tasks_finished": result["numTaskFinished"], **stats}))
+        return
+    print(f"League of Robot Runners 2023 instances, traffic {args.traffic}, planning budget "
+          f"{args.plan_budget_s:g} s per timestep")
+    print()
+    print("| instance | robots | steps | tasks finished | per step | best known | ours / best known "
+          "| planning mean (s) | planning max (s) | failed searches | stepped aside |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for rel, steps in RUNS:
+        instance = read_instance(DATA / rel)
+        if args.quick:
+            if instance.team > 100:
+                continue
+            steps = 50
+        steps = args.steps or steps
+        result = run(instance, steps, args.plan_budget_s)
+        s = summary(result)
+        best = PUBLISHED.get((instance.name, instance.team, steps))
+        ratio = f"{s['tasks_finished'] / best:.2f}" if best else "n/a"
+        print(
+            f"| {instance.name} | {instance.team} | {steps} | {s['tasks_finished']} "
+            f"| {s['tasks_finished'] / steps:.2f} | {best or 'none published'} | {ratio} "
+            f"| {s['plan_mean_s']:.3f} | {s['plan_max_s']:.3f} | {s['failures']} | {s['asides']} |"
+        )
+    print()
+    print(f"wall time {time.perf_counter() - begin:.1f} s")
+
+
+if __name__ == "__main__":
+    main()

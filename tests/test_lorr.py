@@ -1,0 +1,173 @@
+"""bench/lorr.py writes the competition's output; this replays it by the competition's rules.
+
+The replay is written here from the rules in the data's README alone: every robot starts at
+its start cell facing east; F moves one cell forward (never into an obstacle or off the
+map), R and C turn 90 degrees clockwise and counter-clockwise, W waits; no two robots in one
+cell after a timestep, no two swapping cells; tasks round-robin, one revealed at a time, a
+task finished when its robot stands on its cell. It recounts the finished tasks and
+requires zero conflicts.
+"""
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT.parent / "shared" / "data" / "lorr2023"
+INSTANCE = DATA / "random" / "EI23-random_100.json"
+
+spec = importlib.util.spec_from_file_location("bench_lorr", ROOT / "bench" / "lorr.py")
+lorr = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = lorr
+spec.loader.exec_module(lorr)
+
+pytestmark = pytest.mark.skipif(not INSTANCE.exists(), reason=f"no benchmark data at {DATA}")
+
+MOVES = {"E": (0, 1), "S": (1, 0), "W": (0, -1), "N": (-1, 0)}  # (row, column)
+CLOCKWISE = "ESWN"
+
+
+def replay(instance_path: Path, out: dict) -> tuple[int, list[str]]:
+    """(tasks finished, conflicts and invalid moves) by the competition's rules."""
+    spec = json.loads(instance_path.read_text())
+    base = instance_path.parent
+    rows = base.joinpath(spec["mapFile"]).read_text().splitlines()
+    start_row = rows.index("map") + 1
+    height = int(next(r for r in rows if r.startswith("height")).split()[1])
+    grid = rows[start_row : start_row + height]
+    width = len(grid[0])
+    team = spec["teamSize"]
+    starts = [int(v) for v in base.joinpath(spec["agentFile"]).read_text().split()][1 : 1 + team]
+    tasks = [int(v) for v in base.joinpath(spec["taskFile"]).read_text().split()]
+    tasks = tasks[1 : 1 + tasks[0]]
+    paths = [p.split(",") if p else [] for p in out["actualPaths"]]
+    assert len(paths) == team
+    steps = max(len(p) for p in paths)
+    pos = [(s // width, s % width) for s in starts]
+    face = ["E"] * team
+    task_of = list(range(team))  # index into the task list of each robot's current task
+    problems, finished = [], 0
+
+    def check_tasks(t):
+        nonlocal finished
+        for i in range(team):
+            r, c = pos[i]
+            if r * width + c == tasks[task_of[i] % len(tasks)]:
+                finished += 1
+                task_of[i] += team
+
+    check_tasks(0)
+    for t in range(steps):
+        before = list(pos)
+        for i in range(team):
+            a = paths[i][t]
+            if a == "F":
+                dr, dc = MOVES[face[i]]
+                r, c = pos[i][0] + dr, pos[i][1] + dc
+                if not (0 <= r < height and 0 <= c < width) or grid[r][c] in "@T":
+                    problems.append(f"t {t}: robot {i} drives into an obstacle or off the map")
+                    continue
+                pos[i] = (r, c)
+            elif a == "R":
+                face[i] = CLOCKWISE[(CLOCKWISE.index(face[i]) + 1) % 4]
+            elif a == "C":
+                face[i] = CLOCKWISE[(CLOCKWISE.index(face[i]) - 1) % 4]
+            elif a != "W":
+                problems.append(f"t {t}: robot {i}: unknown action {a!r}")
+        cells = {}
+        for i, p in enumerate(pos):
+            if p in cells:
+                problems.append(f"t {t + 1}: robots {cells[p]} and {i} in cell {p}")
+            cells[p] = i
+        moved = {i for i in range(team) if pos[i] != before[i]}
+        where_before = {before[i]: i for i in range(team)}
+        for i in moved:
+            j = where_before.get(pos[i])
+            if j is not None and j != i and pos[j] == before[i]:
+                if i < j:
+                    problems.append(f"t {t}: robots {i} and {j} swap cells")
+        check_tasks(t + 1)
+    return finished, problems
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    out = tmp_path_factory.mktemp("lorr") / "result.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(INSTANCE), "--steps", "120", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(out.read_text()), json.loads(proc.stdout)
+
+
+def test_the_output_has_the_competitions_fields(result):
+    out, _ = result
+    for key in ("actionModel", "AllValid", "teamSize", "start", "numTaskFinished", "actualPaths",
+                "plannerTimes", "errors", "events", "tasks", "sumOfCost", "makespan"):
+        assert key in out, key
+    assert out["actionModel"] == "MAPF_T" and out["teamSize"] == 100
+    assert len(out["plannerTimes"]) == 120
+    assert all(len(p.split(",")) == 120 for p in out["actualPaths"])
+
+
+def test_a_replay_by_the_rules_finds_no_conflict_and_the_same_tasks_finished(result):
+    out, printed = result
+    finished, problems = replay(INSTANCE, out)
+    assert problems == []
+    assert finished == out["numTaskFinished"] == printed["tasks_finished"]
+    assert finished > 100  # it does work: about two tasks per timestep on this instance
+
+
+def tiny_instance(tmp_path, rows, starts, tasks):
+    (tmp_path / "m.map").write_text(
+        f"type octile\nheight {len(rows)}\nwidth {len(rows[0])}\nmap\n" + "\n".join(rows) + "\n"
+    )
+    (tmp_path / "a.agents").write_text(f"{len(starts)}\n" + "\n".join(map(str, starts)) + "\n")
+    (tmp_path / "t.tasks").write_text(f"{len(tasks)}\n" + "\n".join(map(str, tasks)) + "\n")
+    path = tmp_path / "i.json"
+    path.write_text(
+        json.dumps({"mapFile": "m.map", "agentFile": "a.agents", "taskFile": "t.tasks",
+                    "teamSize": len(starts), "numTasksReveal": 1,
+                    "taskAssignmentStrategy": "roundrobin"})
+    )
+    return path
+
+
+def test_the_replay_catches_swaps_shared_cells_and_obstacles_and_counts_tasks(tmp_path):
+    """Hand-made: the replay is not just agreeing with the bench."""
+    path = tiny_instance(tmp_path, ["....", "..@."], [0, 1], [1, 3, 0, 0])
+    # robot 0 faces east and drives to 1 while robot 1 turns round and drives to 0: a swap
+    swap = {"actualPaths": ["W,W,F", "R,R,F"]}
+    _, problems = replay(path, swap)
+    assert any("swap" in p for p in problems)
+    # robot 1 drives on to 2 and 3 while robot 0 follows into the cells it leaves: valid;
+    # robot 0 finishes task 0 (cell 1) passing through, robot 1 task 1 (cell 3)
+    follow = {"actualPaths": ["F,F", "F,F"]}
+    finished, problems = replay(path, follow)
+    assert problems == [] and finished == 2
+    # into the obstacle at row 1, column 2, and both into one cell
+    crash = {"actualPaths": ["R,F,C,F", "W,W,W,W"]}  # 0 -> (1,0) -> (1,1)
+    path2 = tiny_instance(tmp_path, ["....", "..@."], [0, 5], [3, 3])
+    _, problems = replay(path2, crash)
+    assert any("in cell" in p for p in problems)
+    into_wall = {"actualPaths": ["W", "F"]}
+    _, problems = replay(path2, into_wall)
+    assert any("obstacle" in p for p in problems)
+
+
+def test_a_bad_instance_gets_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"mapFile": "nope.map", "agentFile": "a", "taskFile": "t", "teamSize": 3}))
+    with pytest.raises(lorr.InstanceError, match="bad.json"):
+        lorr.read_instance(bad)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(bad)], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode != 0 and "bad.json" in proc.stderr and "Traceback" not in proc.stderr
