@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/time_windows.py
+	$(BIN)/python bench/lorr.py
 
 # Every benchmark in a reduced form (smaller plants, fewer cycles, timesteps and fleet sizes),
 # with the same tables and ratios: a check that they all still run, not numbers to record.
@@ -47,6 +48,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --quick
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/time_windows.py --quick
+	$(BIN)/python bench/lorr.py --quick
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

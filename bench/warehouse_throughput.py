@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import sys
 import time
 from pathlib import Path
@@ -60,7 +61,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fleet_scale import FUNCTION, ScanRecorder, make_program, timestep_s  # noqa: E402
 
-from topology import warehouse  # noqa: E402
+from topology import kiva, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
 
 WIDTH = 46
@@ -68,8 +69,10 @@ REFERENCE = {60: 2.33, 100: 3.56, 140: 4.55}  # tasks per timestep, centralised 
 UPPER_BOUND = {60: 2.59, 100: 4.32, 140: 6.05}  # no-congestion bound of that setting
 STUCK_TIMESTEPS = 500
 EARLY_TIMESTEPS = 500  # throughput over the first 500 timesteps too (before any gridlock)
+PLANTS = {"warehouse": warehouse, "kiva": kiva}  # both 33 x 46
+BOUND_TIMESTEPS = 2000  # the single vehicle's run that gives our kinematics' bound
 # --quick lowers these defaults; options given on the command line still win.
-QUICK = {"timesteps": 50, "sizes": [60]}
+QUICK = {"timesteps": 50, "sizes": [60], "bound_timesteps": 200}
 
 
 def mean_endpoint_distance(program) -> float:
@@ -89,8 +92,10 @@ def mean_endpoint_distance(program) -> float:
     return total / count / cell_m if count else float("nan")
 
 
-def run_size(vehicles: int, timesteps: int, cycle_time: float, watchdog: float) -> dict:
-    plant = warehouse()
+def run_size(
+    vehicles: int, timesteps: int, cycle_time: float, watchdog: float, plant_name: str = "warehouse"
+) -> dict:
+    plant = PLANTS[plant_name]()
     begin = time.perf_counter()
     program = make_program(plant, WIDTH, vehicles, cycle_time, watchdog)
     program.rt.start()
@@ -136,6 +141,7 @@ def run_size(vehicles: int, timesteps: int, cycle_time: float, watchdog: float) 
     early_s = EARLY_TIMESTEPS * timestep_s()
     out = {
         "vehicles": vehicles,
+        "plant": plant_name,
         "state": rt.state,
         "fault": rt.fault_reason,
         "sim_s": simulated,
@@ -170,10 +176,53 @@ def run_size(vehicles: int, timesteps: int, cycle_time: float, watchdog: float) 
     return out
 
 
+def single_vehicle_rate(plant_name: str, timesteps: int, cycle: float, watchdog: float) -> float:
+    """Tasks per timestep of one vehicle alone on the plant: our kinematics' no-congestion
+    rate (its turns, accelerations and stops included), times N the bound for N vehicles."""
+    r = run_size(1, timesteps, cycle, watchdog, plant_name)
+    return r["tasks"] / r["timesteps"] if r["timesteps"] else float("nan")
+
+
+def json_rows(rows: list[dict], traffic: str, rate: dict[str, float]) -> list[str]:
+    """One JSON object per plant and fleet size (the contract for scripts)."""
+    out = []
+    for r in rows:
+        n = r["vehicles"]
+        out.append(
+            json.dumps(
+                {
+                    "plant": r["plant"],
+                    "vehicles": n,
+                    "traffic": traffic,
+                    "timesteps": round(r["timesteps"]),
+                    "tasks": r["tasks"],
+                    "tasks_per_timestep": r["tasks"] / r["timesteps"] if r["timesteps"] else None,
+                    "bound_tasks_per_timestep": rate[r["plant"]] * n,
+                    "head_on_conflicts": r["head_on"],
+                    "node_conflicts": r["node"],
+                    "stuck_vehicles": len(r["stuck"]),
+                    "deadlocks_unresolved": r["deadlocks"][2],
+                    "state": r["state"],
+                    "wall_s": r["wall_s"],
+                }
+            )
+        )
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[60, 100, 140])
     parser.add_argument("--timesteps", type=int, default=5000)
+    parser.add_argument("--plant", nargs="+", choices=sorted(PLANTS), default=["kiva", "warehouse"])
+    parser.add_argument(
+        "--traffic",
+        choices=["reactive"],
+        default="reactive",
+        help="the fleet's traffic mode (time_windows: not yet driving the fleet program)",
+    )
+    parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
+    parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
     parser.add_argument("--cycle-ms", type=float, default=50.0)
     parser.add_argument("--watchdog-ms", type=float, default=1000.0)
     parser.add_argument(
@@ -185,22 +234,33 @@ def main() -> None:
         args = parser.parse_args()
     timesteps = args.timesteps
     cycle = args.cycle_ms / 1e3
+    watchdog = args.watchdog_ms / 1e3
     begin = time.perf_counter()
+    rate = {p: single_vehicle_rate(p, args.bound_timesteps, cycle, watchdog) for p in args.plant}
+    rows = [run_size(n, timesteps, cycle, watchdog, p) for p in args.plant for n in args.sizes]
+    if args.json:
+        print("\n".join(json_rows(rows, args.traffic, rate)))
+        return
+    for p in args.plant:
+        report(p, [r for r in rows if r["plant"] == p], timesteps, rate[p], args, begin)
+    print(f"wall time {time.perf_counter() - begin:.1f} s")
+
+
+def report(plant_name, rows, timesteps, rate, args, begin) -> None:
     console = Console(width=max(Console().width, 260))
     console.print(
-        f"Lifelong warehouse throughput, Python {sys.version.split()[0]}: warehouse 33x46, "
-        f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms"
+        f"Lifelong warehouse throughput, Python {sys.version.split()[0]}: {plant_name} 33x46, "
+        f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms, "
+        f"traffic {args.traffic}"
     )
-    rows = []
-    for n in args.sizes:
-        r = run_size(n, timesteps, cycle, args.watchdog_ms / 1e3)
-        rows.append(r)
+    for r in rows:
+        n = r["vehicles"]
         console.print(
             f"  {n} vehicles: {r['tasks']} tasks in {r['timesteps']:.0f} timesteps, "
             f"run {r['wall_s']:.0f} s wall (setup {r['setup_s']:.1f} s), state {r['state']}"
         )
 
-    table = Table(title=f"Tasks per timestep, lifelong, 33x46 warehouse ({timesteps} timesteps)")
+    table = Table(title=f"Tasks per timestep, lifelong, 33x46 {plant_name} ({timesteps} timesteps)")
     for name in (
         "vehicles",
         "tasks",
@@ -212,6 +272,8 @@ def main() -> None:
         "no-congestion bound (published)",
         "ours / bound",
         "our map's MAPF bound",
+        "our kinematics' bound",
+        "ours / our bound",
         "conflicts head-on/node",
         "deadlocks det/res/unres",
         "stuck vehicles",
@@ -237,6 +299,8 @@ def main() -> None:
             f"{bound:.2f}" if bound else "-",
             f"{ours / bound:.2f}" if bound else "-",
             f"{n / r['mean_d']:.2f}",
+            f"{rate * n:.2f}",
+            f"{ours / (rate * n):.2f}",
             f"{r['head_on']}/{r['node']}",
             "/".join(str(x) for x in r["deadlocks"]),
             str(len(r["stuck"])),
@@ -250,7 +314,9 @@ def main() -> None:
     console.print(
         f"our map's MAPF bound = vehicles / mean shortest distance between random endpoints "
         f"({rows[0]['mean_d']:.1f} cells); stuck = no task completed in the last {STUCK_TIMESTEPS} "
-        "timesteps; scan includes the co-simulated vehicles, control = scan minus them."
+        "timesteps; scan includes the co-simulated vehicles, control = scan minus them; "
+        f"our kinematics' bound = one vehicle's rate alone on the map ({rate:.4f} tasks per "
+        f"timestep over {args.bound_timesteps} timesteps) x vehicles."
     )
     for r in rows:
         for e in r["events"][:10]:
@@ -267,7 +333,6 @@ def main() -> None:
                 f"target {target} waiting for {waiting_for}, last task done at {last:.0f} s; "
                 f"{physical}"
             )
-    console.print(f"wall time {time.perf_counter() - begin:.1f} s")
 
 
 if __name__ == "__main__":

@@ -110,3 +110,45 @@ def test_quick_bench_prints_its_table_with_a_ratio(args, ratio_column, rows):
         assert math.isfinite(ratio) and ratio > 0, row
     last = result.stdout.strip().splitlines()[-1]
     assert last.startswith("wall time ") and last.endswith(" s"), last
+
+
+def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
+    """The contract for scripts: --json prints one JSON object per run, one per line."""
+    import json
+
+    result = run(
+        "bench/warehouse_throughput.py",
+        "--json",
+        "--plant",
+        "kiva",
+        "warehouse",
+        "--sizes",
+        "3",
+        "5",
+        "--timesteps",
+        "15",
+        "--bound-timesteps",
+        "15",
+    )
+    assert result.returncode == 0, result.stderr
+    rows = [json.loads(line) for line in result.stdout.strip().splitlines()]
+    assert [(r["plant"], r["vehicles"]) for r in rows] == [
+        ("kiva", 3),
+        ("kiva", 5),
+        ("warehouse", 3),
+        ("warehouse", 5),
+    ]
+    for r in rows:
+        for key in (
+            "traffic",
+            "timesteps",
+            "tasks_per_timestep",
+            "bound_tasks_per_timestep",
+            "head_on_conflicts",
+            "node_conflicts",
+            "stuck_vehicles",
+        ):
+            assert key in r, key
+        assert r["traffic"] == "reactive" and r["timesteps"] == 15
+        assert r["head_on_conflicts"] == 0 and r["node_conflicts"] == 0
+        assert r["bound_tasks_per_timestep"] >= 0

@@ -98,7 +98,15 @@ def replay(instance_path: Path, out: dict) -> tuple[int, list[str]]:
 def result(tmp_path_factory):
     out = tmp_path_factory.mktemp("lorr") / "result.json"
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(INSTANCE), "--steps", "120", "--out", str(out)],
+        [
+            sys.executable,
+            str(ROOT / "bench" / "lorr.py"),
+            str(INSTANCE),
+            "--steps",
+            "120",
+            "--out",
+            str(out),
+        ],
         capture_output=True,
         text=True,
         timeout=900,
@@ -109,8 +117,20 @@ def result(tmp_path_factory):
 
 def test_the_output_has_the_competitions_fields(result):
     out, _ = result
-    for key in ("actionModel", "AllValid", "teamSize", "start", "numTaskFinished", "actualPaths",
-                "plannerTimes", "errors", "events", "tasks", "sumOfCost", "makespan"):
+    for key in (
+        "actionModel",
+        "AllValid",
+        "teamSize",
+        "start",
+        "numTaskFinished",
+        "actualPaths",
+        "plannerTimes",
+        "errors",
+        "events",
+        "tasks",
+        "sumOfCost",
+        "makespan",
+    ):
         assert key in out, key
     assert out["actionModel"] == "MAPF_T" and out["teamSize"] == 100
     assert len(out["plannerTimes"]) == 120
@@ -133,9 +153,16 @@ def tiny_instance(tmp_path, rows, starts, tasks):
     (tmp_path / "t.tasks").write_text(f"{len(tasks)}\n" + "\n".join(map(str, tasks)) + "\n")
     path = tmp_path / "i.json"
     path.write_text(
-        json.dumps({"mapFile": "m.map", "agentFile": "a.agents", "taskFile": "t.tasks",
-                    "teamSize": len(starts), "numTasksReveal": 1,
-                    "taskAssignmentStrategy": "roundrobin"})
+        json.dumps(
+            {
+                "mapFile": "m.map",
+                "agentFile": "a.agents",
+                "taskFile": "t.tasks",
+                "teamSize": len(starts),
+                "numTasksReveal": 1,
+                "taskAssignmentStrategy": "roundrobin",
+            }
+        )
     )
     return path
 
@@ -164,10 +191,15 @@ def test_the_replay_catches_swaps_shared_cells_and_obstacles_and_counts_tasks(tm
 
 def test_a_bad_instance_gets_a_clear_error(tmp_path):
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"mapFile": "nope.map", "agentFile": "a", "taskFile": "t", "teamSize": 3}))
+    bad.write_text(
+        json.dumps({"mapFile": "nope.map", "agentFile": "a", "taskFile": "t", "teamSize": 3})
+    )
     with pytest.raises(lorr.InstanceError, match="bad.json"):
         lorr.read_instance(bad)
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(bad)], capture_output=True, text=True, timeout=60
+        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert proc.returncode != 0 and "bad.json" in proc.stderr and "Traceback" not in proc.stderr
