@@ -268,6 +268,7 @@ class TimeWindowTraffic:
             speed=1.0,
             heading=HEADINGS[r.heading],
             turns=TURNS,
+            claim="arrival",  # the competition's rule: follow into the cell another leaves
             hold_s=self.stay_s if goal == r.task else math.inf,
             geometry=self.geometry,
         )

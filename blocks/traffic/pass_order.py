@@ -4,16 +4,20 @@ Plans made in time are conflict-free only if every vehicle keeps to its times, a
 vehicles do not: batteries, turns, acceleration and traffic make them early or late. What a
 conflict-free joint plan fixes for certain is the *order* in which vehicles pass each node
 (Hoenig et al. 2019, "Persistent and robust execution of MAPF schedules"; Ma et al. 2017).
-So the controller keeps, per node, the visits of every plan sorted by planned arrival, and
-lets a vehicle enter a node only when every visit before its own has passed (the vehicle has
-left the node). Then:
+So the controller keeps, per node, the visits of every plan sorted by the planned time the
+node is claimed (the vehicle sets off towards it: ``TimedPlan.claims``), and lets a vehicle
+drive onto a node only when every visit before its own has passed (the vehicle has left
+the node). Then:
 
 * no two vehicles are on a node at once (the one before has left);
 * no two meet head-on on a segment: the plans never cross a segment in opposite directions
   at overlapping times, so the two ends' orders agree, and a vehicle enters the far end
   only after the oncoming one has left it;
-* no deadlock: every wait points from a later planned visit to an earlier one, and planned
-  times are one global order, so the waits form no cycle;
+* no deadlock: a vehicle waits for one that must leave the node first, i.e. claim its next
+  node, which it is planned to do before the waiting one claims this node (their windows
+  on the node are a gap apart). So every wait points to a strictly earlier planned claim,
+  and the waits form no cycle. (Windows that open only on arrival do not give this: a
+  ring of vehicles planned to move round in lockstep would each wait for the one ahead.)
 
 for any delays. Delays are absorbed, not repaired: a late vehicle makes the ones after it
 at shared nodes late, never unsafe. Its own visits are passed in plan order.
@@ -38,8 +42,9 @@ class PassOrder:
         self._passed: dict[int, int] = {}  # vehicle -> steps passed (its first pending step)
 
     def set_plan(self, vehicle: int, nodes: Sequence[int], arrive: Sequence[float]) -> None:
-        """``vehicle`` now follows ``nodes`` (step 0: where it stands), planned to arrive at
-        ``arrive``; its earlier pending visits are dropped."""
+        """``vehicle`` now follows ``nodes`` (step 0: where it stands), claiming each at the
+        planned time in ``arrive`` (``TimedPlan.claims``); its earlier pending visits are
+        dropped."""
         if len(nodes) != len(arrive) or not nodes:
             raise ValueError(
                 f"a plan needs one arrival time per node, got {len(nodes)} and {len(arrive)}"

@@ -12,7 +12,16 @@ vehicles turn on the spot: a turn of 45-135 degrees takes ``turn_90``, a sharper
 ``turn_180``, as the simulated AGV does) and the time to turn depends on where it came from.
 A move u -> v sets off no earlier than the arrival at u plus the turn, no later than the end
 of u's interval, along a segment the table allows at that time (no head-on, no overtaking),
-and arrives inside a safe interval of v. Travel time is length / min(speed, segment limit).
+into a safe interval of v.
+
+When does a vehicle's window on v begin? With ``claim="departure"`` (the default) when it
+sets off towards v, as the controller releases a node before the vehicle drives to it. That
+is what execution by order needs (:class:`PassOrder`): a vehicle then waits only for
+visits whose planned departure comes strictly before its own, so waits never form a
+cycle. With ``claim="arrival"`` the window begins on arrival: a vehicle may set off
+towards a node at the moment another leaves it, so a ring of vehicles may move round in
+lockstep, which the unit-time grid model of multi-agent path finding allows, but which
+vehicles that can be delayed cannot execute by order (each would wait for the one ahead). Travel time is length / min(speed, segment limit).
 
 Cost is time, plus an optional congestion term per arc: ``weights[arc]`` >= 1 multiplies the
 arc's travel time in the cost only (path heat). With all weights 1 the search returns the
@@ -74,13 +83,21 @@ class TimedPlan:
     arrive: tuple[float, ...]
     depart: tuple[float, ...]  # the last one is the end of the stay at the goal (inf: stays)
     cost: float
+    # when each node's window begins: the departure towards it (CLAIM_ON_DEPARTURE, the
+    # start node from the start time), or the arrival (None)
+    claim: tuple[float, ...] | None = None
 
     @property
     def arrival(self) -> float:
         return self.arrive[-1]
 
+    @property
+    def claims(self) -> tuple[float, ...]:
+        """The start of each node's window: the order of visits at a node."""
+        return self.arrive if self.claim is None else self.claim
+
     def node_windows(self) -> list[tuple[int, float, float]]:
-        return list(zip(self.nodes, self.arrive, self.depart, strict=True))
+        return list(zip(self.nodes, self.claims, self.depart, strict=True))
 
     def segment_windows(self) -> list[tuple[int, int, float, float]]:
         return [
@@ -129,8 +146,12 @@ class SafeIntervalSearch:
         to_goal: np.ndarray | None = None,
         weights: Sequence[float] | None = None,
         allowed: Sequence[bool] | None = None,
+        claim: str = "departure",
         geometry: ArcGeometry | None = None,
     ) -> None:
+        if claim not in ("departure", "arrival"):
+            raise ValueError(f"claim must be 'departure' or 'arrival', got {claim!r}")
+        self.claim = claim
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"speed must be a positive number of m/s, got {speed!r}")
         self.plant, self.table, self.vehicle = plant, table, vehicle
@@ -199,15 +220,17 @@ class SafeIntervalSearch:
             set_off = t + self.turns.between(before, geometry.direction[arc])
             if set_off > leave_by + 1e-9:
                 continue
+            # the window at v opens when it sets off towards v (or when it arrives)
+            claim_delay = 0.0 if self.claim == "departure" else travel
             for j, (lo, hi) in enumerate(self._intervals(v)):
-                if lo > leave_by + travel + 1e-9:
+                if lo > leave_by + claim_delay + 1e-9:
                     break
                 if hi < set_off + travel - 1e-9:
                     continue
                 depart = self.table.earliest_entry(
                     int(ids[node]),
                     int(ids[v]),
-                    max(set_off, lo - travel),
+                    max(set_off, lo - claim_delay),
                     travel,
                     self.vehicle,
                     latest=min(leave_by, hi - travel),
@@ -249,12 +272,13 @@ class SafeIntervalSearch:
             depart.append(leave)
             link = self._parent[state]
             state, leave = (None, 0.0) if link is None else link
+        arrive.reverse()
+        depart.reverse()
+        claim = None
+        if self.claim == "departure":
+            claim = (arrive[0], *depart[:-1])
         self.plan = TimedPlan(
-            self.vehicle,
-            tuple(reversed(nodes)),
-            tuple(reversed(arrive)),
-            tuple(reversed(depart)),
-            cost,
+            self.vehicle, tuple(reversed(nodes)), tuple(arrive), tuple(depart), cost, claim
         )
 
 
