@@ -318,6 +318,22 @@ def action(r: Robot, t: int, width: int) -> str:
     return "W"
 
 
+def conflicts(robots: list[Robot], before: dict[int, int], t: int) -> list[list]:
+    """The competition's errors of timestep t: two robots in one cell, two swapping cells
+    ([robot, robot, timestep, kind])."""
+    out = []
+    at: dict[int, int] = {}
+    for r in robots:
+        if r.node in at:
+            out.append([at[r.node], r.id, t + 1, "vertex conflict"])
+        at[r.node] = r.id
+    for r in robots:
+        other = at.get(before[r.id])
+        if other is not None and other > r.id and before[other] == r.node != before[r.id]:
+            out.append([r.id, other, t + 1, "edge conflict"])
+    return out
+
+
 def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -> dict:
     width = instance.passable.shape[1]
     plant = grid_plant(instance.passable, 1.0, name=instance.name)
@@ -325,7 +341,7 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
     tasks = instance.tasks
     robots = [Robot(i, s, 0, tasks[i % len(tasks)], i) for i, s in enumerate(instance.starts)]
     paths: list[list[str]] = [[] for _ in robots]
-    events, planner_times = [], []
+    events, planner_times, errors = [], [], []
     finished = 0
     for r in robots:
         traffic.stay(r, 0.0)
@@ -351,6 +367,7 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
         begin = time.perf_counter()
         traffic.plan(robots, float(t))
         planner_times.append(time.perf_counter() - begin)
+        before = {r.id: r.node for r in robots}
         for r in robots:
             a = action(r, t, width)
             paths[r.id].append(a)
@@ -361,13 +378,14 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
                 r.heading = (r.heading + 1) % 4
             elif a == "C":
                 r.heading = (r.heading - 1) % 4
+        errors.extend(conflicts(robots, before, t))
     for r in robots:  # the last timestep's finishes
         if r.node == r.task:
             finished += 1
             events.append([r.task_index, steps, "finished", r.id])
     return {
         "actionModel": "MAPF_T",
-        "AllValid": "Yes",
+        "AllValid": "No" if errors else "Yes",
         "teamSize": instance.team,
         "start": [[s // width, s % width, "E"] for s in instance.starts],
         "numTaskFinished": finished,
@@ -376,7 +394,7 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
         "actualPaths": [",".join(p) for p in paths],
         "plannerPaths": [",".join(p) for p in paths],
         "plannerTimes": planner_times,
-        "errors": [],
+        "errors": errors,
         "events": [[e[:3] for e in events if e[3] == r.id] for r in robots],
         "tasks": [[k, loc // width, loc % width] for k, loc in enumerate(tasks)],
         "_stats": {
@@ -384,6 +402,7 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
             "failures": traffic.failures,
             "asides": traffic.asides,
             "voided": traffic.voided,
+            "conflicts": len(errors),
         },
     }
 

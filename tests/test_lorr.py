@@ -142,6 +142,7 @@ def test_a_replay_by_the_rules_finds_no_conflict_and_the_same_tasks_finished(res
     finished, problems = replay(INSTANCE, out)
     assert problems == []
     assert finished == out["numTaskFinished"] == printed["tasks_finished"]
+    assert out["AllValid"] == "Yes" and out["errors"] == [] and printed["conflicts"] == 0
     assert finished > 100  # it does work: about two tasks per timestep on this instance
 
 
@@ -203,3 +204,12 @@ def test_a_bad_instance_gets_a_clear_error(tmp_path):
         timeout=60,
     )
     assert proc.returncode != 0 and "bad.json" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_the_bench_reports_a_conflict_it_would_make():
+    """Its own check (AllValid, errors) is not a constant: a swap and a shared cell show."""
+    a, b, c = (lorr.Robot(i, node, 0, 0, i) for i, node in enumerate((5, 6, 9)))
+    before = {0: 6, 1: 5, 2: 8}  # 0 and 1 swapped; 2 moved from 8 to 9
+    assert [e[3] for e in lorr.conflicts([a, b, c], before, 0)] == ["edge conflict"]
+    c.node = 6
+    assert "vertex conflict" in [e[3] for e in lorr.conflicts([a, b, c], before, 0)]
