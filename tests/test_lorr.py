@@ -17,15 +17,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT.parent / "shared" / "data" / "lorr2023"
-INSTANCE = DATA / "random" / "EI23-random_100.json"
+INSTANCE = ROOT / "tests" / "data" / "lorr2023" / "random" / "EI23-random_100.json"
 
 spec = importlib.util.spec_from_file_location("bench_lorr", ROOT / "bench" / "lorr.py")
 lorr = importlib.util.module_from_spec(spec)
 sys.modules[spec.name] = lorr
 spec.loader.exec_module(lorr)
-
-pytestmark = pytest.mark.skipif(not INSTANCE.exists(), reason=f"no benchmark data at {DATA}")
 
 MOVES = {"E": (0, 1), "S": (1, 0), "W": (0, -1), "N": (-1, 0)}  # (row, column)
 CLOCKWISE = "ESWN"
