@@ -22,7 +22,7 @@ test: $(STAMP)
 # for the fleet ones (docs/benchmarks.md, "Running them"); each script prints its own wall
 # time at the end.
 bench: $(STAMP)
-	@echo "make bench: about 3 hours in all on 2 otherwise idle vCPUs, much longer on a busy machine"
+	@echo "make bench: about 180 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
 	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants), allocation 60, time_windows 0.1, lorr 20). make bench-quick runs them all reduced in about 5 minutes."
 	$(BIN)/python bench/step_rate.py
