@@ -34,6 +34,7 @@ from web_controller import (
 from fleet.cli import main
 from fleet.commands import orders as order_cli
 from fleet.config import load_config
+from fleet.web import options as web_options_module
 from fleet.web.options import TOKEN_ENV, web_options
 from plc_runtime.cli import CliError
 
@@ -373,3 +374,11 @@ def test_run_takes_the_token_from_the_environment(monkeypatch):
     generated = web_options(args, cfg)
     assert generated.generated and len(generated.token) == 32
     assert generated.token != web_options(args, cfg).token
+
+
+def test_a_generated_token_never_starts_with_a_dash(monkeypatch):
+    """It is given back as ``--token TOKEN``; one starting with "-" would read as an option
+    (a generated token did, 1 draw in 64, and failed a run of this suite)."""
+    draws = iter(["-" + "a" * 31, "-" + "b" * 31, "c" * 32])
+    monkeypatch.setattr(web_options_module.secrets, "token_urlsafe", lambda n: next(draws))
+    assert web_options_module.new_token() == "c" * 32

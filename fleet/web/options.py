@@ -74,7 +74,7 @@ def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None
     if token is None:
         token, where = os.environ.get(TOKEN_ENV), TOKEN_ENV
     if token is None:
-        return WebOptions(host, int(port), secrets.token_urlsafe(24), True)
+        return WebOptions(host, int(port), new_token(), True)
     if len(token) < MIN_TOKEN_CHARS or not bearer_token(token):
         raise CliError(
             f"{where}: a bearer token needs {MIN_TOKEN_CHARS} characters or more of "
@@ -100,3 +100,13 @@ def web_server(options: WebOptions, orders: OrderSystem) -> WebServer:
         print(line, file=sys.stderr, flush=True)
 
     return WebServer(orders, options.host, options.port, token=options.token, announce=announce)
+
+
+def new_token() -> str:
+    """A random bearer token for the run. It is printed once and given back on command lines
+    (``plc-runtime order add --token TOKEN``), where one starting with ``-`` would be read as
+    an option, so such draws are discarded (1 in 64 of them)."""
+    while True:
+        token = secrets.token_urlsafe(24)
+        if not token.startswith("-"):
+            return token
