@@ -59,6 +59,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from blocks.routing.heuristic import distances_to  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
 from topology import Plant  # noqa: E402
@@ -172,6 +173,7 @@ class TimeWindowTraffic:
         self.voided = 0  # plans released to make a robot without a plan safe
         self.table = TimeWindowTable(GAP)
         self.geometry = ArcGeometry(plant)
+        self._rows: dict[int, np.ndarray] = {}  # goal -> distances of every cell to it
         self.queue: deque[int] = deque()  # robots waiting for a plan, by task release
         self.waiting: set[int] = set()  # the same, as a set
         self.searches = self.failures = self.asides = 0
@@ -259,6 +261,14 @@ class TimeWindowTraffic:
             self.urgent.discard(r.id)
             self.queue.remove(r.id)
 
+    def _to(self, goal: int) -> np.ndarray:
+        """Distances of every cell to ``goal``: one Dijkstra per task cell, not per search
+        (robots search for the same cells again and again)."""
+        row = self._rows.get(goal)
+        if row is None:
+            row = self._rows[goal] = distances_to(self.plant, [goal])[0]
+        return row
+
     def _search(self, r: Robot, goal: int, now: float) -> bool:
         self.searches += 1
         s = SafeIntervalSearch(
@@ -273,6 +283,7 @@ class TimeWindowTraffic:
             turns=TURNS,
             claim="arrival",  # the competition's rule: follow into the cell another leaves
             hold_s=self.stay_s if goal == r.task else math.inf,
+            to_goal=self._to(goal),
             geometry=self.geometry,
         )
         s.step(min(SEARCH_CAP, max(self.budget - self.used, 1)))
