@@ -109,6 +109,7 @@ def make_program(
     cycle_time: float,
     watchdog: float,
     seed: int = 0,
+    traffic: str = "reactive",
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -125,6 +126,7 @@ def make_program(
         processing_s=0.0,
         cycle_time=cycle_time,
         watchdog=watchdog,
+        traffic=traffic,
     )
     return FleetProgram(cfg)
 

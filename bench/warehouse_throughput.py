@@ -93,11 +93,16 @@ def mean_endpoint_distance(program) -> float:
 
 
 def run_size(
-    vehicles: int, timesteps: int, cycle_time: float, watchdog: float, plant_name: str = "warehouse"
+    vehicles: int,
+    timesteps: int,
+    cycle_time: float,
+    watchdog: float,
+    plant_name: str = "warehouse",
+    traffic: str = "reactive",
 ) -> dict:
     plant = PLANTS[plant_name]()
     begin = time.perf_counter()
-    program = make_program(plant, WIDTH, vehicles, cycle_time, watchdog)
+    program = make_program(plant, WIDTH, vehicles, cycle_time, watchdog, traffic=traffic)
     program.rt.start()
     setup_s = time.perf_counter() - begin
     mean_d = mean_endpoint_distance(program)
@@ -142,6 +147,7 @@ def run_size(
     out = {
         "vehicles": vehicles,
         "plant": plant_name,
+        "traffic": traffic,
         "state": rt.state,
         "fault": rt.fault_reason,
         "sim_s": simulated,

@@ -53,6 +53,19 @@ class Blockade:
     until_s: float | None  # None: for the rest of the run
 
 
+TRAFFIC_MODES = ("reactive", "time_windows")
+
+
+@dataclass
+class TimeWindowsConfig:
+    """The time-window traffic mode's planner ([time_windows], docs/fleet-config.md)."""
+
+    gap_s: float = 0.5  # safety gap between two vehicles' windows on a node or segment
+    horizon_s: float = 20.0  # how far ahead a plan is booked and released
+    replan_s: float = 2.0  # a planning round at least this often
+    plan_budget: int = 5000  # search expansions per scan
+
+
 @dataclass
 class FleetConfig:
     source: str
@@ -73,6 +86,8 @@ class FleetConfig:
     wait_replan_s: float = 5.0
     occupied_penalty: float = 0.0
     contraflow_penalty: float = 3.0
+    traffic: str = "reactive"  # or "time_windows" (TRAFFIC_MODES)
+    time_windows: TimeWindowsConfig = field(default_factory=TimeWindowsConfig)
     bus_interface: str = "virtual"
     bus_channel: str = "agv"
     status_period_s: float = 0.1
@@ -166,6 +181,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         wait_replan_s=routing.number("wait_replan_s", 5.0, 0.0, 3600.0),
         occupied_penalty=routing.number("occupied_penalty", 0.0, 0.0, 1e9),
         contraflow_penalty=routing.number("contraflow_penalty", 3.0, 0.0, 1e9),
+        traffic=routing.get("traffic", str, "reactive"),
         bus_interface=bus.get("interface", str, "virtual"),
         bus_channel=bus.get("channel", str, "agv"),
         status_period_s=bus.number("status_period_s", 0.1, 0.001, 30.0),
@@ -179,6 +195,20 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     cfg.battery.start = charges
     cfg.agv = _simulation(TableReader(source, top.get("simulation", dict, {}), "simulation."))
     cfg.faults = _faults(TableReader(source, top.get("faults", dict, {}), "faults."), cfg.starts)
+    cfg.time_windows = _time_windows(
+        TableReader(source, top.get("time_windows", dict, {}), "time_windows.")
+    )
+    if cfg.traffic not in TRAFFIC_MODES:
+        raise routing.fail(
+            "traffic", f"must be one of {', '.join(TRAFFIC_MODES)}, got {cfg.traffic!r}"
+        )
+    if cfg.traffic == "time_windows" and plant.areas:
+        raise routing.fail(
+            "traffic",
+            "time_windows does not plan single-vehicle areas yet, and plant "
+            f"{plant.name!r} has {len(plant.areas)} ({', '.join(sorted(plant.areas))}): "
+            'use traffic = "reactive" with this plant',
+        )
     if cfg.strategy not in STRATEGIES:
         raise stations.fail(
             "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
@@ -193,6 +223,17 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     problems = standing_steps(cfg)
     if problems:
         raise ConfigError(f"{source}: vehicles: {problems[0]}")
+    return cfg
+
+
+def _time_windows(r: TableReader) -> TimeWindowsConfig:
+    cfg = TimeWindowsConfig(
+        gap_s=r.number("gap_s", 0.5, 0.001, 60.0),
+        horizon_s=r.number("horizon_s", 20.0, 0.1, 3600.0),
+        replan_s=r.number("replan_s", 2.0, 0.01, 3600.0),
+        plan_budget=r.integer("plan_budget", 5000, 1, 10**8),
+    )
+    r.finish()
     return cfg
 
 

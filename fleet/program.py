@@ -6,6 +6,7 @@ One runtime, one task ``fleet`` at the configured cycle time:
       -> blockade schedule (level 3: segments closing and reopening)
       -> FleetCommands (an operator's blockade command and vehicle holds, fleet/tags.py)
       -> per vehicle: RecipeSequencer -> VehicleControl (verify, replan, release)
+      -> TimeWindowTraffic (traffic = "time_windows": planning rounds, the pass order)
       -> ReservationMatrix -> DeadlockResolver -> FleetRecorder -> EventLog
       -> FleetStatus (the tags' words: every vehicle's status, counters, lifetime totals)
     -> driver copy-out (released routes as route commands)
@@ -36,6 +37,8 @@ from blocks.traffic.records import (
     VehicleRecordsView,
 )
 from blocks.traffic.reservation import ReservationMatrix
+from blocks.traffic.sipp import TurnTimes
+from blocks.traffic.tw_traffic import TimeWindowTraffic
 from blocks.traffic.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver
 from io_drivers.modbus_vehicles import ModbusVehicleLink
@@ -196,6 +199,22 @@ class FleetProgram:
             self.orders = OrderSystem(
                 cfg, self.table, self.blockades, self._available, self._occupied
             )
+        self.traffic: TimeWindowTraffic | None = None
+        if cfg.traffic == "time_windows":
+            tw = cfg.time_windows
+            self.traffic = TimeWindowTraffic(
+                plant,
+                self.table,
+                self.reservation,
+                self.blockades,
+                self._priority,
+                speed=cfg.agv.max_speed,
+                turns=TurnTimes(cfg.agv.turn_90, cfg.agv.turn_180),
+                gap_s=tw.gap_s,
+                horizon_s=tw.horizon_s,
+                replan_s=tw.replan_s,
+                budget=tw.plan_budget,
+            )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}
         for v in vehicles:
@@ -209,6 +228,7 @@ class FleetProgram:
                 lookahead=cfg.lookahead,
                 wait_replan_s=cfg.wait_replan_s,
                 priority=self._priority,
+                traffic=self.traffic,
             )
             self.controls[v].budget = cfg.astar_budget
             if v in cfg.order_vehicles:
@@ -225,8 +245,16 @@ class FleetProgram:
                 completed=self.completed,
             )
         self.schedule = BlockadeSchedule(cfg.blockades, self.blockades)
+        if self.traffic is not None:
+            self.traffic.controls = self.controls
         self.resolver = DeadlockResolver(
-            plant, self.controls, self.reservation, self.blockades, self._priority, self.table
+            plant,
+            self.controls,
+            self.reservation,
+            self.blockades,
+            self._priority,
+            self.table,
+            pushes=self.traffic is None,
         )
         self.recorder = FleetRecorder(self.controls)
         self.events = EventLog(self.controls, self.jobs, self.resolver, self.blockades)
@@ -245,6 +273,7 @@ class FleetProgram:
                     self.commands.held,
                     self._battery,
                 ),
+                *((self.traffic,) if self.traffic is not None else ()),
                 self.reservation,
                 self.resolver,
                 self.recorder,

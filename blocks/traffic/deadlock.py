@@ -38,6 +38,10 @@ backing off the least urgent vehicle that can step off the others' routes, which
 not retake the node it left while they still need it. A circle nobody in it can leave is
 reported (``unresolved``) and retried every scan: a blockade may clear, a vehicle may come
 back online. Every detection is recorded.
+
+With ``pushes=False`` (time-window traffic: the plans fix who passes where first, and a
+vehicle moved off its plan would break that order) it only grants the starts the controls
+ask for, in priority order, and records any waits-for cycle without moving anyone.
 """
 
 from __future__ import annotations
@@ -80,8 +84,10 @@ class DeadlockResolver(FunctionBlock):
         blockades: RoutingConstraints,
         priority: Callable[[int], tuple[int, int]],
         table: HeuristicTable,
+        pushes: bool = True,
     ) -> None:
         super().__init__()
+        self.pushes_allowed = pushes
         self.plant = plant
         self.controls = dict(controls)
         self.reservation = reservation
@@ -149,7 +155,7 @@ class DeadlockResolver(FunctionBlock):
             if moved:
                 victim = next((m for m in moved if m in self._pushed), moved[0])
                 node = int(self.plant.ids[self._next[victim]])
-            else:
+            elif self.pushes_allowed:
                 victim, node = self._back_off_candidate(ring, waits)
                 if victim is not None:
                     vacated = self.controls[victim].current
@@ -175,7 +181,7 @@ class DeadlockResolver(FunctionBlock):
             if c.current is None or c.released or c.state in WALLS:
                 continue
             standing[v] = index[c.current]
-            if not (c.hold or c.arrived) and c.fixed_route is None:
+            if not (c.hold or c.arrived) and c.fixed_route is None and self.pushes_allowed:
                 pushable.add(v)  # (arrived: its sequencer sees that next scan, then holds)
         return standing, pushable
 

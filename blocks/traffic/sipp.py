@@ -295,3 +295,88 @@ def plan_path(
     search = SafeIntervalSearch(plant, table, vehicle, start, goal, start_time, **kw)
     search.step(None)
     return search.plan
+
+
+def time_route(
+    table: TimeWindowTable,
+    vehicle: int,
+    nodes: Sequence[int],
+    lengths: Sequence[float],
+    directions: Sequence[tuple[float, float] | None],
+    start_time: float,
+    *,
+    speed: float,
+    heading: tuple[float, float] | None = None,
+    turns: TurnTimes = AGV_TURNS,
+    hold_s: float = math.inf,
+) -> TimedPlan | None:
+    """The earliest timing of a route that is given, not searched (a return lane, which
+    routing may not use): the safe-interval search restricted to the route's node sequence,
+    states (step, safe interval), departure claims. ``lengths[i]`` and ``directions[i]``
+    describe the segment nodes[i] -> nodes[i + 1]. None if the route cannot be driven
+    through the table's free windows (then the vehicle waits for the next planning round)."""
+    last = len(nodes) - 1
+    safe = [table.safe_intervals(n, vehicle) for n in nodes]
+    start = next(
+        (k for k, (lo, hi) in enumerate(safe[0]) if lo - 1e-9 <= start_time <= hi + 1e-9), None
+    )
+    if start is None:
+        return None
+    arrival = {(0, start): start_time}
+    parent: dict[tuple[int, int], tuple[tuple[int, int], float] | None] = {(0, start): None}
+    frontier = [(start_time, 0, start)]
+    while frontier:
+        t, i, k = heapq.heappop(frontier)
+        if t > arrival[(i, k)]:
+            continue
+        leave_by = safe[i][k][1]
+        if i == last:
+            if leave_by >= t + hold_s - 1e-9:
+                return _route_plan(vehicle, nodes, (i, k), arrival, parent, hold_s)
+            continue
+        travel = lengths[i] / speed
+        before = heading if i == 0 else directions[i - 1]
+        set_off = t + turns.between(before, directions[i])
+        if set_off > leave_by + 1e-9:
+            continue
+        for j, (lo, hi) in enumerate(safe[i + 1]):
+            if lo > leave_by + 1e-9:
+                break
+            if hi < set_off + travel - 1e-9:
+                continue
+            depart = table.earliest_entry(
+                nodes[i],
+                nodes[i + 1],
+                max(set_off, lo),
+                travel,
+                vehicle,
+                latest=min(leave_by, hi - travel),
+            )
+            if depart is None:
+                continue
+            state = (i + 1, j)
+            if depart + travel < arrival.get(state, math.inf) - 1e-12:
+                arrival[state] = depart + travel
+                parent[state] = ((i, k), depart)
+                heapq.heappush(frontier, (depart + travel, i + 1, j))
+    return None
+
+
+def _route_plan(vehicle, nodes, state, arrival, parent, hold_s: float) -> TimedPlan:
+    arrive, depart = [], []
+    leave = arrival[state] + hold_s
+    while state is not None:
+        arrive.append(arrival[state])
+        depart.append(leave)
+        link = parent[state]
+        state, leave = (None, 0.0) if link is None else link
+    arrive.reverse()
+    depart.reverse()
+    return TimedPlan(
+        vehicle,
+        tuple(nodes),
+        tuple(arrive),
+        tuple(depart),
+        arrive[-1] - arrive[0],
+        (arrive[0], *depart[:-1]),
+    )

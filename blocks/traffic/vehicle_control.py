@@ -23,6 +23,12 @@ expansions per cycle, planned from the last released node while the vehicle driv
 replanned whenever a permanent blockade is set or cleared. Released nodes are never taken
 back: the vehicle may already be past the point where it could obey.
 
+Planned in time (``traffic``, the time-window mode): routes then come from the
+TimeWindowTraffic block's planning rounds instead of this block's A*, and every node
+is released only when its ``gate`` allows (the next step of the plan, in the order the plans
+fixed); the vehicle neither replans by itself nor is pushed. The ReservationMatrix checks
+every release as in the reactive mode.
+
 Plausibility: a report may only move the vehicle along what it was released (the
 ReservationMatrix decides). A report that claims anything else, or a vehicle link that saw
 the vehicle's message counter jump, makes the vehicle **suspect**: it gets a stop command,
@@ -112,6 +118,7 @@ class VehicleControl(FunctionBlock):
         wait_replan_s: float = 5.0,
         priority: Callable[[int], tuple] | None = None,
         recover_s: float = RECOVER_S,
+        traffic=None,
     ) -> None:
         super().__init__()
         if not 1 <= lookahead <= 3:
@@ -136,6 +143,8 @@ class VehicleControl(FunctionBlock):
         self._planned_from: int | None = None
         self.yield_while: Callable[[], int | None] | None = None
         self.yield_until_ns = 0
+        # the time-window planner (None: reactive, routes from this block's own A*)
+        self.traffic = traffic
 
     # ----- the scan ------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
@@ -192,6 +201,8 @@ class VehicleControl(FunctionBlock):
             del self.released[: self.released.index(current) + 1]
         self.current = current
         self.reservation.report(self.vehicle, self.index[current], clear)
+        if self.traffic is not None:
+            self.traffic.reached(self.vehicle, current, clear)
 
     # ----- suspect vehicles ----------------------------------------------------------------
     def _become_suspect(self, ctx: CycleContext, why: str) -> None:
@@ -287,7 +298,7 @@ class VehicleControl(FunctionBlock):
         self.adopted_fixed = None
 
     def _needs_plan(self, ctx: CycleContext) -> bool:
-        if self.goal is None or self.fixed_route is not None:
+        if self.goal is None or self.fixed_route is not None or self.traffic is not None:
             return False
         if self.blockades_changed():
             return True
@@ -302,6 +313,13 @@ class VehicleControl(FunctionBlock):
         return False
 
     # ----- planning ------------------------------------------------------------------------
+    def follow_plan(self, frontier: int, route: list[int]) -> None:
+        """The time-window planner's route from ``frontier`` (node ids after it). Ignored if
+        the vehicle's frontier has moved since the plan was made (it is planned again)."""
+        if frontier != self.frontier or self.goal is None or not route or route[-1] != self.goal:
+            return
+        self.route, self.planning = list(route), False
+
     def _start_plan(self, ctx: CycleContext, oncoming: tuple[int, int] | None = None) -> None:
         self.reservation.penalties_for(
             self.vehicle,
@@ -347,8 +365,7 @@ class VehicleControl(FunctionBlock):
                 # held, its area occupied, or a standing vehicle was told to wait for it (or
                 # for its area): stop at the frontier
                 break
-            res.claim(self.vehicle, idx)
-            self.released.append(self.route.pop(0))
+            self._claim(self.route.pop(0))
             changed = True
         if changed:
             self._send(ctx)
@@ -363,6 +380,8 @@ class VehicleControl(FunctionBlock):
                 self.wait_since_ns = ctx.time_ns
                 self.wait_replanned = False
             self.wait_node, self.waiting_for = there, blocker
+        if self.traffic is not None:
+            return  # the plans' order decides, and the planner replans
         oncoming = (
             blocker is not None
             and self.index[here] in (res.intent.get(blocker), res.wants.get(blocker))
@@ -392,6 +411,8 @@ class VehicleControl(FunctionBlock):
             # for deadlock detection, giving way is waiting for the vehicle it gave way to
             self._blocked(ctx, giving_way_to, here, there)
             self._publish_state()
+        elif withheld and self.traffic is not None:
+            self._not_waiting()  # waiting for a plan, not for a vehicle
         return None if withheld else there
 
     def _step_withheld(self, ctx: CycleContext, here: int, there: int) -> tuple[bool, int | None]:
@@ -399,7 +420,8 @@ class VehicleControl(FunctionBlock):
         vehicle it gives way to, if that is the reason. A closed segment starts a replan."""
         arcs = self.plant.arc_index.get((here, there))
         if arcs is not None and self.blockades.blocked[arcs].all():
-            self._start_plan(ctx)  # the next segment was closed: plan around it
+            if self.traffic is None:
+                self._start_plan(ctx)  # the next segment was closed: plan around it
             return True, None
         if (
             there == self.current
@@ -410,6 +432,10 @@ class VehicleControl(FunctionBlock):
             # nodes, so it must reach the next node first, or a report of this node would
             # be ambiguous (the visit before or the one after?)
             return True, None
+        if self.traffic is not None:
+            ok, blocker = self.traffic.gate(self.vehicle, there)
+            if not ok:
+                return True, blocker  # not its turn there yet (or no plan up to there)
         if there == self.yield_node:
             needing = self._giving_way(ctx)
             if needing is not None:
@@ -420,15 +446,21 @@ class VehicleControl(FunctionBlock):
     def grant(self, ctx: CycleContext, node: int) -> None:
         """Start to the free node ``node`` (an id): the next node of its route, or a node it
         was pushed to (it then replans from there)."""
-        self.reservation.claim(self.vehicle, self.index[node])
         if self.route and self.route[0] == node:
             self.route.pop(0)
         else:
             self._forget_route(ctx)
-        self.released.append(node)
+        self._claim(node)
         self._not_waiting()
         self._send(ctx)
         self._publish_state()
+
+    def _claim(self, node: int) -> None:
+        """Release ``node`` (an id) to the vehicle: it holds it from now on."""
+        self.reservation.claim(self.vehicle, self.index[node])
+        self.released.append(node)
+        if self.traffic is not None:
+            self.traffic.released(self.vehicle, node)
 
     def wait_for(self, ctx: CycleContext, blocker: int | None, node: int) -> None:
         """Its start to ``node`` (an id) was not granted this scan: it waits for ``blocker``."""
