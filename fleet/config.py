@@ -358,7 +358,7 @@ def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
     override them or make one vehicle die, stall or lose its battery at a given time."""
     rates = {
         key: reader.number(key, 0.0, 0.0, 1.0)
-        for key in ("drop_rate", "corrupt_rate", "spoof_rate")
+        for key in ("drop_rate", "corrupt_rate", "spoof_rate", "delay_rate")
     }
     items = reader.get("vehicles", list, [])
     reader.finish()

@@ -126,7 +126,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
     }
 
 
-INJECTED = ("dropped", "corrupted", "spoofed")
+INJECTED = ("dropped", "corrupted", "spoofed", "delays")
 DETECTED = ("crc_errors", "malformed", "repeated", "out_of_sequence", "resyncs", "unconfirmed")
 
 

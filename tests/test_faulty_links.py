@@ -32,6 +32,8 @@ SETTINGS = settings(
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
 FAULTY = Faults(drop_rate=0.05, corrupt_rate=0.05, spoof_rate=0.02)
+# the time-window mode also gets random stops the plans know nothing of (1-10 s, 1 % per s)
+DELAYED = Faults(drop_rate=0.05, corrupt_rate=0.05, spoof_rate=0.02, delay_rate=0.01)
 FAULTY_S, CLEAN_S = 120.0, 120.0  # then up to 60 s more per vehicle for progress
 
 
@@ -95,7 +97,7 @@ def big_rings(draw) -> Plant:
 
 
 @st.composite
-def faulty_fleets(draw):
+def faulty_fleets(draw, traffic: str = "reactive"):
     plant = draw(st.one_of(big_grids(), big_rings()))
     count = draw(st.integers(4, min(12, plant.n // 12)))
     rnd = random.Random(draw(st.integers(0, 2**32 - 1)))
@@ -112,7 +114,8 @@ def faulty_fleets(draw):
         processing_s=1.0,
         cycle_time=0.05,
         seed=draw(st.integers(0, 10_000)),
-        faults={v + 1: FAULTY for v in range(count)},
+        faults={v + 1: FAULTY if traffic == "reactive" else DELAYED for v in range(count)},
+        traffic=traffic,
     )
 
 
@@ -133,6 +136,20 @@ def step_checked(p: FleetProgram, seconds: float) -> None:
 @SETTINGS
 @given(faulty_fleets())
 def test_no_conflict_on_corrupting_dropping_and_spoofed_links(cfg):
+    check_faulty_run(cfg)
+
+
+@SETTINGS
+@given(faulty_fleets(traffic="time_windows"))
+def test_time_windows_no_conflict_on_faulty_links_and_random_delays(cfg):
+    p = check_faulty_run(cfg)
+    assert p.fleet.counters["delays"] > 0  # the vehicles really were delayed
+    assert p.traffic.rounds > 0 and p.resolver.pushes == 0
+
+
+def check_faulty_run(cfg) -> FleetProgram:
+    """Faulty links, then repaired links: zero conflicts every cycle; then no suspect
+    vehicle is left and, where the liveness condition holds, every vehicle progresses."""
     assume(cfg.plant.n <= 400)
     p = FleetProgram(cfg)
     try:
@@ -165,3 +182,4 @@ def test_no_conflict_on_corrupting_dropping_and_spoofed_links(cfg):
             } | {"plant": cfg.plant.name, "events": [e.line() for e in p.events.recent(8)]}
     finally:
         p.close()
+    return p

@@ -119,6 +119,28 @@ def test_front_sensor_stops_the_follower_until_the_lane_is_clear():
     assert leader.driven[-1] == 24 and follower.driven[-2:] == [8, 9]
 
 
+def test_random_delays_stop_a_vehicle_for_a_while_and_end_after_the_faults_are_gone():
+    straight = (7, 8, 9, 24)
+    plain = Fleet(model_plant(), {1: 6})
+    plain.vehicles[1].command(straight)
+    delayed = Fleet(model_plant(), {1: 6}, faults={1: Faults(delay_rate=0.5, delay_s=(2.0, 3.0))})
+    delayed.vehicles[1].command(straight)
+    t_plain = t_delayed = None
+    for k in range(4000):
+        plain.step(0.01)
+        delayed.step(0.01)
+        if k == 500:
+            delayed.faults.clear()  # a delay under way still ends
+        if t_plain is None and plain.vehicles[1].driven[-1] == 24:
+            t_plain = plain.time
+        if t_delayed is None and delayed.vehicles[1].driven[-1] == 24:
+            t_delayed = delayed.time
+    assert delayed.counters["delays"] >= 1
+    assert delayed.vehicles[1].paused_until is None
+    assert t_plain is not None and t_delayed is not None
+    assert t_delayed >= t_plain + 2.0  # at least one stop of 2-3 s on the way
+
+
 def test_battery_drains_while_driving_and_charges_on_a_charger():
     from topology import warehouse
 

@@ -61,6 +61,7 @@ class AGV:
         self.commanded = False
         self.blocked_ahead = False
         self.stalled = False
+        self.paused_until: float | None = None  # a random delay: it stands until then
         self.fault = False
         self.tag_reads = 0
         self.rejected_commands = 0
@@ -140,14 +141,14 @@ class AGV:
         elif self.target is None:
             self.speed, self.accel = 0.0, 0.0
             if self.turn_left > 0:
-                if self.go:  # a stop holds the turn: it sets off only with a go
+                if self.go and self.paused_until is None:  # a stop holds the turn
                     self.turn_left = max(0.0, self.turn_left - dt)
                     if self.turn_left == 0:
                         self._set_off()
-            elif self.route and self.go:
+            elif self.route and self.go and self.paused_until is None:
                 self._start_turn(self.route[0])
         else:
-            if self.blocked_ahead or self.stalled or not self.go:
+            if self.blocked_ahead or self.stalled or self.paused_until is not None or not self.go:
                 self._brake_to(0.0, dt)
             else:
                 remaining = self.length - self.progress

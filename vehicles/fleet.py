@@ -58,6 +58,10 @@ class Faults:
     # well-formed, passing the CRC, of a random vehicle, random nodes, a random counter
     spoof_rate: float = 0.0
     stall_after: float | None = None  # stops on its segment, reports FAULT
+    # random delays, unknown to the controller (a person in the way, a slow load transfer):
+    # per second, the chance that it stops where it is for delay_s[0]..delay_s[1] seconds
+    delay_rate: float = 0.0
+    delay_s: tuple[float, float] = (1.0, 10.0)
     battery_failure_after: float | None = None
 
 
@@ -105,6 +109,7 @@ class Fleet:
             "dropped": 0,  # injected: lost frames
             "corrupted": 0,  # injected: one byte replaced
             "spoofed": 0,  # injected: well-formed frames of a faulty or foreign node
+            "delays": 0,  # injected: random stops
             "received": 0,
             "ignored": 0,  # malformed, or an unknown id
             "crc_errors": 0,
@@ -129,7 +134,7 @@ class Fleet:
     def step(self, dt: float) -> None:
         self.announce()
         self._receive()
-        self._apply_faults()
+        self._apply_faults(dt)
         self._front_sensors()
         clear_before = {v: agv.clear for v, agv in self.vehicles.items()}
         reached = [v for v, agv in self.vehicles.items() if agv.step(dt)]
@@ -153,13 +158,24 @@ class Fleet:
             if periodic_info or round(agv.battery.percent) != self._battery_sent[vehicle]:
                 self._send_info(vehicle)
 
-    def _apply_faults(self) -> None:
+    def _apply_faults(self, dt: float) -> None:
+        for agv in self.vehicles.values():
+            if agv.paused_until is not None and self.time >= agv.paused_until:
+                agv.paused_until = None  # a delay ends, also once the faults are gone
         for vehicle, f in self.faults.items():
             agv = self.vehicles[vehicle]
             if f.stall_after is not None and self.time >= f.stall_after:
                 agv.stalled = True
             if f.battery_failure_after is not None and self.time >= f.battery_failure_after:
                 agv.battery.failed = True
+            if f.delay_rate:
+                self._delay(agv, f, dt)
+
+    def _delay(self, agv: AGV, f: Faults, dt: float) -> None:
+        """Maybe start a random stop (status frames go on as usual: it just stands)."""
+        if agv.paused_until is None and self.rng.random() < f.delay_rate * dt:
+            agv.paused_until = self.time + float(self.rng.uniform(*f.delay_s))
+            self.counters["delays"] += 1
 
     def _front_sensors(self) -> None:
         """A vehicle sees another on the same lane ahead of it, or standing on its target node."""

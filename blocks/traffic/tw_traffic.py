@@ -51,7 +51,7 @@ from topology import Plant
 from .pass_order import PassOrder
 from .reservation import ReservationMatrix
 from .sipp import ArcGeometry, SafeIntervalSearch, TimedPlan, TurnTimes, time_route
-from .time_windows import TimeWindowTable
+from .time_windows import TimeWindowTable, WindowConflict
 
 WALLS = ("offline", "stale", "fault", "suspect")
 
@@ -96,6 +96,11 @@ class TimeWindowTraffic(FunctionBlock):
             raise ValueError(f"horizon_s must be a positive number of seconds, got {horizon_s!r}")
         if not (math.isfinite(replan_s) and replan_s > 0):
             raise ValueError(f"replan_s must be a positive number of seconds, got {replan_s!r}")
+        if plant.areas:
+            raise ValueError(
+                f"plant {plant.name!r} has single-vehicle areas, which time-window traffic "
+                "does not plan yet"
+            )
         if budget < 1:
             raise ValueError(f"budget must be at least 1 expansion per scan, got {budget!r}")
         self.plant = plant
@@ -110,6 +115,9 @@ class TimeWindowTraffic(FunctionBlock):
         # vehicle standing there for good if it stays (a vehicle that only keeps its goal
         # for the rest of time pushes every later plan around it)
         self.goal_hold_s = 2 * replan_s
+        # how long a vehicle about to plan keeps its frontier past its arrival there, before
+        # anyone planned earlier may cross it: long enough to turn away
+        self.frontier_hold_s = turns.turn_180 + gap_s
         self.controls: Mapping = {}  # vehicle -> VehicleControl, set by the program
         self.geometry = ArcGeometry(plant)
         self.table = TimeWindowTable(gap_s)  # the current plans' windows
@@ -198,8 +206,8 @@ class TimeWindowTraffic(FunctionBlock):
         """Where a vehicle wants to drive now; None: it stays where it is."""
         if control.state in WALLS or control.suspect or control.hold or control.goal is None:
             return None
-        if control.frontier == control.goal and not control.route:
-            return None
+        if control.frontier == control.goal and control.fixed_route is None:
+            return None  # there (a route that passed its goal and comes back is dropped)
         return control.goal
 
     # ----- a round -----------------------------------------------------------------------
@@ -233,7 +241,7 @@ class TimeWindowTraffic(FunctionBlock):
             else:
                 movers.append(entry)
                 # kept a little past its arrival: it needs time to turn away
-                ends = [reach] * (len(committed) - 1) + [reach + self.turns.turn_180 + self.gap_s]
+                ends = [reach] * (len(committed) - 1) + [reach + self.frontier_hold_s]
             table.book(
                 v,
                 [(n, t0, end) for n, end in zip(committed, ends, strict=True)],
@@ -327,9 +335,10 @@ class TimeWindowTraffic(FunctionBlock):
         """Book the committed part and the plan up to the horizon together."""
         v = entry.vehicle
         self._made[v] = None
-        if plan is None or len(plan.nodes) < 2:
+        if plan is None:
             self.failed += 1
             self._late.add(v)
+            self._stand(entry)
             return
         t0, committed = self._t0, entry.committed
         claims = plan.claims
@@ -349,6 +358,21 @@ class TimeWindowTraffic(FunctionBlock):
         self._next_table.book(v, nodes, segments)
         self._made[v] = plan
         self.plans += 1
+
+    def _stand(self, entry: _Entry) -> None:
+        """No plan: the vehicle stands on what it holds until the next round, so book that
+        for good, and the vehicles planned after it go round it instead of waiting for it.
+        Those planned before it in this round may already cross its frontier later on: the
+        pass order then makes them wait for it (it plans first next round)."""
+        committed, t0 = entry.committed, self._t0
+        try:
+            self._next_table.book(
+                entry.vehicle,
+                [(n, t0, math.inf) for n in committed],
+                [(a, b, t0, entry.reach_s) for a, b in zip(committed, committed[1:], strict=False)],
+            )
+        except WindowConflict:
+            pass  # its short windows stay booked
 
     def _swap(self, ctx: CycleContext) -> None:
         """The round is complete: its plans replace the old ones, all at once."""
@@ -381,6 +405,8 @@ class TimeWindowTraffic(FunctionBlock):
             control = self.controls[v]
             if plan is not None:
                 control.follow_plan(committed[-1], list(plan.nodes[1:]))
+            elif entry.goal is None:
+                control.follow_plan(committed[-1], [])  # there already: nothing to drive
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1

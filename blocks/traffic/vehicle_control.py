@@ -314,9 +314,12 @@ class VehicleControl(FunctionBlock):
 
     # ----- planning ------------------------------------------------------------------------
     def follow_plan(self, frontier: int, route: list[int]) -> None:
-        """The time-window planner's route from ``frontier`` (node ids after it). Ignored if
-        the vehicle's frontier has moved since the plan was made (it is planned again)."""
-        if frontier != self.frontier or self.goal is None or not route or route[-1] != self.goal:
+        """The time-window planner's route from ``frontier`` (node ids after it; empty: it
+        is at its goal). Ignored if the vehicle's frontier has moved since the plan was made
+        (it is planned again), or if the route does not end at its goal."""
+        if frontier != self.frontier or self.goal is None:
+            return
+        if (route[-1] if route else frontier) != self.goal:
             return
         self.route, self.planning = list(route), False
 
