@@ -61,6 +61,7 @@ from fleet.config import FleetConfig  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
 from topology import Plant, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
+from vehicles.fleet import Faults  # noqa: E402
 
 DEFAULT_H, DEFAULT_W = 33, 46
 MAX_DENSITY = 0.12  # vehicles per node at most
@@ -110,6 +111,7 @@ def make_program(
     watchdog: float,
     seed: int = 0,
     traffic: str = "reactive",
+    delay_rate: float = 0.0,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -127,6 +129,7 @@ def make_program(
         cycle_time=cycle_time,
         watchdog=watchdog,
         traffic=traffic,
+        faults={v: Faults(delay_rate=delay_rate) for v in ids} if delay_rate else {},
     )
     return FleetProgram(cfg)
 

@@ -99,10 +99,13 @@ def run_size(
     watchdog: float,
     plant_name: str = "warehouse",
     traffic: str = "reactive",
+    delay_rate: float = 0.0,
 ) -> dict:
     plant = PLANTS[plant_name]()
     begin = time.perf_counter()
-    program = make_program(plant, WIDTH, vehicles, cycle_time, watchdog, traffic=traffic)
+    program = make_program(
+        plant, WIDTH, vehicles, cycle_time, watchdog, traffic=traffic, delay_rate=delay_rate
+    )
     program.rt.start()
     setup_s = time.perf_counter() - begin
     mean_d = mean_endpoint_distance(program)
@@ -148,6 +151,8 @@ def run_size(
         "vehicles": vehicles,
         "plant": plant_name,
         "traffic": traffic,
+        "delay_rate": delay_rate,
+        "delays": sum(f.counters["delays"] for f in program.fleets),
         "state": rt.state,
         "fault": rt.fault_reason,
         "sim_s": simulated,
@@ -189,7 +194,7 @@ def single_vehicle_rate(plant_name: str, timesteps: int, cycle: float, watchdog:
     return r["tasks"] / r["timesteps"] if r["timesteps"] else float("nan")
 
 
-def json_rows(rows: list[dict], traffic: str, rate: dict[str, float]) -> list[str]:
+def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
     """One JSON object per plant and fleet size (the contract for scripts)."""
     out = []
     for r in rows:
@@ -199,7 +204,8 @@ def json_rows(rows: list[dict], traffic: str, rate: dict[str, float]) -> list[st
                 {
                     "plant": r["plant"],
                     "vehicles": n,
-                    "traffic": traffic,
+                    "traffic": r["traffic"],
+                    "delay_rate": r["delay_rate"],
                     "timesteps": round(r["timesteps"]),
                     "tasks": r["tasks"],
                     "tasks_per_timestep": r["tasks"] / r["timesteps"] if r["timesteps"] else None,
@@ -223,9 +229,17 @@ def main() -> None:
     parser.add_argument("--plant", nargs="+", choices=sorted(PLANTS), default=["kiva", "warehouse"])
     parser.add_argument(
         "--traffic",
-        choices=["reactive"],
-        default="reactive",
-        help="the fleet's traffic mode (time_windows: not yet driving the fleet program)",
+        nargs="+",
+        choices=["reactive", "time_windows"],
+        default=["reactive"],
+        help="the fleet's traffic modes to run, side by side",
+    )
+    parser.add_argument(
+        "--delay-rate",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        help="random stops of 1-10 s: the chance per second and vehicle (0: none)",
     )
     parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
     parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
@@ -243,13 +257,28 @@ def main() -> None:
     watchdog = args.watchdog_ms / 1e3
     begin = time.perf_counter()
     rate = {p: single_vehicle_rate(p, args.bound_timesteps, cycle, watchdog) for p in args.plant}
-    rows = [run_size(n, timesteps, cycle, watchdog, p) for p in args.plant for n in args.sizes]
+    rows = [
+        run_size(n, timesteps, cycle, watchdog, p, traffic, delay)
+        for p in args.plant
+        for traffic in args.traffic
+        for delay in args.delay_rate
+        for n in args.sizes
+    ]
     if args.json:
-        print("\n".join(json_rows(rows, args.traffic, rate)))
+        print("\n".join(json_rows(rows, rate)))
         return
     for p in args.plant:
         report(p, [r for r in rows if r["plant"] == p], timesteps, rate[p], args, begin)
     print(f"wall time {time.perf_counter() - begin:.1f} s")
+
+
+def same(rows: list[dict], r: dict, **change) -> dict | None:
+    """The run that differs from ``r`` only in ``change`` (None: not run, or ``r`` itself)."""
+    keys = ("plant", "vehicles", "traffic", "delay_rate")
+    want = {k: change.get(k, r[k]) for k in keys}
+    if all(want[k] == r[k] for k in keys):
+        return None
+    return next((o for o in rows if all(o[k] == want[k] for k in keys)), None)
 
 
 def report(plant_name, rows, timesteps, rate, args, begin) -> None:
@@ -257,19 +286,24 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
     console.print(
         f"Lifelong warehouse throughput, Python {sys.version.split()[0]}: {plant_name} 33x46, "
         f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms, "
-        f"traffic {args.traffic}"
+        f"traffic {' / '.join(args.traffic)}, random delays per s {args.delay_rate}"
     )
     for r in rows:
         n = r["vehicles"]
         console.print(
-            f"  {n} vehicles: {r['tasks']} tasks in {r['timesteps']:.0f} timesteps, "
+            f"  {n} vehicles, {r['traffic']}, delays {r['delay_rate']:g}/s: {r['tasks']} tasks "
+            f"in {r['timesteps']:.0f} timesteps, "
             f"run {r['wall_s']:.0f} s wall (setup {r['setup_s']:.1f} s), state {r['state']}"
         )
 
     table = Table(title=f"Tasks per timestep, lifelong, 33x46 {plant_name} ({timesteps} timesteps)")
     for name in (
+        "traffic",
+        "delays p/s",
         "vehicles",
         "tasks",
+        "x reactive",
+        "kept vs no delays",
         "ours tasks/timestep",
         f"ours, first {EARLY_TIMESTEPS} timesteps",
         "last task at timestep",
@@ -294,9 +328,15 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
         n = r["vehicles"]
         ours = r["tasks"] / r["timesteps"] if r["timesteps"] else float("nan")
         ref, bound = REFERENCE.get(n), UPPER_BOUND.get(n)
+        reactive = same(rows, r, traffic="reactive")
+        undelayed = same(rows, r, delay_rate=0.0)
         table.add_row(
+            r["traffic"],
+            f"{r['delay_rate']:g}",
             str(n),
             str(r["tasks"]),
+            f"{r['tasks'] / reactive['tasks']:.2f}" if reactive and reactive["tasks"] else "-",
+            f"{r['tasks'] / undelayed['tasks']:.2f}" if undelayed and undelayed["tasks"] else "-",
             f"{ours:.3f}",
             f"{r['early']:.3f}" if r["early"] is not None else "-",
             f"{r['last_task_s'] / timestep_s():.0f}" if r["last_task_s"] is not None else "-",

@@ -95,6 +95,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             for e in resolver.events[:100]
         ],
         "vehicles_pushed": resolver.pushes,
+        "traffic": _traffic(program),
         "head_on_conflicts": monitor.head_on if monitor else None,
         "node_conflicts": monitor.node if monitor else None,
         "area_conflicts": monitor.area if monitor else None,
@@ -144,6 +145,20 @@ def _utilisation(program: FleetProgram, sim: float) -> dict[str, dict[str, float
         row["busy_s"] = round(row["busy_s"] + busy, 3)
         row["utilisation"] = round(row["busy_s"] / sim, 4) if sim > 0 else 0.0
     return out
+
+
+def _traffic(program) -> dict:
+    """The traffic mode, and for time windows what its planning rounds did."""
+    tw = program.traffic
+    if tw is None:
+        return {"mode": "reactive"}
+    return {
+        "mode": "time_windows",
+        "rounds": tw.rounds,
+        "plans": tw.plans,
+        "failed_plans": tw.failed,
+        "windows_booked": tw.booked,
+    }
 
 
 def faults(program: FleetProgram, drivers: dict[str, Any]) -> dict[str, Any]:

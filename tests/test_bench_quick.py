@@ -129,14 +129,17 @@ def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
         "15",
         "--bound-timesteps",
         "15",
+        "--traffic",
+        "reactive",
+        "time_windows",
     )
     assert result.returncode == 0, result.stderr
     rows = [json.loads(line) for line in result.stdout.strip().splitlines()]
-    assert [(r["plant"], r["vehicles"]) for r in rows] == [
-        ("kiva", 3),
-        ("kiva", 5),
-        ("warehouse", 3),
-        ("warehouse", 5),
+    assert [(r["plant"], r["traffic"], r["vehicles"]) for r in rows] == [
+        (plant, traffic, n)
+        for plant in ("kiva", "warehouse")
+        for traffic in ("reactive", "time_windows")
+        for n in (3, 5)
     ]
     for r in rows:
         for key in (
@@ -149,6 +152,6 @@ def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
             "stuck_vehicles",
         ):
             assert key in r, key
-        assert r["traffic"] == "reactive" and r["timesteps"] == 15
+        assert r["timesteps"] == 15 and r["delay_rate"] == 0
         assert r["head_on_conflicts"] == 0 and r["node_conflicts"] == 0
         assert r["bound_tasks_per_timestep"] >= 0

@@ -1,0 +1,226 @@
+"""The time-window traffic mode in the fleet program: configuration, the default job driven
+by planning rounds and the pass order, and the cases where a plan cannot be made.
+
+Safety and liveness on random plants, with faulty links and random delays, are property
+tests in test_fleet_properties.py and test_faulty_links.py."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from fleet_scenarios import make_config, run
+
+from fleet.cli import main
+from fleet.config import DEFAULT_CONFIG, Blockade, load_config
+from fleet.program import FleetProgram
+from plc_runtime.errors import ConfigError
+from topology import Edge, Node, Plant
+
+TIME_WINDOWS = """
+[time_windows]
+gap_s = 0.4
+horizon_s = 15
+replan_s = 1.5
+plan_budget = 800
+"""
+
+
+def tw_config(tmp_path, extra: str = TIME_WINDOWS):
+    path = tmp_path / "fleet.toml"
+    text = DEFAULT_CONFIG.read_text().replace(
+        "wait_replan_s = 5", 'wait_replan_s = 5\ntraffic = "time_windows"'
+    )
+    path.write_text(text + extra)
+    return path
+
+
+def test_the_mode_and_its_planner_are_read_from_the_configuration(tmp_path):
+    cfg = load_config(tw_config(tmp_path))
+    assert cfg.traffic == "time_windows"
+    tw = cfg.time_windows
+    assert (tw.gap_s, tw.horizon_s, tw.replan_s, tw.plan_budget) == (0.4, 15.0, 1.5, 800)
+    assert load_config(None).traffic == "reactive"  # the default stays reactive
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (('traffic = "time_windows"', 'traffic = "timed"'), "routing.traffic: must be one of"),
+        (("gap_s = 0.4", "gap_s = 0"), "time_windows.gap_s: must be in"),
+        (("plan_budget = 800", "plan_budget = 0"), "time_windows.plan_budget: must be in"),
+        (("replan_s = 1.5", "replan_s = 1.5\nwindow = 3"), "time_windows.window: unknown key"),
+    ],
+)
+def test_bad_time_window_settings_name_the_file_and_key(tmp_path, change, message):
+    path = tw_config(tmp_path)
+    text = path.read_text()
+    assert change[0] in text
+    path.write_text(text.replace(change[0], change[1], 1))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert message in str(exc.value) and str(path) in str(exc.value)
+
+
+def test_a_plant_with_single_vehicle_areas_is_refused_with_the_reason(tmp_path):
+    examples = DEFAULT_CONFIG.parent.parent / "examples"
+    plant = tmp_path / "plant.toml"
+    plant.write_text((examples / "plants" / "distribution-centre.toml").read_text())
+    path = tmp_path / "fleet.toml"
+    path.write_text(
+        '[plant]\nfile = "plant.toml"\n[routing]\ntraffic = "time_windows"\n'
+        "[[recipes]]\nname = 'r'\nfunctions = [2]\n[[vehicles]]\nid = 1\nstart = 21\n"
+    )
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert "routing.traffic: time_windows does not plan single-vehicle areas yet" in str(exc.value)
+    assert "receiving-1" in str(exc.value)
+
+
+def test_the_default_job_runs_on_time_windows_planned_in_rounds(tmp_path):
+    """The embedded default (model plant, return lanes, a blockade, four recipes) with the
+    time-window planner: no conflict in any cycle, every vehicle completes recipes, no
+    waits-for cycle forms and nobody is pushed, and the routes come from the rounds (the
+    vehicles' own A* never runs)."""
+    cfg = load_config(tw_config(tmp_path))
+    cfg.watchdog = 5.0  # behaviour, not wall time, is tested
+    p = FleetProgram(cfg)
+    try:
+        run(p, 400)
+    finally:
+        p.close()
+    tw = p.traffic
+    assert tw is not None and tw.rounds > 100 and tw.plans > 100
+    assert tw.expansions <= cfg.time_windows.plan_budget
+    for v in cfg.starts:
+        assert sum(r.vehicle == v for r in p.completed) >= 2, v
+    assert p.resolver.detected == 0 and p.resolver.pushes == 0
+    assert all(c.plans == 0 for c in p.controls.values())  # no A* route
+    # the return lanes (routing may not use them) were timed and driven
+    assert any(r.sections and r.sections[-1].function == 1 for r in p.completed)
+
+
+def test_the_planner_keeps_its_budget_per_scan(tmp_path):
+    cfg = load_config(tw_config(tmp_path, TIME_WINDOWS.replace("800", "25")))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    most = 0
+    try:
+        p.rt.start()
+        for _ in range(6000):
+            p.rt.step()
+            most = max(most, p.traffic.expansions)
+    finally:
+        p.close()
+    assert 0 < most <= 25
+    assert p.traffic.rounds > 10 and len(p.completed) >= 1
+
+
+def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):
+    path = tw_config(tmp_path)
+    assert main(["run", str(path), "--duration", "60", "--json", "--out", str(tmp_path / "o")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    traffic = summary["traffic"]
+    assert traffic["mode"] == "time_windows" and traffic["rounds"] > 0 and traffic["plans"] > 0
+    assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
+
+
+def ring_with_spur() -> Plant:
+    """A ring of 12 with stations 5 and 8 (function 2), and a spur 0 -> 12 to the only
+    station of function 3."""
+    m = 12
+    nodes = [
+        Node(k, f"r{k}", 3 * math.cos(2 * math.pi * k / m), 3 * math.sin(2 * math.pi * k / m))
+        for k in range(m)
+    ]
+    for k in (5, 8):
+        nodes[k] = Node(k, f"r{k}", nodes[k].x, nodes[k].y, "station", (2,))
+    nodes.append(Node(12, "G", 4.0, 0.0, "station", (3,)))
+    edges = [Edge(k, (k + 1) % m, 1.0) for k in range(m)] + [Edge(0, 12, 1.0)]
+    return Plant.build(nodes, edges, name="ring", functions={2: "a", 3: "b"})
+
+
+def test_a_vehicle_that_cannot_be_planned_stands_and_the_others_go_round_it():
+    """Vehicle 1 wants a station cut off for good; its plan fails every round, so it stands
+    where it is, booked for good: vehicle 2 is planned the long way round it instead of
+    waiting for it."""
+    cfg = make_config(
+        ring_with_spur(),
+        {1: 3, 2: 2},
+        {"b": [3], "a": [2]},
+        {2: [5, 8], 3: [12]},
+        vehicle_recipes={1: ["b"], 2: ["a"]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        blockades=[Blockade(0, 12, 0.0, None)],
+        traffic="time_windows",
+    )
+    p = FleetProgram(cfg)
+    try:
+        run(p, 60)
+    finally:
+        p.close()
+    assert sum(r.vehicle == 1 for r in p.completed) == 0
+    assert p.traffic.failed > 0
+    assert sum(r.vehicle == 2 for r in p.completed) >= 10
+    assert p.resolver.detected == 0
+
+
+def test_a_route_that_passes_its_goal_and_comes_back_ends_there():
+    """A plan may pass the goal and come back to it (to let another vehicle by); once the
+    vehicle stands at its goal it has arrived, whatever was left of that route."""
+    w, h = 9, 6
+    cells = [(x, y) for y in range(h) for x in range(w) if (x, y) != (2, 5)]
+    ids = {c: k for k, c in enumerate(cells)}
+    func = {(7, 0): 2, (7, 1): 3}
+    edges = [
+        Edge(k, ids[nb], 1.0)
+        for (x, y), k in ids.items()
+        for nb in ((x + 1, y), (x, y + 1))
+        if nb in ids
+    ]
+    nodes = [
+        Node(
+            k,
+            f"c{x}_{y}",
+            float(x),
+            float(y),
+            "station" if (x, y) in func else "transit",
+            (func[(x, y)],) if (x, y) in func else (),
+        )
+        for (x, y), k in ids.items()
+    ]
+    plant = Plant.build(nodes, edges, name="grid", functions={2: "a", 3: "b"})
+    cfg = make_config(
+        plant,
+        {1: 28, 2: 13, 3: 8, 4: 1, 5: 6},
+        {"ba": [3, 2]},
+        {2: [7], 3: [16]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        seed=98,
+        traffic="time_windows",
+    )
+    p = FleetProgram(cfg)
+    try:
+        run(p, 120)
+    finally:
+        p.close()
+    done = {v: sum(r.vehicle == v for r in p.completed) for v in cfg.starts}
+    assert sum(done.values()) >= 6, done
+    assert p.resolver.detected == 0
+
+
+def test_time_windows_refuses_a_plant_with_areas_also_when_built_in_code():
+    plant = Plant.build(
+        [Node(0, "a", 0, 0, "station", (2,), area="s"), Node(1, "b", 1, 0, area="s")],
+        [Edge(0, 1, 1.0)],
+        name="tiny",
+        functions={2: "a"},
+    )
+    cfg = make_config(plant, {1: 0}, {"a": [2]}, {2: [0]}, traffic="time_windows")
+    with pytest.raises(ValueError, match="single-vehicle areas"):
+        FleetProgram(cfg)
