@@ -112,6 +112,7 @@ def make_program(
     seed: int = 0,
     traffic: str = "reactive",
     delay_rate: float = 0.0,
+    plan_budget: int | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -131,6 +132,8 @@ def make_program(
         traffic=traffic,
         faults={v: Faults(delay_rate=delay_rate) for v in ids} if delay_rate else {},
     )
+    if plan_budget is not None:
+        cfg.time_windows.plan_budget = plan_budget
     return FleetProgram(cfg)
 
 
@@ -172,10 +175,19 @@ class ScanRecorder:
         return whole, whole - plant
 
 
-def run_size(vehicles: int, sim_s: float, cycle_time: float, watchdog: float) -> dict:
+def run_size(
+    vehicles: int,
+    sim_s: float,
+    cycle_time: float,
+    watchdog: float,
+    traffic: str = "reactive",
+    plan_budget: int | None = None,
+) -> dict:
     plant, width, height = plant_for(vehicles)
     begin = time.perf_counter()
-    program = make_program(plant, width, vehicles, cycle_time, watchdog)
+    program = make_program(
+        plant, width, vehicles, cycle_time, watchdog, traffic=traffic, plan_budget=plan_budget
+    )
     program.rt.start()
     setup_s = time.perf_counter() - begin
     recorder = ScanRecorder(program)
@@ -197,6 +209,8 @@ def run_size(vehicles: int, sim_s: float, cycle_time: float, watchdog: float) ->
         states[c.state] = states.get(c.state, 0) + 1
     out = {
         "vehicles": vehicles,
+        "traffic": traffic,
+        "rounds": program.traffic.rounds if program.traffic else None,
         "plant": f"{height}x{width}",
         "nodes": plant.n,
         "setup_s": setup_s,
@@ -233,6 +247,18 @@ def main() -> None:
     parser.add_argument("--cycle-ms", type=float, default=50.0)
     parser.add_argument("--watchdog-ms", type=float, default=1000.0)
     parser.add_argument(
+        "--traffic",
+        choices=["reactive", "time_windows"],
+        default="reactive",
+        help="the fleet's traffic mode",
+    )
+    parser.add_argument(
+        "--plan-budget",
+        type=int,
+        default=None,
+        help="time_windows: search expansions per scan (default: the configuration's)",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="reduced run: --sim-seconds 10 --sizes 4 16 64"
     )
     args = parser.parse_args()
@@ -245,11 +271,12 @@ def main() -> None:
     console = Console(width=max(Console().width, 170))
     console.print(
         f"Fleet program against fleet size, Python {sys.version.split()[0]}: {sim_s:g} simulated s "
-        f"per size, cycle {args.cycle_ms:g} ms, timestep {timestep_s():g} s"
+        f"per size, cycle {args.cycle_ms:g} ms, timestep {timestep_s():g} s, "
+        f"traffic {args.traffic}"
     )
     rows = []
     for n in args.sizes:
-        r = run_size(n, sim_s, cycle, args.watchdog_ms / 1e3)
+        r = run_size(n, sim_s, cycle, args.watchdog_ms / 1e3, args.traffic, args.plan_budget)
         rows.append(r)
         console.print(
             f"  {n} vehicles on {r['plant']} ({r['nodes']} nodes): setup {r['setup_s']:.1f} s, "
@@ -286,6 +313,7 @@ def main() -> None:
         "tasks / vehicle-h",
         "conflicts head-on/node",
         "deadlocks det/res/unres",
+        "planning rounds",
         "state",
     ):
         behaviour.add_column(name, justify="right")
@@ -314,6 +342,7 @@ def main() -> None:
             f"{r['tasks'] / (r['vehicles'] * r['sim_s'] / 3600):,.1f}" if r["sim_s"] else "-",
             f"{r['head_on']}/{r['node']}",
             "/".join(str(x) for x in r["deadlocks"]),
+            str(r["rounds"]) if r["rounds"] is not None else "-",
             r["state"] if r["fault"] is None else f"{r['state']}: {r['fault']}",
         )
     console.print(cost)

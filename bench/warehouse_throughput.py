@@ -100,11 +100,19 @@ def run_size(
     plant_name: str = "warehouse",
     traffic: str = "reactive",
     delay_rate: float = 0.0,
+    plan_budget: int | None = None,
 ) -> dict:
     plant = PLANTS[plant_name]()
     begin = time.perf_counter()
     program = make_program(
-        plant, WIDTH, vehicles, cycle_time, watchdog, traffic=traffic, delay_rate=delay_rate
+        plant,
+        WIDTH,
+        vehicles,
+        cycle_time,
+        watchdog,
+        traffic=traffic,
+        delay_rate=delay_rate,
+        plan_budget=plan_budget,
     )
     program.rt.start()
     setup_s = time.perf_counter() - begin
@@ -241,6 +249,12 @@ def main() -> None:
         default=[0.0],
         help="random stops of 1-10 s: the chance per second and vehicle (0: none)",
     )
+    parser.add_argument(
+        "--plan-budget",
+        type=int,
+        default=None,
+        help="time_windows: search expansions per scan (default: the configuration's)",
+    )
     parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
     parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
     parser.add_argument("--cycle-ms", type=float, default=50.0)
@@ -258,7 +272,7 @@ def main() -> None:
     begin = time.perf_counter()
     rate = {p: single_vehicle_rate(p, args.bound_timesteps, cycle, watchdog) for p in args.plant}
     rows = [
-        run_size(n, timesteps, cycle, watchdog, p, traffic, delay)
+        run_size(n, timesteps, cycle, watchdog, p, traffic, delay, args.plan_budget)
         for p in args.plant
         for traffic in args.traffic
         for delay in args.delay_rate

@@ -63,7 +63,7 @@ class TimeWindowsConfig:
     gap_s: float = 0.5  # safety gap between two vehicles' windows on a node or segment
     horizon_s: float = 20.0  # how far ahead a plan is booked and released
     replan_s: float = 2.0  # a planning round at least this often
-    plan_budget: int = 5000  # search expansions per scan
+    plan_budget: int = 200  # search expansions per scan (about 5 ms)
 
 
 @dataclass
@@ -231,7 +231,7 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
         gap_s=r.number("gap_s", 0.5, 0.001, 60.0),
         horizon_s=r.number("horizon_s", 20.0, 0.1, 3600.0),
         replan_s=r.number("replan_s", 2.0, 0.01, 3600.0),
-        plan_budget=r.integer("plan_budget", 5000, 1, 10**8),
+        plan_budget=r.integer("plan_budget", 200, 1, 10**8),
     )
     r.finish()
     return cfg

@@ -158,10 +158,13 @@ class SafeIntervalSearch:
         self.start, self.goal, self.start_time = start, goal, float(start_time)
         self.speed, self.turns, self.hold_s = float(speed), turns, float(hold_s)
         self.geometry = geometry or ArcGeometry(plant)
-        self.weights = list(weights) if weights is not None else None
-        self.allowed = list(allowed) if allowed is not None else None
+        # read, not copied: one list serves every search of a planning round
+        self.weights = weights
+        self.allowed = allowed
         row = to_goal if to_goal is not None else distances_to(plant, [goal])[0]
-        self._h = (np.asarray(row, dtype=np.float64) / self.speed).tolist()
+        # distances in m, read per node as the search reaches it (a search touches few of
+        # a large plant's nodes: converting the whole row would cost more than the search)
+        self._row = np.asarray(row, dtype=np.float64)
         self._safe: dict[int, list[tuple[float, float]]] = {}
         self._heading = heading
         self._goal = plant.idx(goal)
@@ -184,7 +187,7 @@ class SafeIntervalSearch:
                 state = (s, -1, k)
                 self._best[state], self._arrival[state] = 0.0, self.start_time
                 self._parent[state] = None
-                self._push(self._h[s], 0.0, state)
+                self._push(self._row[s].item() / self.speed, 0.0, state)
                 return
         self._finish(
             None, f"node {self.start} is booked by another vehicle at {self.start_time:g} s"
@@ -244,7 +247,7 @@ class SafeIntervalSearch:
                 if cost < self._best.get(nxt, math.inf) - 1e-12:
                     self._best[nxt], self._arrival[nxt] = cost, arrive
                     self._parent[nxt] = (state, depart)
-                    self._push(cost + self._h[v], cost, nxt)
+                    self._push(cost + self._row[v].item() / self.speed, cost, nxt)
 
     def _push(self, f: float, g: float, state: tuple[int, int, int]) -> None:
         self._pushed += 1

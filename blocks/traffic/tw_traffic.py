@@ -89,7 +89,7 @@ class TimeWindowTraffic(FunctionBlock):
         gap_s: float = 0.5,
         horizon_s: float = 20.0,
         replan_s: float = 2.0,
-        budget: int = 5000,
+        budget: int = 200,
     ) -> None:
         super().__init__()
         if not (math.isfinite(horizon_s) and horizon_s > 0):
