@@ -156,12 +156,15 @@ class TimeWindowTable:
         vehicle: int,
         nodes: Iterable[tuple[int, float, float]],
         segments: Iterable[tuple[int, int, float, float]],
+        check: bool = True,
     ) -> None:
         """Replace ``vehicle``'s windows by these: (node, start, end) and (a, b, start, end).
         All or nothing: on a conflict with another vehicle's window, WindowConflict names
-        it and the table, the vehicle's old windows included, is left as it was."""
+        it and the table, the vehicle's old windows included, is left as it was.
+        ``check=False`` books without the rules: for windows that are consistent by
+        construction (a search's result, or what vehicles have already been given)."""
         nodes, segments = list(nodes), list(segments)
-        for node, start, end in nodes:
+        for node, start, end in nodes if check else ():
             _check_interval(start, end, f"node {node}")
             for w in self._nodes.get(node, ()):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
@@ -169,7 +172,7 @@ class TimeWindowTable:
                         f"vehicle {vehicle} on node {node} during [{start:g}, {end:g}] meets "
                         f"vehicle {w.vehicle}'s window [{w.start:g}, {w.end:g}] (gap {self.gap:g} s)"
                     )
-        for a, b, start, end in segments:
+        for a, b, start, end in segments if check else ():
             _check_interval(start, end, f"segment {a}->{b}")
             for w in self._segments.get((b, a), ()):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):

@@ -7,26 +7,38 @@ the vehicles that have somewhere to go one after another through the free window
 (prioritised safe-interval planning), and then replaces all plans at once:
 
 1. **Committed** (booked first, for every vehicle): the nodes it holds in the
-   ReservationMatrix, i.e. where it is and what it was released. Holds are exclusive, so
-   these windows never conflict. A vehicle with nowhere to go (no goal, at its goal,
-   processing, held by an operator, stale, faulty, suspect) stays on its holds for good; a
-   vehicle about to plan keeps its last held node (the frontier) a little longer than it
-   needs to reach it, so that nobody is planned across its nose before it can turn away.
+   ReservationMatrix (where it is and what it was released), and the next few steps of its
+   current plan, which it may still be released while this round is planned. Each node's
+   committed visits keep their order, and their windows are laid one after the other from
+   now (the holder first), so they never conflict. A vehicle with nowhere to go (no goal,
+   at its goal, processing, held by an operator, stale, faulty, suspect) stays on its holds
+   for good; a vehicle about to plan keeps its last committed node (the frontier) a little
+   longer than it needs to reach it, so that nobody is planned across its nose before it
+   can turn away.
 2. **Planned**, most urgent first (the program's priority: the oldest task, a vehicle at a
    station first; a vehicle whose plan failed in the last round before every other): a
    :class:`SafeIntervalSearch` from the frontier, at the time the vehicle is estimated to
    reach it, to its goal, where it may stay. A route given by the job (a return lane) is
    timed along its nodes instead (:func:`time_route`). Only the first ``horizon_s`` of a
-   plan are booked: beyond it, nothing is released before the next round.
-3. **Swap**: a fresh :class:`PassOrder` from the round's plans, all labelled by the one
-   consistent table of this round (committed visits with the round's start time), so the
-   order is acyclic; each vehicle's control gets its route.
+   plan are booked: beyond it, nothing is released before the next round. A vehicle
+   without a plan stands at its frontier, booked for good where nobody was planned across
+   it already.
+3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
+   order they had, planned ones by the time they claim the node, which comes after every
+   committed window there. Each vehicle's control gets its route from wherever it has been
+   released to meanwhile.
 
-While a round is being planned nothing new is released (vehicles drive on over what they
-hold), so the committed part stays exact; a round's search work is spread over scans by
-``budget`` expansions per scan, like the A* block. A new round starts every ``replan_s``
-seconds, and sooner when a vehicle needs one: a new goal, a plan that ended at the horizon
-or did not match its route, a blockade closed or cleared.
+A round's search work is spread over scans by ``budget`` expansions per scan, like the A*
+block, and the vehicles drive on meanwhile (within their committed steps, by the old
+order). A new round starts every ``replan_s`` seconds, and sooner when a vehicle needs one:
+a new goal, a plan that ended at the horizon or did not match its route, a blockade closed
+or cleared.
+
+Why no vehicle ever waits for one that waits for it: a vehicle waits only for a visit
+ordered before its own at that node, whose vehicle leaves that node (claims its next step)
+by the end of its window there, which ends before the waiting one's window starts. So every
+wait points to a vehicle whose next step is labelled strictly earlier than the waiter's,
+and labels cannot decrease round a circle.
 
 The controls release a node only when :meth:`gate` allows it: it is the next step of the
 vehicle's plan, inside the horizon, and every visit planned there before its own has
@@ -39,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,21 +63,29 @@ from topology import Plant
 from .pass_order import PassOrder
 from .reservation import ReservationMatrix
 from .sipp import ArcGeometry, SafeIntervalSearch, TimedPlan, TurnTimes, time_route
-from .time_windows import TimeWindowTable, WindowConflict
+from .time_windows import TimeWindowTable
 
 WALLS = ("offline", "stale", "fault", "suspect")
 
 
+HELD = -1e18  # the label of a held node: first at its node, the vehicle is there
+EXTEND = 2  # steps of its old plan a vehicle may still be released while a round is planned
+
+
 @dataclass
 class _Entry:
-    """One vehicle in a round: what it holds, and where it wants to go."""
+    """One vehicle in a round: what it is committed to, and where it wants to go."""
 
     vehicle: int
-    committed: list[int]  # node ids held, in driving order (the last is the frontier)
-    reach_s: float  # estimated time it reaches the frontier
-    heading: tuple[float, float] | None
-    goal: int | None  # None: it stays
+    committed: list[int]  # held node ids, then the old plan's next steps (the last: frontier)
+    labels: list[float]  # their place in the pass order (held nodes first at theirs)
+    ends: list[float]  # when it is expected to leave each (inf: it stays)
+    offset: int  # the old plan's step index of committed[0]; -1: no old plan
+    reach_s: float = 0.0  # estimated time it reaches the frontier
+    heading: tuple[float, float] | None = None
+    goal: int | None = None  # None: it stays
     fixed: list[int] | None = None  # a given route after the frontier (a return lane)
+    starts: list[float] = field(default_factory=list)  # the windows' starts in this round
 
 
 class TimeWindowTraffic(FunctionBlock):
@@ -128,7 +148,8 @@ class TimeWindowTraffic(FunctionBlock):
         self._steps: dict[int, list[int]] = {}
         self._front: dict[int, int] = {}
         self._goal: dict[int, int | None] = {}
-        self._route: dict[int, list[int]] = {}
+        self._labels: dict[int, list[float]] = {}
+        self._limit: dict[int, int] = {}  # while planning: the last step it may be released
         self._late: set[int] = set()  # vehicles whose plan failed: planned first next round
         self._due_ns = 0
         self._began_ns = 0
@@ -147,14 +168,15 @@ class TimeWindowTraffic(FunctionBlock):
     # ----- what the controls ask ---------------------------------------------------------
     def gate(self, vehicle: int, node: int) -> tuple[bool, int | None]:
         """May ``vehicle`` be released into ``node`` (an id) now? (ok, the vehicle it waits
-        for; None when it waits for a plan: a round is running, or its plan ends before)."""
-        if self.planning:
-            return False, None
+        for; None when it waits for a plan: its plan ends before, or a round is being planned
+        and the node is beyond what that round took as committed)."""
         steps = self._steps.get(vehicle)
         if steps is None:
             self._wanted = True
             return False, None
         step = self._front[vehicle] + 1
+        if self.planning and step > self._limit.get(vehicle, -1):
+            return False, None
         if step >= len(steps) or steps[step] != node:
             self._wanted = True  # the horizon is reached, or the route changed
             return False, None
@@ -218,40 +240,139 @@ class TimeWindowTraffic(FunctionBlock):
         self._due_ns = ctx.time_ns + round(self.replan_s * 1e9)
         self._began_ns = ctx.time_ns
         self._allowed = (~self.blockades.blocked).tolist()
-        self._t0 = t0 = ctx.time
-        table = self._next_table = TimeWindowTable(self.gap_s)
-        self._entries, self._made, self._search = {}, {}, None
-        movers = []
+        self._t0 = ctx.time
+        self._next_table = TimeWindowTable(self.gap_s)
+        self._made, self._search = {}, None
+        self._entries = {}
         for v, c in self.controls.items():
-            held = self.reservation.holds[v]
-            if c.current is None or not held:
-                continue
-            committed = [int(self.plant.ids[n]) for n in held]
-            reach, heading = self._drive(committed, t0)
-            entry = _Entry(v, committed, reach, heading, self._moving_goal(c))
-            if entry.goal is not None and c.fixed_route is not None:
-                fixed = list(c.fixed_route)
-                front = committed[-1]
-                entry.fixed = fixed[fixed.index(front) + 1 :] if front in fixed else None
-                if not entry.fixed:
-                    entry.goal = None
-            self._entries[v] = entry
-            if entry.goal is None:
-                ends = [math.inf] * len(committed)
-            else:
+            entry = self._entry(v, c)
+            if entry is not None:
+                self._entries[v] = entry
+        self._chain()
+        self._limit = {
+            v: e.offset + len(e.committed) - 1 for v, e in self._entries.items() if e.offset >= 0
+        }
+        movers = []
+        for entry in self._entries.values():
+            self._book_committed(entry)
+            if entry.goal is not None:
                 movers.append(entry)
-                # kept a little past its arrival: it needs time to turn away
-                ends = [reach] * (len(committed) - 1) + [reach + self.frontier_hold_s]
-            table.book(
-                v,
-                [(n, t0, end) for n, end in zip(committed, ends, strict=True)],
-                [(a, b, t0, reach) for a, b in zip(committed, committed[1:], strict=False)],
-            )
         late = self._late
         self._queue = sorted(
             movers, key=lambda e: (e.vehicle not in late, self.priority(e.vehicle))
         )
         self._late = set()
+
+    def _entry(self, v: int, control) -> _Entry | None:
+        """What ``v`` is committed to: the nodes it holds and, while it drives on during
+        the round, the next steps of its old plan (labelled as they were)."""
+        held = [int(self.plant.ids[n]) for n in self.reservation.holds[v]]
+        if control.current is None or not held:
+            return None
+        goal = self._moving_goal(control)
+        steps, front = self._steps.get(v), self._front.get(v)
+        offset = -1
+        if steps is not None and front is not None and front + 1 >= len(held):
+            if steps[front + 1 - len(held) : front + 1] == held:
+                offset = front + 1 - len(held)
+        committed = list(held)
+        labels = [HELD + k for k in range(len(held))]
+        if (
+            offset >= 0
+            and goal is not None
+            and front + 1 < len(steps)
+            and self.order.blocker(v, front + 1) is None
+        ):
+            # it is on its way (its next step is free to take): it drives on meanwhile; a
+            # vehicle that waits is planned afresh from where it is instead
+            for k in range(front + 1, min(front + 1 + EXTEND, len(steps))):
+                if steps[k] in committed:
+                    break  # coming back: not released before it has reached the frontier
+                committed.append(steps[k])
+                labels.append(self._labels[v][k])
+        t0 = self._t0
+        reach, heading = self._drive(committed, t0)
+        if goal is None:
+            ends = [math.inf] * len(committed)
+        else:
+            # it leaves a node when it sets off towards the next one: not before it
+            # arrives there (estimated), nor before that step's place in the order
+            arrive = self._arrivals(committed, t0)
+            ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
+            ends.append(reach + self.frontier_hold_s)
+        entry = _Entry(v, committed, labels, ends, offset, reach, heading, goal)
+        if goal is not None and control.fixed_route is not None:
+            fixed = list(control.fixed_route)
+            front_node = committed[-1]
+            entry.fixed = fixed[fixed.index(front_node) + 1 :] if front_node in fixed else None
+            if not entry.fixed:
+                entry.goal = None
+                entry.ends = [math.inf] * len(committed)
+        return entry
+
+    def _chain(self) -> None:
+        """The committed windows of each node, one after the other in pass order, from
+        now: held nodes from now (the vehicle is there), a step not yet driven after the
+        one before it at that node. An old plan's step behind a vehicle that stays for good
+        is dropped (and not released): that vehicle goes first and does not leave."""
+        t0, gap = self._t0, self.gap_s
+        visits: dict[int, list[tuple[float, int, int]]] = {}
+        for v, e in self._entries.items():
+            e.starts = [t0] * len(e.committed)
+            for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
+                visits.setdefault(node, []).append((label, v, k))
+        cut: dict[int, int] = {}
+        for queue in visits.values():
+            queue.sort()
+            free = t0
+            for _label, v, k in queue:
+                e = self._entries[v]
+                if free == math.inf:
+                    cut[v] = min(cut.get(v, k), k)
+                    continue
+                e.starts[k] = free
+                e.ends[k] = max(e.ends[k], free)
+                free = e.ends[k] + gap
+        for v, k in cut.items():
+            e = self._entries[v]
+            e.committed, e.labels, e.ends, e.starts = (
+                e.committed[:k],
+                e.labels[:k],
+                e.ends[:k],
+                e.starts[:k],
+            )
+            e.reach_s, e.heading = self._drive(e.committed, self._t0)
+            if e.goal is not None:
+                e.ends[-1] = max(e.ends[-1], e.reach_s + self.frontier_hold_s)
+            if e.fixed is not None:
+                e.goal = None  # its given route continues from further on: next round
+                e.ends = [math.inf] * len(e.committed)
+
+    def _book_committed(self, entry: _Entry) -> None:
+        """Book what ``entry`` is committed to, as :meth:`_chain` laid it out (consistent by
+        construction, so booked without the rules)."""
+        self._next_table.book(
+            entry.vehicle,
+            list(zip(entry.committed, entry.starts, entry.ends, strict=True)),
+            self._committed_segments(entry),
+            check=False,
+        )
+
+    def _committed_segments(self, entry: _Entry) -> list[tuple[int, int, float, float]]:
+        out = []
+        for k in range(1, len(entry.committed)):
+            a, b = entry.committed[k - 1], entry.committed[k]
+            start = entry.starts[k]
+            out.append((a, b, start, start + self._lengths.get((a, b), 0.0) / self.speed))
+        return out
+
+    def _arrivals(self, nodes: list[int], t0: float) -> list[float]:
+        """Estimated arrival at each of ``nodes``, driving from the first at ``t0``."""
+        out, t = [t0], t0
+        for a, b in zip(nodes, nodes[1:], strict=False):
+            t += self._lengths.get((a, b), 0.0) / self.speed
+            out.append(t)
+        return out
 
     def _drive(self, nodes: list[int], t0: float) -> tuple[float, tuple[float, float] | None]:
         """Estimated arrival at the last of ``nodes`` (driving from the first at ``t0``) and
@@ -299,7 +420,7 @@ class TimeWindowTraffic(FunctionBlock):
             entry.vehicle,
             entry.committed[-1],
             goal,
-            entry.reach_s,
+            self._set_off(entry),
             speed=self.speed,
             heading=entry.heading,
             turns=self.turns,
@@ -324,12 +445,17 @@ class TimeWindowTraffic(FunctionBlock):
             nodes,
             lengths,
             directions,
-            entry.reach_s,
+            self._set_off(entry),
             speed=self.speed,
             heading=entry.heading,
             turns=self.turns,
             hold_s=self.goal_hold_s,
         )
+
+    def _set_off(self, entry: _Entry) -> float:
+        """When its plan may start at the frontier: its estimated arrival there, but not
+        before its window on it opens."""
+        return max(entry.reach_s, entry.starts[-1])
 
     def _book(self, entry: _Entry, plan: TimedPlan | None) -> None:
         """Book the committed part and the plan up to the horizon together."""
@@ -340,73 +466,78 @@ class TimeWindowTraffic(FunctionBlock):
             self._late.add(v)
             self._stand(entry)
             return
-        t0, committed = self._t0, entry.committed
         claims = plan.claims
-        last = 1
-        while last + 1 < len(plan.nodes) and claims[last + 1] <= t0 + self.horizon_s:
+        last = min(1, len(plan.nodes) - 1)  # 0: its committed steps end at its goal
+        while last + 1 < len(plan.nodes) and claims[last + 1] <= self._t0 + self.horizon_s:
             last += 1
-        nodes = [(n, t0, entry.reach_s) for n in committed[:-1]]
-        nodes.append((committed[-1], t0, plan.depart[0]))
+        entry.ends[-1] = plan.depart[0]
+        nodes = list(zip(entry.committed, entry.starts, entry.ends, strict=True))
         nodes += [(plan.nodes[i], claims[i], plan.depart[i]) for i in range(1, last + 1)]
-        segments = [
-            (a, b, t0, entry.reach_s) for a, b in zip(committed, committed[1:], strict=False)
-        ]
+        segments = self._committed_segments(entry)
         segments += [
             (plan.nodes[i], plan.nodes[i + 1], plan.depart[i], plan.arrive[i + 1])
             for i in range(last)
         ]
-        self._next_table.book(v, nodes, segments)
+        self._next_table.book(v, nodes, segments, check=False)  # the search kept the rules
         self._made[v] = plan
         self.plans += 1
 
     def _stand(self, entry: _Entry) -> None:
-        """No plan: the vehicle stands on what it holds until the next round, so book that
+        """No plan: the vehicle stands at its frontier until the next round, so book that
         for good, and the vehicles planned after it go round it instead of waiting for it.
-        Those planned before it in this round may already cross its frontier later on: the
-        pass order then makes them wait for it (it plans first next round)."""
-        committed, t0 = entry.committed, self._t0
-        try:
-            self._next_table.book(
-                entry.vehicle,
-                [(n, t0, math.inf) for n in committed],
-                [(a, b, t0, entry.reach_s) for a, b in zip(committed, committed[1:], strict=False)],
-            )
-        except WindowConflict:
-            pass  # its short windows stay booked
+        Those planned before it in this round may already cross its frontier later on: then
+        it keeps its short window there, and the pass order makes them wait for it (it
+        plans first next round)."""
+        front = entry.committed[-1]
+        start = entry.starts[-1]
+        if any(
+            w.vehicle != entry.vehicle and w.end >= start
+            for w in self._next_table.node_windows(front)
+        ):
+            return
+        entry.ends[-1] = math.inf
+        self._book_committed(entry)
 
     def _swap(self, ctx: CycleContext) -> None:
-        """The round is complete: its plans replace the old ones, all at once."""
-        t0 = self._t0
+        """The round is complete: its plans replace the old ones, all at once. A vehicle may
+        have been released further along its committed steps while the round was planned:
+        it goes on from there."""
         self.table = self._next_table
         self._next_table = None
-        order = self.order = PassOrder()
-        self._steps, self._front, self._goal, self._route = {}, {}, {}, {}
+        order = PassOrder()
+        steps_of, front_of, goal_of, labels_of = {}, {}, {}, {}
         for v, entry in self._entries.items():
             plan = self._made.get(v)
-            committed = entry.committed
-            labels = [t0] * len(committed)
-            steps = list(committed)
+            steps, labels = list(entry.committed), list(entry.labels)
+            beyond: list[int] = []
             if plan is not None:
                 claims = plan.claims
                 for i in range(1, len(plan.nodes)):
-                    if claims[i] > t0 + self.horizon_s and i > 1:
+                    if claims[i] > self._t0 + self.horizon_s and i > 1:
+                        beyond = list(plan.nodes[i:])
                         break
                     steps.append(plan.nodes[i])
                     labels.append(claims[i])
             order.set_plan(v, steps, labels)
-            self._steps[v] = steps
-            self._front[v] = len(committed) - 1
-            self._goal[v] = entry.goal
-            # what it has left since the round began (it drove on over its holds)
+            # released since the round began: along its committed steps (the old plan)
+            front = len(entry.committed) - 1
+            if entry.offset >= 0:
+                front = min(self._front[v] - entry.offset, front)
             held = {int(self.plant.ids[n]) for n in self.reservation.holds[v]}
-            left = next((k for k, n in enumerate(committed) if n in held), len(committed) - 1)
+            left = next((k for k, n in enumerate(steps) if n in held), 0)
             if left > 0:
                 order.passed(v, left - 1)
+            steps_of[v], front_of[v], goal_of[v] = steps, front, entry.goal
+            labels_of[v] = labels
             control = self.controls[v]
             if plan is not None:
-                control.follow_plan(committed[-1], list(plan.nodes[1:]))
+                control.follow_plan(steps[front], steps[front + 1 :] + beyond)
             elif entry.goal is None:
-                control.follow_plan(committed[-1], [])  # there already: nothing to drive
+                control.follow_plan(steps[front], [])  # there already: nothing to drive
+        self.order = order
+        self._steps, self._front, self._goal = steps_of, front_of, goal_of
+        self._labels = labels_of
+        self._limit = {}
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1
