@@ -101,20 +101,29 @@ def test_the_default_job_runs_on_time_windows_planned_in_rounds(tmp_path):
     assert any(r.sections and r.sections[-1].function == 1 for r in p.completed)
 
 
-def test_the_planner_keeps_its_budget_per_scan(tmp_path):
-    cfg = load_config(tw_config(tmp_path, TIME_WINDOWS.replace("800", "25")))
+def test_the_planner_keeps_its_budget_per_scan_and_the_fleet_drives_on_meanwhile(tmp_path):
+    """A tiny budget spreads every round over many scans; vehicles are still released the
+    steps they were committed to while a round is being planned."""
+    cfg = load_config(tw_config(tmp_path, TIME_WINDOWS.replace("800", "3")))
     cfg.watchdog = 5.0
     p = FleetProgram(cfg)
-    most = 0
+    most, released_while_planning = 0, 0
     try:
         p.rt.start()
         for _ in range(6000):
+            before = {v: tuple(c.released) for v, c in p.controls.items()}
+            planning = p.traffic.planning
             p.rt.step()
             most = max(most, p.traffic.expansions)
+            if planning and p.traffic.planning:
+                released_while_planning += sum(
+                    bool(set(c.released) - set(before[v])) for v, c in p.controls.items()
+                )
     finally:
         p.close()
-    assert 0 < most <= 25
+    assert 0 < most <= 3
     assert p.traffic.rounds > 10 and len(p.completed) >= 1
+    assert released_while_planning > 0
 
 
 def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):
