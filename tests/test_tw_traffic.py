@@ -6,11 +6,15 @@ tests in test_fleet_properties.py and test_faulty_links.py."""
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 
 import pytest
 from fleet_scenarios import make_config, run
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+from test_fleet_properties import grid_plants
 
 from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, Blockade, load_config
@@ -233,3 +237,157 @@ def test_time_windows_refuses_a_plant_with_areas_also_when_built_in_code():
     cfg = make_config(plant, {1: 0}, {"a": [2]}, {2: [0]}, traffic="time_windows")
     with pytest.raises(ValueError, match="single-vehicle areas"):
         FleetProgram(cfg)
+
+
+def stuck_by_order(traffic) -> list[int]:
+    """Execute the current plans by the pass order alone, whatever the delays: every
+    vehicle that may enter its next step does, until nobody can. A vehicle at the end of
+    its plan leaves it too (the next round plans it on). Returns the vehicles still short
+    of their plan's end: they wait for each other in a circle (empty: none)."""
+    order = copy.deepcopy(traffic.order)
+    at = dict(traffic._front)
+    for v, front in at.items():
+        if front > 0:
+            order.passed(v, front - 1)  # it drives through what it was released
+    ends = {v: len(steps) - 1 for v, steps in traffic._steps.items()}
+    done = set()
+    moved = True
+    while moved:
+        moved = False
+        for v in sorted(at):
+            if v in done:
+                continue
+            if at[v] >= ends[v]:
+                order.passed(v, ends[v])
+                done.add(v)
+                moved = True
+            elif order.may_enter(v, at[v] + 1):
+                order.passed(v, at[v])
+                at[v] += 1
+                moved = True
+    return sorted(v for v in at if v not in done)
+
+
+def check_every_swap(program: FleetProgram) -> dict[str, int]:
+    """Wrap the planner's swap: after each one the labels grow along every vehicle's
+    steps, and the order can be executed to the end."""
+    tw = program.traffic
+    swap = tw._swap
+    seen = {"swaps": 0}
+
+    def checked(ctx):
+        swap(ctx)
+        seen["swaps"] += 1
+        for v, (nodes, labels) in tw.order._plans.items():
+            assert list(labels) == sorted(labels), (ctx.time, v, nodes, labels)
+        assert stuck_by_order(tw) == [], ctx.time
+
+    tw._swap = checked
+    return seen
+
+
+def test_every_order_of_the_default_job_can_be_executed_to_the_end(tmp_path):
+    cfg = load_config(tw_config(tmp_path))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    seen = check_every_swap(p)
+    try:
+        run(p, 150)
+    finally:
+        p.close()
+    assert seen["swaps"] > 100
+
+
+@st.composite
+def dense_fleets(draw):
+    """Grid plants with up to 30 % of their nodes taken by vehicles: three times the
+    liveness condition, where planning fails often and plans cross a lot."""
+    plant = draw(grid_plants())
+    count = draw(st.integers(2, max(2, min(12, int(0.3 * plant.n)))))
+    starts = draw(
+        st.lists(
+            st.sampled_from([int(i) for i in plant.ids]),
+            min_size=count,
+            max_size=count,
+            unique=True,
+        )
+    )
+    clusters = {f: [n.id for n in plant.nodes if f in n.functions] for f in (2, 3)}
+    return make_config(
+        plant,
+        {v + 1: s for v, s in enumerate(starts)},
+        {"ab": [2, 3], "ba": [3, 2]},
+        clusters,
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        seed=draw(st.integers(0, 1000)),
+        traffic="time_windows",
+    )
+
+
+@settings(
+    max_examples=12,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    phases=[Phase.explicit, Phase.generate],
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+@given(dense_fleets())
+def test_every_order_can_be_executed_to_the_end_on_crowded_plants(cfg):
+    p = FleetProgram(cfg)
+    seen = check_every_swap(p)
+    try:
+        run(p, 90)
+    finally:
+        p.close()
+    assert seen["swaps"] > 0
+
+
+def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():
+    """A crowded 7 x 5 grid (6 vehicles on 30 nodes). Steps a vehicle keeps from its old
+    plan while a round is planned keep their place at each node, but take their window
+    start in the new round's table as their label: with the old plan's times instead, a
+    new plan's first claim could come before them, and here two vehicles would each wait
+    for the other's turn."""
+    blocked = {(2, 0), (3, 1), (5, 1), (1, 3), (3, 4)}
+    cells = [(x, y) for y in range(5) for x in range(7) if (x, y) not in blocked]
+    ids = {c: k for k, c in enumerate(cells)}
+    func = {(0, 2): 3, (3, 3): 3, (4, 4): 2, (5, 4): 2}
+    nodes = [
+        Node(
+            k,
+            f"c{x}_{y}",
+            float(x),
+            float(y),
+            "station" if (x, y) in func else "transit",
+            (func[(x, y)],) if (x, y) in func else (),
+        )
+        for (x, y), k in ids.items()
+    ]
+    edges = [
+        Edge(k, ids[nb], 1.0)
+        for (x, y), k in ids.items()
+        for nb in ((x + 1, y), (x, y + 1))
+        if nb in ids
+    ]
+    plant = Plant.build(nodes, edges, name="grid", functions={2: "a", 3: "b"})
+    cfg = make_config(
+        plant,
+        {1: 13, 2: 9, 3: 1, 4: 20, 5: 6, 6: 2},
+        {"ba": [3, 2]},
+        {2: [27, 28], 3: [11, 20]},
+        strategy="least_utilised",
+        processing_s=1.0,
+        cycle_time=0.05,
+        seed=395,
+        traffic="time_windows",
+    )
+    p = FleetProgram(cfg)
+    seen = check_every_swap(p)
+    try:
+        run(p, 200)
+    finally:
+        p.close()
+    assert seen["swaps"] > 100

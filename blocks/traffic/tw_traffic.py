@@ -68,7 +68,7 @@ from .time_windows import TimeWindowTable
 WALLS = ("offline", "stale", "fault", "suspect")
 
 
-HELD = -1e18  # the label of a held node: first at its node, the vehicle is there
+HELD = -1e18  # sorts a held node first at its node (the vehicle is there)
 EXTEND = 2  # steps of its old plan a vehicle may still be released while a round is planned
 
 
@@ -81,6 +81,7 @@ class _Entry:
     labels: list[float]  # their place in the pass order (held nodes first at theirs)
     ends: list[float]  # when it is expected to leave each (inf: it stays)
     offset: int  # the old plan's step index of committed[0]; -1: no old plan
+    held: int  # how many of the committed nodes it holds (the first ones)
     reach_s: float = 0.0  # estimated time it reaches the frontier
     heading: tuple[float, float] | None = None
     goal: int | None = None  # None: it stays
@@ -300,7 +301,7 @@ class TimeWindowTraffic(FunctionBlock):
             arrive = self._arrivals(committed, t0)
             ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
             ends.append(reach + self.frontier_hold_s)
-        entry = _Entry(v, committed, labels, ends, offset, reach, heading, goal)
+        entry = _Entry(v, committed, labels, ends, offset, len(held), reach, heading, goal)
         if goal is not None and control.fixed_route is not None:
             fixed = list(control.fixed_route)
             front_node = committed[-1]
@@ -311,42 +312,66 @@ class TimeWindowTraffic(FunctionBlock):
         return entry
 
     def _chain(self) -> None:
-        """The committed windows of each node, one after the other in pass order, from
-        now: held nodes from now (the vehicle is there), a step not yet driven after the
-        one before it at that node. An old plan's step behind a vehicle that stays for good
-        is dropped (and not released): that vehicle goes first and does not leave."""
+        """Lay out the committed windows: at each node one after the other in the order the
+        visits had (a held node first: the vehicle is there), from now; along each vehicle
+        never earlier than its step before, and each window lasting until the next one of
+        that vehicle begins (it leaves a node by setting off towards the next). Each start
+        becomes the visit's label, so every committed label is a window start in this one
+        table. An old plan's step behind a vehicle that stays for good is dropped, and if
+        the old order cannot be laid out (it never should), only the held nodes stay."""
+        stays = {n for e in self._entries.values() if e.goal is None for n in e.committed[: e.held]}
+        for e in self._entries.values():
+            k = next((k for k in range(e.held, len(e.committed)) if e.committed[k] in stays), None)
+            if k is not None:
+                self._cut(e, k)
+        if not self._lay_out():
+            for e in self._entries.values():
+                self._cut(e, e.held)
+            self._lay_out()
+        for e in self._entries.values():
+            e.labels = list(e.starts)
+
+    def _lay_out(self) -> bool:
+        """One pass per node after the other until nothing moves (starts and ends only
+        grow, so a fixpoint is reached unless the old order had a circle); False if not."""
         t0, gap = self._t0, self.gap_s
         visits: dict[int, list[tuple[float, int, int]]] = {}
         for v, e in self._entries.items():
             e.starts = [t0] * len(e.committed)
             for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
                 visits.setdefault(node, []).append((label, v, k))
-        cut: dict[int, int] = {}
-        for queue in visits.values():
-            queue.sort()
-            free = t0
-            for _label, v, k in queue:
-                e = self._entries[v]
-                if free == math.inf:
-                    cut[v] = min(cut.get(v, k), k)
-                    continue
-                e.starts[k] = free
-                e.ends[k] = max(e.ends[k], free)
-                free = e.ends[k] + gap
-        for v, k in cut.items():
-            e = self._entries[v]
-            e.committed, e.labels, e.ends, e.starts = (
-                e.committed[:k],
-                e.labels[:k],
-                e.ends[:k],
-                e.starts[:k],
-            )
-            e.reach_s, e.heading = self._drive(e.committed, self._t0)
-            if e.goal is not None:
-                e.ends[-1] = max(e.ends[-1], e.reach_s + self.frontier_hold_s)
-            if e.fixed is not None:
-                e.goal = None  # its given route continues from further on: next round
-                e.ends = [math.inf] * len(e.committed)
+        queues = [sorted(q) for q in visits.values()]
+        for _ in range(4 * sum(len(q) for q in queues) + 4):
+            moved = False
+            for queue in queues:
+                free = t0
+                for _label, v, k in queue:
+                    e = self._entries[v]
+                    start = max(free, e.starts[k - 1] if k else t0)
+                    if start > e.starts[k]:
+                        e.starts[k], moved = start, True
+                    end = max(e.ends[k], e.starts[k])
+                    if k + 1 < len(e.committed):
+                        end = max(end, e.starts[k + 1])
+                    if end > e.ends[k]:
+                        e.ends[k], moved = end, True
+                    free = e.ends[k] + gap
+            if not moved:
+                return True
+        return False
+
+    def _cut(self, e: _Entry, k: int) -> None:
+        """Commit ``e`` only to its steps before ``k`` (never fewer than it holds)."""
+        k = max(k, e.held)
+        if k >= len(e.committed):
+            return
+        e.committed, e.labels, e.ends = e.committed[:k], e.labels[:k], e.ends[:k]
+        e.reach_s, e.heading = self._drive(e.committed, self._t0)
+        if e.goal is not None:
+            e.ends[-1] = max(e.ends[-1], e.reach_s + self.frontier_hold_s)
+        if e.fixed is not None:
+            e.goal = None  # its given route goes on from further along: next round
+            e.ends = [math.inf] * len(e.committed)
 
     def _book_committed(self, entry: _Entry) -> None:
         """Book what ``entry`` is committed to, as :meth:`_chain` laid it out (consistent by
