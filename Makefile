@@ -22,9 +22,9 @@ test: $(STAMP)
 # for the fleet ones (docs/benchmarks.md, "Running them"); each script prints its own wall
 # time at the end.
 bench: $(STAMP)
-	@echo "make bench: about 180 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
+	@echo "make bench: about 210 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants), allocation 60, time_windows 0.1, lorr 20). make bench-quick runs them all reduced in about 5 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 60, time_windows 0.1, lorr 20). make bench-quick runs them all reduced in about 5 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -32,6 +32,8 @@ bench: $(STAMP)
 	$(BIN)/python bench/io_throughput.py
 	$(BIN)/python bench/fleet_scale.py
 	$(BIN)/python bench/warehouse_throughput.py
+	$(BIN)/python bench/warehouse_throughput.py --plant kiva --sizes 60 140 --timesteps 300 --traffic reactive time_windows
+	$(BIN)/python bench/warehouse_throughput.py --plant kiva --sizes 60 --timesteps 300 --traffic reactive time_windows --delay-rate 0 0.001 0.01
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/time_windows.py
 	$(BIN)/python bench/lorr.py
@@ -45,7 +47,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/astar_step.py --quick
 	$(BIN)/python bench/io_throughput.py --quick
 	$(BIN)/python bench/fleet_scale.py --quick
-	$(BIN)/python bench/warehouse_throughput.py --quick
+	$(BIN)/python bench/warehouse_throughput.py --quick --traffic reactive time_windows
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/time_windows.py --quick
 	$(BIN)/python bench/lorr.py --quick
