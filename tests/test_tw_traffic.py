@@ -181,31 +181,35 @@ def test_a_vehicle_that_cannot_be_planned_stands_and_the_others_go_round_it():
     assert p.resolver.detected == 0
 
 
-def test_a_route_that_passes_its_goal_and_comes_back_ends_there():
-    """A plan may pass the goal and come back to it (to let another vehicle by); once the
-    vehicle stands at its goal it has arrived, whatever was left of that route."""
-    w, h = 9, 6
-    cells = [(x, y) for y in range(h) for x in range(w) if (x, y) != (2, 5)]
+def grid_with_stations(w: int, h: int, blocked: set, stations: dict) -> Plant:
+    """A w x h grid of 1 m cells without ``blocked``, node ids row by row, two-way
+    segments; ``stations``: cell -> the function it provides (2 or 3)."""
+    cells = [(x, y) for y in range(h) for x in range(w) if (x, y) not in blocked]
     ids = {c: k for k, c in enumerate(cells)}
-    func = {(7, 0): 2, (7, 1): 3}
-    edges = [
-        Edge(k, ids[nb], 1.0)
-        for (x, y), k in ids.items()
-        for nb in ((x + 1, y), (x, y + 1))
-        if nb in ids
-    ]
     nodes = [
         Node(
             k,
             f"c{x}_{y}",
             float(x),
             float(y),
-            "station" if (x, y) in func else "transit",
-            (func[(x, y)],) if (x, y) in func else (),
+            "station" if (x, y) in stations else "transit",
+            (stations[(x, y)],) if (x, y) in stations else (),
         )
         for (x, y), k in ids.items()
     ]
-    plant = Plant.build(nodes, edges, name="grid", functions={2: "a", 3: "b"})
+    edges = [
+        Edge(k, ids[nb], 1.0)
+        for (x, y), k in ids.items()
+        for nb in ((x + 1, y), (x, y + 1))
+        if nb in ids
+    ]
+    return Plant.build(nodes, edges, name="grid", functions={2: "a", 3: "b"})
+
+
+def test_a_route_that_passes_its_goal_and_comes_back_ends_there():
+    """A plan may pass the goal and come back to it (to let another vehicle by); once the
+    vehicle stands at its goal it has arrived, whatever was left of that route."""
+    plant = grid_with_stations(9, 6, {(2, 5)}, {(7, 0): 2, (7, 1): 3})
     cfg = make_config(
         plant,
         {1: 28, 2: 13, 3: 8, 4: 1, 5: 6},
@@ -351,28 +355,12 @@ def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():
     start in the new round's table as their label: with the old plan's times instead, a
     new plan's first claim could come before them, and here two vehicles would each wait
     for the other's turn."""
-    blocked = {(2, 0), (3, 1), (5, 1), (1, 3), (3, 4)}
-    cells = [(x, y) for y in range(5) for x in range(7) if (x, y) not in blocked]
-    ids = {c: k for k, c in enumerate(cells)}
-    func = {(0, 2): 3, (3, 3): 3, (4, 4): 2, (5, 4): 2}
-    nodes = [
-        Node(
-            k,
-            f"c{x}_{y}",
-            float(x),
-            float(y),
-            "station" if (x, y) in func else "transit",
-            (func[(x, y)],) if (x, y) in func else (),
-        )
-        for (x, y), k in ids.items()
-    ]
-    edges = [
-        Edge(k, ids[nb], 1.0)
-        for (x, y), k in ids.items()
-        for nb in ((x + 1, y), (x, y + 1))
-        if nb in ids
-    ]
-    plant = Plant.build(nodes, edges, name="grid", functions={2: "a", 3: "b"})
+    plant = grid_with_stations(
+        7,
+        5,
+        {(2, 0), (3, 1), (5, 1), (1, 3), (3, 4)},
+        {(0, 2): 3, (3, 3): 3, (4, 4): 2, (5, 4): 2},
+    )
     cfg = make_config(
         plant,
         {1: 13, 2: 9, 3: 1, 4: 20, 5: 6, 6: 2},
