@@ -47,7 +47,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/astar_step.py --quick
 	$(BIN)/python bench/io_throughput.py --quick
 	$(BIN)/python bench/fleet_scale.py --quick
-	$(BIN)/python bench/warehouse_throughput.py --quick --traffic reactive time_windows
+	$(BIN)/python bench/warehouse_throughput.py --quick
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/time_windows.py --quick
 	$(BIN)/python bench/lorr.py --quick

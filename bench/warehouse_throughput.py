@@ -36,7 +36,7 @@ counted none in the same trial (205 tasks). 50 ms is kept (``--cycle-ms`` change
 Because a lifelong run can degrade (vehicles jammed for good), the table also gives the
 throughput over the first 500 timesteps and the timestep of the last completed task.
 
-``--quick`` runs 60 vehicles for 50 timesteps (100 simulated s, 2000 scans; about 30 s):
+``--quick`` runs 60 vehicles for 50 timesteps in both traffic modes (100 simulated s, 2000 scans each; about a minute):
 the same table and ratios, but over the start-up, where every vehicle begins at a random
 node, so its throughput is not the lifelong one.
 
@@ -72,7 +72,12 @@ EARLY_TIMESTEPS = 500  # throughput over the first 500 timesteps too (before any
 PLANTS = {"warehouse": warehouse, "kiva": kiva}  # both 33 x 46
 BOUND_TIMESTEPS = 2000  # the single vehicle's run that gives our kinematics' bound
 # --quick lowers these defaults; options given on the command line still win.
-QUICK = {"timesteps": 50, "sizes": [60], "bound_timesteps": 200}
+QUICK = {
+    "timesteps": 50,
+    "sizes": [60],
+    "bound_timesteps": 200,
+    "traffic": ["reactive", "time_windows"],
+}
 
 
 def mean_endpoint_distance(program) -> float:
@@ -260,7 +265,9 @@ def main() -> None:
     parser.add_argument("--cycle-ms", type=float, default=50.0)
     parser.add_argument("--watchdog-ms", type=float, default=1000.0)
     parser.add_argument(
-        "--quick", action="store_true", help="reduced run: --timesteps 50 --sizes 60"
+        "--quick",
+        action="store_true",
+        help="reduced run: --timesteps 50 --sizes 60, both traffic modes",
     )
     args = parser.parse_args()
     if args.quick:
