@@ -402,16 +402,16 @@ class TimeWindowTraffic(FunctionBlock):
     def _drive(self, nodes: list[int], t0: float) -> tuple[float, tuple[float, float] | None]:
         """Estimated arrival at the last of ``nodes`` (driving from the first at ``t0``) and
         the heading it arrives with (None: standing, unknown)."""
-        t, heading = t0, None
-        xy = self.plant.positions
+        steps = [self._direction(a, b) for a, b in zip(nodes, nodes[1:], strict=False)]
+        heading = next((d for d in reversed(steps) if d is not None), None)
+        return self._arrivals(nodes, t0)[-1], heading
+
+    def _direction(self, a: int, b: int) -> tuple[float, float] | None:
+        """Unit vector from node ``a`` to node ``b`` (ids); None where they coincide."""
         index = self.plant.index
-        for a, b in zip(nodes, nodes[1:], strict=False):
-            t += self._lengths.get((a, b), 0.0) / self.speed
-            d = xy[index[b]] - xy[index[a]]
-            norm = float(np.hypot(d[0], d[1]))
-            if norm > 0:
-                heading = (float(d[0] / norm), float(d[1] / norm))
-        return t, heading
+        d = self.plant.positions[index[b]] - self.plant.positions[index[a]]
+        norm = float(np.hypot(d[0], d[1]))
+        return (float(d[0] / norm), float(d[1] / norm)) if norm > 0 else None
 
     def _plan(self, ctx: CycleContext) -> None:
         budget = self.budget
@@ -457,13 +457,9 @@ class TimeWindowTraffic(FunctionBlock):
 
     def _time_fixed(self, entry: _Entry) -> TimedPlan | None:
         nodes = [entry.committed[-1], *entry.fixed]
-        xy, index = self.plant.positions, self.plant.index
-        lengths, directions = [], []
-        for a, b in zip(nodes, nodes[1:], strict=False):
-            lengths.append(self._lengths.get((a, b), 0.0))
-            d = xy[index[b]] - xy[index[a]]
-            norm = float(np.hypot(d[0], d[1]))
-            directions.append((float(d[0] / norm), float(d[1] / norm)) if norm > 0 else None)
+        pairs = list(zip(nodes, nodes[1:], strict=False))
+        lengths = [self._lengths.get(pair, 0.0) for pair in pairs]
+        directions = [self._direction(a, b) for a, b in pairs]
         return time_route(
             self._next_table,
             entry.vehicle,
