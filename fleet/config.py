@@ -64,6 +64,8 @@ class TimeWindowsConfig:
     horizon_s: float = 20.0  # how far ahead a plan is booked and released
     replan_s: float = 2.0  # a planning round at least this often
     plan_budget: int = 200  # search expansions per scan (about 5 ms)
+    wait_free_s: float = 15.0  # T_w1: a wait for a vehicle still on its way, then replan
+    wait_occupied_s: float = 30.0  # T_w2: a wait for a vehicle on the node, then replan
 
 
 @dataclass
@@ -232,6 +234,8 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
         horizon_s=r.number("horizon_s", 20.0, 0.1, 3600.0),
         replan_s=r.number("replan_s", 2.0, 0.01, 3600.0),
         plan_budget=r.integer("plan_budget", 200, 1, 10**8),
+        wait_free_s=r.number("wait_free_s", 15.0, 0.01, 3600.0),
+        wait_occupied_s=r.number("wait_occupied_s", 30.0, 0.01, 3600.0),
     )
     r.finish()
     return cfg

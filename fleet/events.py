@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 from blocks.jobs.recipe import RecipeSequencer
 from blocks.routing.constraints import RoutingConstraints
 from blocks.traffic.deadlock import DeadlockResolver
+from blocks.traffic.tw_traffic import TimeWindowTraffic
 from blocks.traffic.vehicle_control import VehicleControl
 from plc_runtime import CycleContext, FunctionBlock
 
@@ -50,8 +51,11 @@ class EventLog(FunctionBlock):
         resolver: DeadlockResolver,
         blockades: RoutingConstraints,
         capacity: int = 1000,
+        traffic: TimeWindowTraffic | None = None,
     ) -> None:
         super().__init__()
+        self.traffic = traffic
+        self._stranded: dict[int, int] = {}
         self.controls = controls
         self.sequencers = sequencers
         self.resolver = resolver
@@ -86,6 +90,8 @@ class EventLog(FunctionBlock):
                 elif before in ALARM_STATES and before != "offline":
                     self.add(now, "recovered", v, f"{before} -> {state}")
         self._started = True
+        if self.traffic is not None:
+            self._strandings(now)
         if self._epoch == self.blockades.epoch:
             return  # no segment closed or reopened since the last scan
         self._epoch = self.blockades.epoch
@@ -95,6 +101,19 @@ class EventLog(FunctionBlock):
         for a, b in sorted(self._blocked - blocked):
             self.add(now, "reopened", None, f"segment {a}-{b} open again")
         self._blocked = blocked
+
+    def _strandings(self, now: float) -> None:
+        """Time-window traffic found no path for a vehicle for longer than its wait
+        threshold: the seed's FAULT report (the vehicle stands; it is planned again every
+        round, first)."""
+        stranded = self.traffic.stranded_at
+        if stranded == self._stranded:
+            return
+        for v in sorted(stranded.keys() - self._stranded.keys()):
+            self.add(now, "vehicle", v, f"FAULT: no conflict-free path from node {stranded[v]}")
+        for v in sorted(self._stranded.keys() - stranded.keys()):
+            self.add(now, "recovered", v, "a path was found again")
+        self._stranded = dict(stranded)
 
     def _deadlocks(self, now: float) -> None:
         new = self.resolver.events[self._deadlocks_seen :]

@@ -214,6 +214,8 @@ class FleetProgram:
                 horizon_s=tw.horizon_s,
                 replan_s=tw.replan_s,
                 budget=tw.plan_budget,
+                wait_free_s=tw.wait_free_s,
+                wait_occupied_s=tw.wait_occupied_s,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}
@@ -257,7 +259,9 @@ class FleetProgram:
             pushes=self.traffic is None,
         )
         self.recorder = FleetRecorder(self.controls)
-        self.events = EventLog(self.controls, self.jobs, self.resolver, self.blockades)
+        self.events = EventLog(
+            self.controls, self.jobs, self.resolver, self.blockades, traffic=self.traffic
+        )
         self.commands = FleetCommands(plant, self.blockades, vehicles, self._acknowledge)
         self.status = FleetStatus(self, self.commands)
         self.rt.add_task(

@@ -50,6 +50,22 @@ def test_a_late_vehicle_keeps_its_place_and_an_early_one_waits():
     assert order.may_enter(2, 1)
 
 
+def test_a_vehicle_that_takes_its_turn_early_goes_first_and_the_other_waits_for_it():
+    order = PassOrder()
+    order.set_plan(1, [4, 5, 6], [0.0, 10.0, 11.0])  # planned through 5 first
+    order.set_plan(2, [7, 5, 8], [0.0, 12.0, 13.0])
+    assert order.blocker(2, 1) == 1
+    order.take_turn(2, 1)
+    assert order.blocker(2, 1) is None and order.blocker(1, 1) == 2
+    assert order.label(2, 1) < order.label(1, 1) and order.pending(5)[0][1:] == (2, 1)
+    order.take_turn(2, 1)  # already first: nothing changes
+    assert [v for _, v, _ in order.pending(5)] == [2, 1]
+    order.passed(2, 1)  # left 5
+    assert order.may_enter(1, 1) and order.pending(5) == [(10.0, 1, 1)]
+    order.passed(2, 2)
+    assert order.pending(8) == [] and order.progress(2) == 3
+
+
 def test_replanning_replaces_a_vehicles_pending_visits():
     order = PassOrder()
     order.set_plan(1, [1, 2, 3], [0.0, 1.0, 2.0])

@@ -21,6 +21,7 @@ from fleet.config import DEFAULT_CONFIG, Blockade, load_config
 from fleet.program import FleetProgram
 from plc_runtime.errors import ConfigError
 from topology import Edge, Node, Plant
+from vehicles.fleet import Faults
 
 TIME_WINDOWS = """
 [time_windows]
@@ -28,6 +29,8 @@ gap_s = 0.4
 horizon_s = 15
 replan_s = 1.5
 plan_budget = 800
+wait_free_s = 4
+wait_occupied_s = 8
 """
 
 
@@ -45,6 +48,12 @@ def test_the_mode_and_its_planner_are_read_from_the_configuration(tmp_path):
     assert cfg.traffic == "time_windows"
     tw = cfg.time_windows
     assert (tw.gap_s, tw.horizon_s, tw.replan_s, tw.plan_budget) == (0.4, 15.0, 1.5, 800)
+    assert (tw.wait_free_s, tw.wait_occupied_s) == (4.0, 8.0)
+    p = FleetProgram(cfg)
+    try:
+        assert p.traffic.wait_free_ns == 4e9 and p.traffic.wait_occupied_ns == 8e9
+    finally:
+        p.close()
     assert load_config(None).traffic == "reactive"  # the default stays reactive
 
 
@@ -54,6 +63,8 @@ def test_the_mode_and_its_planner_are_read_from_the_configuration(tmp_path):
         (('traffic = "time_windows"', 'traffic = "timed"'), "routing.traffic: must be one of"),
         (("gap_s = 0.4", "gap_s = 0"), "time_windows.gap_s: must be in"),
         (("plan_budget = 800", "plan_budget = 0"), "time_windows.plan_budget: must be in"),
+        (("wait_free_s = 4", "wait_free_s = 0"), "time_windows.wait_free_s: must be in"),
+        (("wait_occupied_s = 8", 'wait_occupied_s = "x"'), "time_windows.wait_occupied_s"),
         (("replan_s = 1.5", "replan_s = 1.5\nwindow = 3"), "time_windows.window: unknown key"),
     ],
 )
@@ -179,6 +190,61 @@ def test_a_vehicle_that_cannot_be_planned_stands_and_the_others_go_round_it():
     assert p.traffic.failed > 0
     assert sum(r.vehicle == 2 for r in p.completed) >= 10
     assert p.resolver.detected == 0
+    # without a path for longer than wait_occupied_s: reported (the seed's FAULT), once
+    assert p.traffic.stranded_at == {1: 3}
+    faults = [e for e in p.events.events if "FAULT" in e.text]
+    assert [(e.vehicle, e.kind) for e in faults] == [(1, "vehicle")]
+    assert faults[0].time_s >= 30.0 and "node 3" in faults[0].text
+
+
+def delayed_crowd(wait_s: float) -> FleetProgram:
+    """Six vehicles on a 6 x 4 grid, each stopping unannounced for 1-10 s with
+    probability 0.05 per second: the vehicles behind a stopped one wait for it."""
+    plant = grid_with_stations(6, 4, {(2, 1), (3, 2)}, {(0, 0): 2, (5, 3): 3, (5, 0): 3})
+    starts = {1: 1, 2: 4, 3: 7, 4: 12, 5: 15, 6: 20}
+    cfg = make_config(
+        plant,
+        starts,
+        {"ab": [2, 3], "ba": [3, 2]},
+        {2: [0], 3: [plant.nodes[-1].id, 5]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        seed=7,
+        traffic="time_windows",
+        faults={v: Faults(delay_rate=0.05) for v in starts},
+    )
+    cfg.time_windows.wait_free_s = wait_s
+    cfg.time_windows.wait_occupied_s = 2 * wait_s
+    return FleetProgram(cfg)
+
+
+def test_a_vehicle_that_waits_too_long_for_a_node_is_planned_afresh():
+    """The seed's thresholds T_w1 / T_w2: past them a waiting vehicle is planned again from
+    where it stands (first in the next round), without conflict or deadlock; with
+    thresholds longer than the run nobody is."""
+    waits = {}
+    for wait_s in (1.0, 3600.0):
+        p = delayed_crowd(wait_s)
+        overdue = p.traffic._overdue
+        longest_short = []
+
+        def checked(v, control, now_ns, overdue=overdue, longest_short=longest_short):
+            due = overdue(v, control, now_ns)
+            if due:
+                longest_short.append(now_ns - control.wait_since_ns)
+            return due
+
+        p.traffic._overdue = checked
+        try:
+            run(p, 120)
+        finally:
+            p.close()
+        assert p.resolver.detected == 0 and len(p.completed) > 0
+        assert sum(f.counters["delays"] for f in p.fleets) > 0
+        waits[wait_s] = p.traffic.wait_replans
+        assert all(d >= wait_s * 1e9 for d in longest_short)
+    assert waits[1.0] > 0 and waits[3600.0] == 0, waits
 
 
 def grid_with_stations(w: int, h: int, blocked: set, stations: dict) -> Plant:
@@ -274,10 +340,11 @@ def stuck_by_order(traffic) -> list[int]:
 
 def check_every_swap(program: FleetProgram) -> dict[str, int]:
     """Wrap the planner's swap: after each one the labels grow along every vehicle's
-    steps, and the order can be executed to the end."""
+    steps, and the order can be executed to the end; and so it can after every node a
+    vehicle took out of turn."""
     tw = program.traffic
-    swap = tw._swap
-    seen = {"swaps": 0}
+    swap, released = tw._swap, tw.released
+    seen = {"swaps": 0, "overtakes": 0}
 
     def checked(ctx):
         swap(ctx)
@@ -286,7 +353,15 @@ def check_every_swap(program: FleetProgram) -> dict[str, int]:
             assert list(labels) == sorted(labels), (ctx.time, v, nodes, labels)
         assert stuck_by_order(tw) == [], ctx.time
 
+    def released_checked(vehicle, node):
+        before = tw.overtakes
+        released(vehicle, node)
+        if tw.overtakes > before:
+            seen["overtakes"] += 1
+            assert stuck_by_order(tw) == [], (vehicle, node)
+
     tw._swap = checked
+    tw.released = released_checked
     return seen
 
 

@@ -89,6 +89,27 @@ class PassOrder:
             return None
         return first[1]
 
+    def take_turn(self, vehicle: int, step: int) -> None:
+        """Move ``vehicle``'s visit of ``step`` before every pending visit at that node (it
+        overtakes vehicles that are still on their way there). Only safe as
+        :class:`~blocks.traffic.tw_traffic.TimeWindowTraffic` uses it: the vehicle enters
+        the node now and may leave it for its next step without waiting for anyone, so
+        nothing it waits for can wait for the visits it overtook."""
+        nodes, arrive = self._plans[vehicle]
+        queue = self._queues[nodes[step]]
+        label = queue[0][0]
+        if queue[0][1:] == (vehicle, step):
+            return
+        self._remove(nodes[step], (arrive[step], vehicle, step))
+        earlier = label - 1e-6 * max(1.0, abs(label))
+        self._plans[vehicle] = (nodes, (*arrive[:step], earlier, *arrive[step + 1 :]))
+        queue = self._queues.setdefault(nodes[step], [])
+        queue.insert(0, (earlier, vehicle, step))
+
+    def label(self, vehicle: int, step: int) -> float:
+        """The place of ``vehicle``'s visit of ``step`` in its node's order."""
+        return self._plans[vehicle][1][step]
+
     def pending(self, node: int) -> list[tuple[float, int, int]]:
         """The visits still to pass ``node``, first first."""
         return list(self._queues.get(node, ()))

@@ -124,6 +124,17 @@ class ArcGeometry:
             for (dx, dy), n in zip(delta.tolist(), norm.tolist(), strict=True)
         ]
         self.max_speed = plant.arc_max_speed.tolist()
+        self.ids: list[int] = plant.ids.tolist()
+        self._turns: dict[tuple[int, int, TurnTimes], float] = {}
+
+    def turn(self, turns: TurnTimes, arc_in: int, arc_out: int) -> float:
+        """Seconds to turn from arriving along ``arc_in`` to leaving along ``arc_out``
+        (indices), computed once per pair: a search asks for the same pairs again and again."""
+        key = (arc_in, arc_out, turns)
+        out = self._turns.get(key)
+        if out is None:
+            out = self._turns[key] = turns.between(self.direction[arc_in], self.direction[arc_out])
+        return out
 
 
 class SafeIntervalSearch:
@@ -166,6 +177,7 @@ class SafeIntervalSearch:
         # a large plant's nodes: converting the whole row would cost more than the search)
         self._row = np.asarray(row, dtype=np.float64)
         self._safe: dict[int, list[tuple[float, float]]] = {}
+        self._seconds: dict[int, float] = {}
         self._heading = heading
         self._goal = plant.idx(goal)
         self._best: dict[tuple[int, int, int], float] = {}
@@ -187,7 +199,7 @@ class SafeIntervalSearch:
                 state = (s, -1, k)
                 self._best[state], self._arrival[state] = 0.0, self.start_time
                 self._parent[state] = None
-                self._push(self._row[s].item() / self.speed, 0.0, state)
+                self._push(self._h(s), 0.0, state)
                 return
         self._finish(
             None, f"node {self.start} is booked by another vehicle at {self.start_time:g} s"
@@ -214,13 +226,16 @@ class SafeIntervalSearch:
         return self.done
 
     def _expand(self, state, node: int, arc_in: int, t: float, g: float, leave_by: float) -> None:
-        geometry, ids = self.geometry, self.plant.ids
-        before = self._heading if arc_in < 0 else geometry.direction[arc_in]
+        geometry, ids, turns = self.geometry, self.geometry.ids, self.turns
+        allowed, table, h = self.allowed, self.table, self._h
         for v, arc, length in self.plant.neighbors[node]:
-            if self.allowed is not None and not self.allowed[arc]:
+            if allowed is not None and not allowed[arc]:
                 continue
             travel = length / min(self.speed, geometry.max_speed[arc])
-            set_off = t + self.turns.between(before, geometry.direction[arc])
+            if arc_in < 0:
+                set_off = t + turns.between(self._heading, geometry.direction[arc])
+            else:
+                set_off = t + geometry.turn(turns, arc_in, arc)
             if set_off > leave_by + 1e-9:
                 continue
             # the window at v opens when it sets off towards v (or when it arrives)
@@ -230,9 +245,9 @@ class SafeIntervalSearch:
                     break
                 if hi < set_off + travel - 1e-9:
                     continue
-                depart = self.table.earliest_entry(
-                    int(ids[node]),
-                    int(ids[v]),
+                depart = table.earliest_entry(
+                    ids[node],
+                    ids[v],
                     max(set_off, lo - claim_delay),
                     travel,
                     self.vehicle,
@@ -247,7 +262,7 @@ class SafeIntervalSearch:
                 if cost < self._best.get(nxt, math.inf) - 1e-12:
                     self._best[nxt], self._arrival[nxt] = cost, arrive
                     self._parent[nxt] = (state, depart)
-                    self._push(cost + self._row[v].item() / self.speed, cost, nxt)
+                    self._push(cost + h(v), cost, nxt)
 
     def _push(self, f: float, g: float, state: tuple[int, int, int]) -> None:
         self._pushed += 1
@@ -257,8 +272,15 @@ class SafeIntervalSearch:
         out = self._safe.get(node)
         if out is None:
             out = self._safe[node] = self.table.safe_intervals(
-                int(self.plant.ids[node]), self.vehicle
+                self.geometry.ids[node], self.vehicle
             )
+        return out
+
+    def _h(self, node: int) -> float:
+        """The heuristic in seconds: the distance to the goal at top speed."""
+        out = self._seconds.get(node)
+        if out is None:
+            out = self._seconds[node] = self._row[node].item() / self.speed
         return out
 
     def _finish(self, state, reason: str | None) -> None:

@@ -127,6 +127,8 @@ class TimeWindowTable:
         t = earliest
         ahead = self._segments.get((a, b), ())
         oncoming = self._segments.get((b, a), ())
+        if not ahead and not oncoming:
+            return t if t <= latest + EPS else None  # the common case: nobody uses it
         gap = self.gap
         while t <= latest + EPS and t < math.inf:
             jump = None

@@ -8,7 +8,11 @@ the vehicles that have somewhere to go one after another through the free window
 
 1. **Committed** (booked first, for every vehicle): the nodes it holds in the
    ReservationMatrix (where it is and what it was released), and the next few steps of its
-   current plan, which it may still be released while this round is planned. Each node's
+   current plan, which it may still be released while this round is planned. A plan that
+   still leads to the same goal and is booked at least ``horizon_s / 2`` ahead is kept
+   whole instead and not searched again, so a round costs what the plans running out
+   cost, not the fleet's size. No committed step may depend on a plan not made yet: one
+   that follows a vehicle's frontier at its node is dropped, with the steps after it. Each node's
    committed visits keep their order, and their windows are laid one after the other from
    now (the holder first), so they never conflict. A vehicle with nowhere to go (no goal,
    at its goal, processing, held by an operator, stale, faulty, suspect) stays on its holds
@@ -40,9 +44,14 @@ by the end of its window there, which ends before the waiting one's window start
 wait points to a vehicle whose next step is labelled strictly earlier than the waiter's,
 and labels cannot decrease round a circle.
 
+Overtaking (the seed's swap at a node): a vehicle may take a node before vehicles planned
+there earlier while none of them has come near it, if it can leave the node again at once
+(its next step is its turn). It then waits for nobody while on the node, so those it
+overtook wait for a vehicle that waits for nothing, and no circle of waits forms.
+
 The controls release a node only when :meth:`gate` allows it: it is the next step of the
 vehicle's plan, inside the horizon, and every visit planned there before its own has
-passed (the vehicle reported the node after it). The ReservationMatrix still checks every
+passed (the vehicle reported the node after it), or it may overtake them. The ReservationMatrix still checks every
 release (one holder per node), so the safety of the reactive mode holds whatever a plan
 says; execution by order adds that no vehicle waits for one that waits for it.
 """
@@ -85,6 +94,7 @@ class _Entry:
     reach_s: float = 0.0  # estimated time it reaches the frontier
     heading: tuple[float, float] | None = None
     goal: int | None = None  # None: it stays
+    kept: bool = False  # its old plan stays, no search this round
     fixed: list[int] | None = None  # a given route after the frontier (a return lane)
     starts: list[float] = field(default_factory=list)  # the windows' starts in this round
 
@@ -96,6 +106,9 @@ class TimeWindowTraffic(FunctionBlock):
     failed = Output(0, doc="vehicle plans not found (the vehicle waits for the next round)")
     expansions = Output(0, doc="search expansions in the last scan")
     booked = Output(0, doc="windows in the table of the current plans")
+    overtakes = Output(0, doc="nodes taken before vehicles planned to pass them earlier")
+    wait_replans = Output(0, doc="vehicles planned afresh after waiting too long for a node")
+    stranded = Output(0, doc="vehicles without a path for longer than wait_occupied_s (FAULT)")
 
     def __init__(
         self,
@@ -111,6 +124,8 @@ class TimeWindowTraffic(FunctionBlock):
         horizon_s: float = 20.0,
         replan_s: float = 2.0,
         budget: int = 200,
+        wait_free_s: float = 15.0,
+        wait_occupied_s: float = 30.0,
     ) -> None:
         super().__init__()
         if not (math.isfinite(horizon_s) and horizon_s > 0):
@@ -124,6 +139,9 @@ class TimeWindowTraffic(FunctionBlock):
             )
         if budget < 1:
             raise ValueError(f"budget must be at least 1 expansion per scan, got {budget!r}")
+        for name, value in (("wait_free_s", wait_free_s), ("wait_occupied_s", wait_occupied_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
         self.plant = plant
         self.heuristic = heuristic
         self.reservation = reservation
@@ -132,6 +150,14 @@ class TimeWindowTraffic(FunctionBlock):
         self.speed, self.turns = float(speed), turns
         self.gap_s, self.horizon_s, self.replan_s = float(gap_s), float(horizon_s), replan_s
         self.budget = int(budget)
+        # the seed's wait thresholds: a vehicle that has waited this long for a node is
+        # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
+        # on the node); one that then finds no path for T_w2 is reported stranded
+        self.wait_free_ns = round(wait_free_s * 1e9)
+        self.wait_occupied_ns = round(wait_occupied_s * 1e9)
+        self._waits_handled: dict[int, int] = {}  # vehicle -> the wait it was replanned for
+        self._failing_since: dict[int, float] = {}  # vehicle -> first failed plan in a row
+        self.stranded_at: dict[int, int] = {}  # stranded vehicle -> the node it stands on
         # how long a plan keeps its goal: until the next round at least, which books the
         # vehicle standing there for good if it stays (a vehicle that only keeps its goal
         # for the rest of time pushes every later plan around it)
@@ -139,6 +165,9 @@ class TimeWindowTraffic(FunctionBlock):
         # how long a vehicle about to plan keeps its frontier past its arrival there, before
         # anyone planned earlier may cross it: long enough to turn away
         self.frontier_hold_s = turns.turn_180 + gap_s
+        # a plan booked at least this far ahead is kept, not searched again: a round then
+        # costs as much as the plans running out, not the fleet's size
+        self.keep_s = horizon_s / 2
         self.controls: Mapping = {}  # vehicle -> VehicleControl, set by the program
         self.geometry = ArcGeometry(plant)
         self.table = TimeWindowTable(gap_s)  # the current plans' windows
@@ -182,12 +211,41 @@ class TimeWindowTraffic(FunctionBlock):
             self._wanted = True  # the horizon is reached, or the route changed
             return False, None
         blocker = self.order.blocker(vehicle, step)
+        if blocker is not None and self._may_overtake(vehicle, step):
+            return True, None
         return blocker is None, blocker
 
+    def _may_overtake(self, vehicle: int, step: int) -> bool:
+        """May ``vehicle`` take the node of ``step`` before the visits planned there
+        earlier (the seed's swap at a node)? Only if none of those vehicles has come
+        near it yet (none was released the node, nor its step before it), and the
+        vehicle can leave it again at once: its next step is planned, releasable now, and
+        its turn there in the order. Then it waits for nobody once on the node, so the
+        vehicles it overtakes wait for one that waits for nothing: no circle of waits can
+        form (a later overtaking keeps this, the same way)."""
+        steps = self._steps[vehicle]
+        after = step + 1
+        if after >= len(steps) or (self.planning and after > self._limit.get(vehicle, -1)):
+            return False
+        if steps[after] == steps[step] or self.order.blocker(vehicle, after) is not None:
+            return False
+        own = self.order.label(vehicle, step)
+        for _label, other, other_step in self.order.pending(steps[step]):
+            if (other, other_step) == (vehicle, step) or _label > own:
+                break
+            if self._front.get(other, other_step) >= other_step - 1:
+                return False  # near or on the node: its turn stands
+        return True
+
     def released(self, vehicle: int, node: int) -> None:
-        """The control released ``node``, the step after its frontier."""
+        """The control released ``node``, the step after its frontier (out of turn if
+        :meth:`gate` let it overtake: its visit is then first there)."""
         if vehicle in self._steps:
             self._front[vehicle] += 1
+            step = self._front[vehicle]
+            if self.order.blocker(vehicle, step) is not None:
+                self.order.take_turn(vehicle, step)
+                self.overtakes += 1
 
     def reached(self, vehicle: int, node: int, clear: bool = False) -> None:
         """The vehicle reported ``node``: the steps of its plan before it are passed, and
@@ -219,10 +277,25 @@ class TimeWindowTraffic(FunctionBlock):
             return False  # rounds on demand, but not back to back
         if self._wanted or self._epoch != self.blockades.epoch:
             return True
+        if any(self._overdue(v, c, ctx.time_ns) for v, c in self.controls.items()):
+            return True
         for v, c in self.controls.items():
             if self._moving_goal(c) is not None and self._goal.get(v, -1) != c.goal:
                 return True  # a new goal
         return False
+
+    def _overdue(self, v: int, control, now_ns: int) -> bool:
+        """Has ``v`` waited longer than the seed's threshold for the node it wants, and
+        not been planned afresh for this wait yet?"""
+        blocker = control.waiting_for
+        if blocker is None or self._waits_handled.get(v) == control.wait_since_ns:
+            return False
+        node = control.wait_node
+        occupied = node is not None and self.plant.index[node] in self.reservation.holds.get(
+            blocker, ()
+        )
+        limit = self.wait_occupied_ns if occupied else self.wait_free_ns
+        return now_ns - control.wait_since_ns >= limit
 
     @staticmethod
     def _moving_goal(control) -> int | None:
@@ -246,6 +319,10 @@ class TimeWindowTraffic(FunctionBlock):
         self._made, self._search = {}, None
         self._entries = {}
         for v, c in self.controls.items():
+            if self._overdue(v, c, ctx.time_ns):
+                self._waits_handled[v] = c.wait_since_ns
+                self._late.add(v)  # planned first, from where it stands
+                self.wait_replans += 1
             entry = self._entry(v, c)
             if entry is not None:
                 self._entries[v] = entry
@@ -256,7 +333,7 @@ class TimeWindowTraffic(FunctionBlock):
         movers = []
         for entry in self._entries.values():
             self._book_committed(entry)
-            if entry.goal is not None:
+            if entry.goal is not None and not entry.kept:
                 movers.append(entry)
         late = self._late
         self._queue = sorted(
@@ -278,19 +355,26 @@ class TimeWindowTraffic(FunctionBlock):
                 offset = front + 1 - len(held)
         committed = list(held)
         labels = [HELD + k for k in range(len(held))]
-        if (
-            offset >= 0
-            and goal is not None
-            and front + 1 < len(steps)
-            and self.order.blocker(v, front + 1) is None
-        ):
-            # it is on its way (its next step is free to take): it drives on meanwhile; a
-            # vehicle that waits is planned afresh from where it is instead
-            for k in range(front + 1, min(front + 1 + EXTEND, len(steps))):
-                if steps[k] in committed:
-                    break  # coming back: not released before it has reached the frontier
-                committed.append(steps[k])
-                labels.append(self._labels[v][k])
+        kept = False
+        if offset >= 0 and goal is not None and front + 1 < len(steps):
+            # a plan that still leads to the same goal for a while is kept whole; otherwise
+            # a vehicle on its way (its next step free to take) drives on meanwhile, and
+            # one that waits is planned afresh from where it is
+            old = self._labels[v]
+            kept = (
+                v not in self._late
+                and self._goal.get(v) == goal
+                and (steps[-1] == goal or old[-1] >= self._t0 + self.keep_s)
+            )
+            waits_long = v in self._late and control.waiting_for is not None
+            if kept or (self.order.blocker(v, front + 1) is None and not waits_long):
+                last = len(steps) if kept else min(front + 1 + EXTEND, len(steps))
+                for k in range(front + 1, last):
+                    if steps[k] in committed:
+                        kept = False  # coming back: not released before the frontier
+                        break
+                    committed.append(steps[k])
+                    labels.append(old[k])
         t0 = self._t0
         reach, heading = self._drive(committed, t0)
         if goal is None:
@@ -301,7 +385,7 @@ class TimeWindowTraffic(FunctionBlock):
             arrive = self._arrivals(committed, t0)
             ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
             ends.append(reach + self.frontier_hold_s)
-        entry = _Entry(v, committed, labels, ends, offset, len(held), reach, heading, goal)
+        entry = _Entry(v, committed, labels, ends, offset, len(held), reach, heading, goal, kept)
         if goal is not None and control.fixed_route is not None:
             fixed = list(control.fixed_route)
             front_node = committed[-1]
@@ -317,13 +401,31 @@ class TimeWindowTraffic(FunctionBlock):
         never earlier than its step before, and each window lasting until the next one of
         that vehicle begins (it leaves a node by setting off towards the next). Each start
         becomes the visit's label, so every committed label is a window start in this one
-        table. An old plan's step behind a vehicle that stays for good is dropped, and if
-        the old order cannot be laid out (it never should), only the held nodes stay."""
-        stays = {n for e in self._entries.values() if e.goal is None for n in e.committed[: e.held]}
-        for e in self._entries.values():
-            k = next((k for k in range(e.held, len(e.committed)) if e.committed[k] in stays), None)
-            if k is not None:
-                self._cut(e, k)
+        table. A committed step must not depend on a plan not made yet, so an old plan's
+        step is dropped (with all after it) where a vehicle ordered before it at that node
+        stays there for good or only reaches it as its frontier (from there it leaves by its
+        new plan, which may not be found). If the old order cannot be laid out (it never
+        should), only the held nodes stay."""
+        cut = True
+        while cut:
+            cut = False
+            stays: dict[int, float] = {}  # node -> the earliest label of a visit ending there
+            for e in self._entries.values():
+                k = 0 if e.goal is None else len(e.committed) - 1
+                for node, label in zip(e.committed[k:], e.labels[k:], strict=True):
+                    stays[node] = min(stays.get(node, math.inf), label)
+            for e in self._entries.values():
+                k = next(
+                    (
+                        k
+                        for k in range(e.held, len(e.committed))
+                        if stays.get(e.committed[k], math.inf) < e.labels[k]
+                    ),
+                    None,
+                )
+                if k is not None:
+                    self._cut(e, k)
+                    cut = True
         if not self._lay_out():
             for e in self._entries.values():
                 self._cut(e, e.held)
@@ -365,6 +467,7 @@ class TimeWindowTraffic(FunctionBlock):
         k = max(k, e.held)
         if k >= len(e.committed):
             return
+        e.kept = False
         e.committed, e.labels, e.ends = e.committed[:k], e.labels[:k], e.ends[:k]
         e.reach_s, e.heading = self._drive(e.committed, self._t0)
         if e.goal is not None:
@@ -485,8 +588,10 @@ class TimeWindowTraffic(FunctionBlock):
         if plan is None:
             self.failed += 1
             self._late.add(v)
+            self._failing_since.setdefault(v, self._t0)
             self._stand(entry)
             return
+        self._failing_since.pop(v, None)
         claims = plan.claims
         last = min(1, len(plan.nodes) - 1)  # 0: its committed steps end at its goal
         while last + 1 < len(plan.nodes) and claims[last + 1] <= self._t0 + self.horizon_s:
@@ -559,6 +664,16 @@ class TimeWindowTraffic(FunctionBlock):
         self._steps, self._front, self._goal = steps_of, front_of, goal_of
         self._labels = labels_of
         self._limit = {}
+        for v in list(self._failing_since):
+            if v not in self._late:
+                del self._failing_since[v]  # not planned this round (it stays, or is kept)
+        limit = self.wait_occupied_ns / 1e9
+        self.stranded_at = {
+            v: self._entries[v].committed[-1]
+            for v, since in self._failing_since.items()
+            if self._t0 - since >= limit
+        }
+        self.stranded = len(self.stranded_at)
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1
