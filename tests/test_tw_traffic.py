@@ -116,6 +116,42 @@ def test_the_default_job_runs_on_time_windows_planned_in_rounds(tmp_path):
     assert any(r.sections and r.sections[-1].function == 1 for r in p.completed)
 
 
+def test_a_plan_booked_far_enough_ahead_is_kept_and_not_searched_again(tmp_path):
+    """A round searches only the vehicles whose plans run out (or changed goal): a kept
+    vehicle's steps stay as they were, and only those searched count as plans."""
+    cfg = load_config(tw_config(tmp_path))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    tw = p.traffic
+    begin = tw._begin
+    kept_rounds, searched = [], []
+
+    def recorded(ctx):
+        before = {v: list(s[tw._front[v] :]) for v, s in tw._steps.items()}
+        plans = tw.plans + tw.failed
+        begin(ctx)
+        kept = [e for e in tw._entries.values() if e.kept]
+        for e in kept:
+            assert e.committed[e.held - 1 :] == before[e.vehicle][: len(e.committed) - e.held + 1]
+            assert e.committed[-1] == before[e.vehicle][-1]  # the whole old plan
+        queued = {e.vehicle for e in tw._queue}
+        assert not queued & {e.vehicle for e in kept}
+        kept_rounds.append(len(kept))
+        searched.append((plans, len(queued)))
+
+    tw._begin = recorded
+    try:
+        run(p, 120)
+    finally:
+        p.close()
+    assert sum(k > 0 for k in kept_rounds) > 10, kept_rounds
+    # every round searched exactly the vehicles it queued
+    counts = [plans for plans, _ in searched] + [tw.plans + tw.failed]
+    assert [b - a for a, b in zip(counts, counts[1:], strict=False)][:-1] == [
+        q for _, q in searched
+    ][:-1]
+
+
 def test_the_planner_keeps_its_budget_per_scan_and_the_fleet_drives_on_meanwhile(tmp_path):
     """A tiny budget spreads every round over many scans; vehicles are still released the
     steps they were committed to while a round is being planned."""
