@@ -97,14 +97,13 @@ class PassOrder:
         nothing it waits for can wait for the visits it overtook."""
         nodes, arrive = self._plans[vehicle]
         queue = self._queues[nodes[step]]
-        label = queue[0][0]
-        if queue[0][1:] == (vehicle, step):
+        first = queue[0]
+        if first[1:] == (vehicle, step):
             return
-        self._remove(nodes[step], (arrive[step], vehicle, step))
-        earlier = label - 1e-6 * max(1.0, abs(label))
+        queue.pop(bisect.bisect_left(queue, (arrive[step], vehicle, step)))
+        earlier = first[0] - 1e-6 * max(1.0, abs(first[0]))
         self._plans[vehicle] = (nodes, (*arrive[:step], earlier, *arrive[step + 1 :]))
-        queue = self._queues.setdefault(nodes[step], [])
-        queue.insert(0, (earlier, vehicle, step))
+        queue.insert(0, (earlier, vehicle, step))  # the queue keeps the other visit: not empty
 
     def label(self, vehicle: int, step: int) -> float:
         """The place of ``vehicle``'s visit of ``step`` in its node's order."""

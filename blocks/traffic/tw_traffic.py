@@ -279,11 +279,11 @@ class TimeWindowTraffic(FunctionBlock):
             return False  # rounds on demand, but not back to back
         if self._wanted or self._epoch != self.blockades.epoch:
             return True
-        if any(self._overdue(v, c, ctx.time_ns) for v, c in self.controls.items()):
-            return True
-        for v, c in self.controls.items():
+        for v, c in self.controls.items():  # one pass over the fleet per scan
             if self._moving_goal(c) is not None and self._goal.get(v, -1) != c.goal:
                 return True  # a new goal
+            if self._overdue(v, c, ctx.time_ns):
+                return True
         return False
 
     def _overdue(self, v: int, control, now_ns: int) -> bool:
@@ -669,11 +669,10 @@ class TimeWindowTraffic(FunctionBlock):
         for v in list(self._failing_since):
             if v not in self._late:
                 del self._failing_since[v]  # not planned this round (it stays, or is kept)
-        limit = self.wait_occupied_ns / 1e9
         self.stranded_at = {
             v: self._entries[v].committed[-1]
             for v, since in self._failing_since.items()
-            if self._t0 - since >= limit
+            if round((self._t0 - since) * 1e9) >= self.wait_occupied_ns
         }
         self.stranded = len(self.stranded_at)
         self.booked = len(self.table)
