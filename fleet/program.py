@@ -212,6 +212,7 @@ class FleetProgram:
                 turns=TurnTimes(cfg.agv.turn_90, cfg.agv.turn_180),
                 gap_s=tw.gap_s,
                 horizon_s=tw.horizon_s,
+                window_s=max(tw.window_s, tw.horizon_s),
                 replan_s=tw.replan_s,
                 budget=tw.plan_budget,
                 wait_free_s=tw.wait_free_s,

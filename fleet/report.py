@@ -158,6 +158,7 @@ def _traffic(program) -> dict:
         "plans": tw.plans,
         "failed_plans": tw.failed,
         "windows_booked": tw.booked,
+        "give_ways": tw.give_ways,
         "overtakes": tw.overtakes,
         "wait_replans": tw.wait_replans,
         "stranded": sorted(tw.stranded_at),

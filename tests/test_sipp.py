@@ -234,3 +234,80 @@ def test_sipp_finds_the_brute_force_earliest_arrival(
     check_drivable(plant, s.plan, start, goal, t0, heading)
     check_no_conflict(others, s.plan)
     s.plan.book(table)  # and the table takes it
+
+
+def test_a_windowed_search_plans_past_a_vehicle_that_stays_on_its_goal():
+    """Vehicle 2 stays on cell 3 of a corridor for good. Without a cut-off there is no
+    path to it (the whole corridor is searched in vain); with conflicts resolved only
+    up to 10 s, the plan waits and arrives after the cut-off, when nobody is in the way."""
+    corridor = grid(np.ones((1, 4)))
+    table = TimeWindowTable(GAP)
+    table.book(2, [(3, 0.0, math.inf)], [])
+    plain = SafeIntervalSearch(corridor, table, 1, 0, 3, 0.0, speed=1.0, turns=TURNS)
+    plain.step(None)
+    assert plain.plan is None
+    windowed = SafeIntervalSearch(corridor, table, 1, 0, 3, 0.0, speed=1.0, turns=TURNS, until=10.0)
+    windowed.step(None)
+    assert windowed.plan is not None and windowed.plan.nodes == (0, 1, 2, 3)
+    assert windowed.plan.claims[-1] >= 10.0  # it claims the cell only after the cut-off
+
+
+def windows_before(plan: TimedPlan, until: float):
+    """The plan's node and segment windows that start before ``until``."""
+    nodes = [(n, a, d) for n, a, d in plan.node_windows() if a < until]
+    segments = [(u, v, s, e) for u, v, s, e in plan.segment_windows() if s < until]
+    return nodes, segments
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 10**6),
+    width=st.integers(2, 6),
+    height=st.integers(1, 5),
+    others_count=st.integers(0, 8),
+    until=st.sampled_from([0.0, 2.0, 5.0, 9.0, math.inf]),
+)
+def test_a_windowed_plan_keeps_every_rule_before_its_cut_off(
+    seed, width, height, others_count, until
+):
+    """Every window of a windowed plan that starts before the cut-off keeps the rules
+    against every other vehicle's window that starts before it (checked by the
+    independent monitor); the plan arrives no later than the plan without a cut-off, and
+    is that plan when the cut-off is inf."""
+    rng = random.Random(seed)
+    plant = grid(np.ones((height, width)))
+    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
+    random_others(plant, rng, others_count, table, others)
+    before = PlanMonitor(GAP)
+    for n, windows in others.nodes.items():
+        before.nodes[n] = [w for w in windows if w[0] < until]
+    for key, windows in others.segments.items():
+        before.segments[key] = [w for w in windows if w[0] < until]
+    ids = [int(i) for i in plant.ids]
+    start, goal = rng.choice(ids), rng.choice(ids)
+    if not others.node_free(start, 0.0, 0.0):
+        return
+    kw = {"speed": 1.0, "turns": TURNS}
+    plain = SafeIntervalSearch(plant, table, 1, start, goal, 0.0, **kw)
+    plain.step(None)
+    windowed = SafeIntervalSearch(plant, table, 1, start, goal, 0.0, until=until, **kw)
+    windowed.step(None)
+    if until == math.inf:
+        assert (windowed.plan is None) == (plain.plan is None)
+        if plain.plan is not None:
+            assert windowed.plan.nodes == plain.plan.nodes
+            assert windowed.plan.arrival == plain.plan.arrival
+        return
+    plan = windowed.plan
+    if plain.plan is not None:
+        assert plan is not None, windowed.reason  # fewer rules: never fewer plans
+    if plan is None:
+        return  # boxed in before the cut-off
+    check_drivable(plant, plan, start, goal, 0.0)
+    nodes, segments = windows_before(plan, until)
+    for n, a, d in nodes:
+        assert before.node_free(n, a, d, 1), (n, a, d)
+    for u, v, s, e in segments:
+        assert before.segment_free(u, v, s, e, 1), (u, v, s, e)
+    if plain.plan is not None:
+        assert plan.arrival <= plain.plan.arrival + 1e-9

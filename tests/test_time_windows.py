@@ -130,6 +130,22 @@ def test_safe_intervals_are_the_gaps_between_other_vehicles_windows():
     assert t.safe_intervals(6) == [(-math.inf, math.inf)]
 
 
+def test_a_cut_off_ignores_later_windows_and_ends_every_window_there():
+    t = table()
+    t.book(1, [(5, 2.0, 4.0)], [])
+    t.book(2, [(5, 10.0, math.inf)], [])
+    assert t.safe_intervals(5, until=12.0) == [(-math.inf, 1.0), (5.0, 9.0), (12.0, math.inf)]
+    assert t.safe_intervals(5, until=10.0) == [(-math.inf, 1.0), (5.0, math.inf)]
+    assert t.safe_intervals(5, until=3.0) == [(-math.inf, 1.0), (3.0, math.inf)]
+    t.book(3, [], [(2, 1, 0.0, 20.0)])  # a long oncoming traversal
+    assert t.earliest_entry(1, 2, 0.0, 3.0) == 21.0
+    assert t.earliest_entry(1, 2, 0.0, 3.0, until=8.0) == 8.0  # planned against nobody then
+    assert t.earliest_entry(1, 2, 9.0, 3.0, until=8.0) == 9.0
+    t.book(4, [], [(1, 2, 30.0, 40.0)])  # a window starting after the cut-off is ignored
+    assert t.earliest_entry(1, 2, 25.0, 16.0) == 31.0  # too slow to lead it: behind it
+    assert t.earliest_entry(1, 2, 25.0, 16.0, until=28.0) == 25.0
+
+
 def test_earliest_entry_waits_for_the_oncoming_vehicle_and_keeps_behind_the_leader():
     t = table()
     t.book(1, [], [(2, 1, 0.0, 4.0)])  # oncoming

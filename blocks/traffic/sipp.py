@@ -30,6 +30,12 @@ The heuristic is the exact distance to the goal over the top speed: a lower boun
 ``allowed[arc]`` False keeps the search off an arc: a vehicle held to a given route (it may
 only wait), or to a corridor round it.
 
+``until`` makes the plan *windowed*, as rolling-horizon planners do: conflicts are resolved
+only before that time, and from then on the vehicle meets nobody (the table's windows are cut
+there). Only the part of such a plan that starts before ``until`` may be booked; the rest is
+a route to be planned again. It keeps a search from failing, or exploring the whole plant,
+because of where others will be long after the plan is replaced anyway.
+
 The search runs in bounded steps (:meth:`step`, ``budget`` expansions), like the A* block,
 and publishes only a complete plan. A goal is reached when the vehicle can stay there for
 ``hold_s`` seconds (inf: for good, the last interval of the node).
@@ -159,6 +165,7 @@ class SafeIntervalSearch:
         allowed: Sequence[bool] | None = None,
         claim: str = "departure",
         geometry: ArcGeometry | None = None,
+        until: float = math.inf,
     ) -> None:
         if claim not in ("departure", "arrival"):
             raise ValueError(f"claim must be 'departure' or 'arrival', got {claim!r}")
@@ -168,6 +175,7 @@ class SafeIntervalSearch:
         self.plant, self.table, self.vehicle = plant, table, vehicle
         self.start, self.goal, self.start_time = start, goal, float(start_time)
         self.speed, self.turns, self.hold_s = float(speed), turns, float(hold_s)
+        self.until = float(until)
         self.geometry = geometry or ArcGeometry(plant)
         # read, not copied: one list serves every search of a planning round
         self.weights = weights
@@ -252,6 +260,7 @@ class SafeIntervalSearch:
                     travel,
                     self.vehicle,
                     latest=min(leave_by, hi - travel),
+                    until=self.until,
                 )
                 if depart is None:
                     continue
@@ -272,7 +281,7 @@ class SafeIntervalSearch:
         out = self._safe.get(node)
         if out is None:
             out = self._safe[node] = self.table.safe_intervals(
-                self.geometry.ids[node], self.vehicle
+                self.geometry.ids[node], self.vehicle, self.until
             )
         return out
 

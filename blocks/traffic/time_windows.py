@@ -89,19 +89,27 @@ class TimeWindowTable:
             len(w) for w in self._segments.values()
         )
 
-    def safe_intervals(self, node: int, vehicle: int | None = None) -> list[tuple[float, float]]:
+    def safe_intervals(
+        self, node: int, vehicle: int | None = None, until: float = math.inf
+    ) -> list[tuple[float, float]]:
         """The intervals in which ``vehicle`` may stand on ``node``: the gaps between the
         other vehicles' windows, each kept ``gap`` clear of them. Sorted, disjoint, possibly of
         no length (a pass at one instant); the last one ends at inf unless a window there
-        never ends."""
+        never ends.
+
+        ``until``: conflicts are resolved only before that time (a windowed plan). Windows
+        starting at or after it are ignored and every window ends there at the latest, so the
+        node is free from ``until`` on."""
         out: list[tuple[float, float]] = []
         free_from = -math.inf
         for w in self._nodes.get(node, ()):
             if w.vehicle == vehicle:
                 continue
+            if w.start >= until:
+                break  # sorted by start: all the rest start later
             if w.start - self.gap >= free_from - EPS:  # (of no length: passing through is safe)
                 out.append((free_from, w.start - self.gap))
-            free_from = max(free_from, w.end + self.gap)
+            free_from = max(free_from, min(w.end + self.gap, until))
             if free_from == math.inf:
                 return out
         out.append((free_from, math.inf))
@@ -115,10 +123,12 @@ class TimeWindowTable:
         travel: float,
         vehicle: int | None = None,
         latest: float = math.inf,
+        until: float = math.inf,
     ) -> float | None:
         """The earliest time >= ``earliest`` at which ``vehicle`` may set off along a -> b
         and take ``travel`` seconds to reach b, by the segment rules (nodes not checked);
-        None if that is later than ``latest``.
+        None if that is later than ``latest``. ``until``: as for :meth:`safe_intervals`,
+        a set-off at or after it meets no window (windows starting from then on are ignored).
 
         Each window allows the times before some bound and after another; a time between
         them is refused and the next time that window allows is its after-bound. So jumping
@@ -131,10 +141,13 @@ class TimeWindowTable:
             return t if t <= latest + EPS else None  # the common case: nobody uses it
         gap = self.gap
         while t <= latest + EPS and t < math.inf:
+            if t >= until:
+                return t
             jump = None
             for w in oncoming:
                 if (
                     w.vehicle != vehicle
+                    and w.start < until
                     and t < w.end + gap - EPS
                     and w.start < t + travel + gap - EPS
                 ):
@@ -142,14 +155,16 @@ class TimeWindowTable:
                     break
             if jump is None:
                 for w in ahead:
-                    if w.vehicle != vehicle and not (
-                        _follows(t, t + travel, w, gap) or _leads(t, t + travel, w, gap)
+                    if (
+                        w.vehicle != vehicle
+                        and w.start < until
+                        and not (_follows(t, t + travel, w, gap) or _leads(t, t + travel, w, gap))
                     ):
                         jump = max(w.start + gap, w.end + gap - travel)
                         break
             if jump is None:
                 return t
-            t = jump
+            t = min(jump, until)
         return None
 
     # ----- writing -------------------------------------------------------------------------

@@ -23,10 +23,13 @@ the vehicles that have somewhere to go one after another through the free window
    station first; a vehicle whose plan failed in the last round before every other): a
    :class:`SafeIntervalSearch` from the frontier, at the time the vehicle is estimated to
    reach it, to its goal, where it may stay. A route given by the job (a return lane) is
-   timed along its nodes instead (:func:`time_route`). Only the first ``horizon_s`` of a
-   plan are booked: beyond it, nothing is released before the next round. A vehicle
-   without a plan stands at its frontier, booked for good where nobody was planned across
-   it already.
+   timed along its nodes instead (:func:`time_route`). Plans are windowed: conflicts are
+   resolved up to the round's cut-off (``window_s`` ahead, and past every committed
+   window), and only the steps that start within ``horizon_s`` (no later than the
+   cut-off) are booked; beyond them nothing is released before the next round. A vehicle without a plan stands at its frontier,
+   booked for good where nobody was planned across it already. When its plan fails
+   because vehicles planned before it cross its frontier before it can get away, they
+   give way: their plans are dropped and made again after its own (:meth:`_yield_to`).
 3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
    order they had, planned ones by the time they claim the node, which comes after every
    committed window there. Each vehicle's control gets its route from wherever it has been
@@ -95,6 +98,7 @@ class _Entry:
     heading: tuple[float, float] | None = None
     goal: int | None = None  # None: it stays
     kept: bool = False  # its old plan stays, no search this round
+    hold_end: float = math.inf  # the end of its frontier window before it was planned
     fixed: list[int] | None = None  # a given route after the frontier (a return lane)
     starts: list[float] = field(default_factory=list)  # the windows' starts in this round
 
@@ -109,6 +113,7 @@ class TimeWindowTraffic(FunctionBlock):
     overtakes = Output(0, doc="nodes taken before vehicles planned to pass them earlier")
     wait_replans = Output(0, doc="vehicles planned afresh after waiting too long for a node")
     stranded = Output(0, doc="vehicles without a path for longer than wait_occupied_s (FAULT)")
+    give_ways = Output(0, doc="plans dropped to let a vehicle they boxed in get away first")
 
     def __init__(
         self,
@@ -122,6 +127,7 @@ class TimeWindowTraffic(FunctionBlock):
         turns: TurnTimes,
         gap_s: float = 0.5,
         horizon_s: float = 20.0,
+        window_s: float | None = None,
         replan_s: float = 2.0,
         budget: int = 200,
         wait_free_s: float = 15.0,
@@ -130,6 +136,11 @@ class TimeWindowTraffic(FunctionBlock):
         super().__init__()
         if not (math.isfinite(horizon_s) and horizon_s > 0):
             raise ValueError(f"horizon_s must be a positive number of seconds, got {horizon_s!r}")
+        window_s = horizon_s if window_s is None else window_s
+        if not window_s >= horizon_s:
+            raise ValueError(
+                f"window_s must be at least horizon_s ({horizon_s:g} s), got {window_s!r}"
+            )
         if not (math.isfinite(replan_s) and replan_s > 0):
             raise ValueError(f"replan_s must be a positive number of seconds, got {replan_s!r}")
         if plant.areas:
@@ -149,6 +160,8 @@ class TimeWindowTraffic(FunctionBlock):
         self.priority = priority
         self.speed, self.turns = float(speed), turns
         self.gap_s, self.horizon_s, self.replan_s = float(gap_s), float(horizon_s), replan_s
+        # conflicts are resolved this far ahead; plans are booked only up to horizon_s
+        self.window_s = float(window_s)
         self.budget = int(budget)
         # the seed's wait thresholds: a vehicle that has waited this long for a node is
         # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
@@ -191,11 +204,15 @@ class TimeWindowTraffic(FunctionBlock):
         self._wanted = False
         # the round being planned
         self._t0 = 0.0
+        self._until = math.inf  # the round's cut-off: plans are conflict-free up to there
+        self._book_until = math.inf  # plans are booked up to there (not past the cut-off)
         self._next_table: TimeWindowTable | None = None
         self._queue: list[_Entry] = []
         self._entries: dict[int, _Entry] = {}
         self._search: SafeIntervalSearch | None = None
         self._made: dict[int, TimedPlan | None] = {}
+        self._gave_way: set[int] = set()  # this round: planned again after a vehicle they blocked
+        self._took_way: set[int] = set()  # this round: made others give way
 
     # ----- what the controls ask ---------------------------------------------------------
     def gate(self, vehicle: int, node: int) -> tuple[bool, int | None]:
@@ -319,6 +336,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._t0 = ctx.time
         self._next_table = TimeWindowTable(self.gap_s)
         self._made, self._search = {}, None
+        self._gave_way, self._took_way = set(), set()
         self._entries = {}
         for v, c in self.controls.items():
             if self._overdue(v, c, ctx.time_ns):
@@ -332,6 +350,12 @@ class TimeWindowTraffic(FunctionBlock):
         self._limit = {
             v: e.offset + len(e.committed) - 1 for v, e in self._entries.items() if e.offset >= 0
         }
+        # conflicts are resolved up to the window (and past every committed window, which
+        # this round's searches must all see); plans are booked up to the horizon
+        self._until = max(
+            [self._t0 + self.window_s, *(e.starts[-1] + 1.0 for e in self._entries.values())]
+        )
+        self._book_until = self._t0 + self.horizon_s
         movers = []
         for entry in self._entries.values():
             self._book_committed(entry)
@@ -437,11 +461,19 @@ class TimeWindowTraffic(FunctionBlock):
 
     def _lay_out(self) -> bool:
         """One pass per node after the other until nothing moves (starts and ends only
-        grow, so a fixpoint is reached unless the old order had a circle); False if not."""
+        grow, so a fixpoint is reached unless the old order had a circle); False if not.
+        A window lasts at least until the vehicle arrives (it set off when the window
+        began), so a vehicle driving into a node is still on it, and on the segment to it,
+        when the next one there may set off."""
         t0, gap = self._t0, self.gap_s
         visits: dict[int, list[tuple[float, int, int]]] = {}
+        legs: dict[int, list[float]] = {}  # vehicle -> travel time into each committed node
         for v, e in self._entries.items():
             e.starts = [t0] * len(e.committed)
+            legs[v] = [0.0] + [
+                self._lengths.get(pair, 0.0) / self.speed
+                for pair in zip(e.committed, e.committed[1:], strict=False)
+            ]
             for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
                 visits.setdefault(node, []).append((label, v, k))
         queues = [sorted(q) for q in visits.values()]
@@ -454,7 +486,7 @@ class TimeWindowTraffic(FunctionBlock):
                     start = max(free, e.starts[k - 1] if k else t0)
                     if start > e.starts[k]:
                         e.starts[k], moved = start, True
-                    end = max(e.ends[k], e.starts[k])
+                    end = max(e.ends[k], e.starts[k] + legs[v][k])  # not before it arrives
                     if k + 1 < len(e.committed):
                         end = max(end, e.starts[k + 1])
                     if end > e.ends[k]:
@@ -558,6 +590,7 @@ class TimeWindowTraffic(FunctionBlock):
             hold_s=self.goal_hold_s,
             allowed=self._allowed,
             geometry=self.geometry,
+            until=self._until,
         )
 
     def _time_fixed(self, entry: _Entry) -> TimedPlan | None:
@@ -586,6 +619,8 @@ class TimeWindowTraffic(FunctionBlock):
     def _book(self, entry: _Entry, plan: TimedPlan | None) -> None:
         """Book the committed part and the plan up to the horizon together."""
         v = entry.vehicle
+        if plan is None and self._yield_to(entry):
+            return
         self._made[v] = None
         if plan is None:
             self.failed += 1
@@ -595,9 +630,8 @@ class TimeWindowTraffic(FunctionBlock):
             return
         self._failing_since.pop(v, None)
         claims = plan.claims
-        last = min(1, len(plan.nodes) - 1)  # 0: its committed steps end at its goal
-        while last + 1 < len(plan.nodes) and claims[last + 1] <= self._t0 + self.horizon_s:
-            last += 1
+        last = self._last_booked(plan)
+        entry.hold_end = entry.ends[-1]
         entry.ends[-1] = plan.depart[0]
         nodes = list(zip(entry.committed, entry.starts, entry.ends, strict=True))
         nodes += [(plan.nodes[i], claims[i], plan.depart[i]) for i in range(1, last + 1)]
@@ -609,6 +643,56 @@ class TimeWindowTraffic(FunctionBlock):
         self._next_table.book(v, nodes, segments, check=False)  # the search kept the rules
         self._made[v] = plan
         self.plans += 1
+
+    def _yield_to(self, entry: _Entry) -> bool:
+        """No path for ``entry``'s vehicle because vehicles planned before it in this round
+        cross its frontier before it can get away: they give way instead. Their plans are
+        dropped (back to what they are committed to), the vehicle is planned again at once,
+        and they after it. A vehicle that was made to give way never makes others give
+        way, and one that did is never made to: so it ends, and each vehicle is searched at
+        most twice a round. False (nothing changed) if a committed window or a vehicle that
+        cannot give way is in the way."""
+        v = entry.vehicle
+        if v in self._gave_way:
+            return False
+        front, start = entry.committed[-1], entry.starts[-1]
+        crossing = set()
+        for w in self._next_table.node_windows(front):
+            if w.vehicle == v or w.end < start:
+                continue
+            other = self._entries.get(w.vehicle)
+            if (
+                other is None
+                or self._made.get(w.vehicle) is None
+                or w.vehicle in self._took_way
+                or w.start < other.starts[-1] + 1e-9  # its committed window: fixed
+            ):
+                return False
+            crossing.add(w.vehicle)
+        if not crossing:
+            return False
+        for o in sorted(crossing):
+            other = self._entries[o]
+            # on its frontier until it is planned again: as long as those planned before it
+            # counted on, but no longer than those planned after it did
+            other.ends[-1] = min(other.hold_end, other.ends[-1])
+            self._book_committed(other)
+            del self._made[o]
+            self.plans -= 1
+        self._gave_way |= crossing
+        self._took_way.add(v)
+        self.give_ways += 1
+        order = sorted(crossing, key=lambda o: self.priority(o))
+        self._queue[0:0] = [entry, *(self._entries[o] for o in order)]
+        return True
+
+    def _last_booked(self, plan: TimedPlan) -> int:
+        """The plan's last step whose window starts before the round's cut-off: the steps
+        after it were planned against nobody, and are planned again next round."""
+        claims, last = plan.claims, 0
+        while last + 1 < len(plan.nodes) and claims[last + 1] < self._book_until:
+            last += 1
+        return last
 
     def _stand(self, entry: _Entry) -> None:
         """No plan: the vehicle stands at its frontier until the next round, so book that
@@ -639,13 +723,10 @@ class TimeWindowTraffic(FunctionBlock):
             steps, labels = list(entry.committed), list(entry.labels)
             beyond: list[int] = []
             if plan is not None:
-                claims = plan.claims
-                for i in range(1, len(plan.nodes)):
-                    if claims[i] > self._t0 + self.horizon_s and i > 1:
-                        beyond = list(plan.nodes[i:])
-                        break
-                    steps.append(plan.nodes[i])
-                    labels.append(claims[i])
+                last = self._last_booked(plan)
+                steps += plan.nodes[1 : last + 1]
+                labels += plan.claims[1 : last + 1]
+                beyond = list(plan.nodes[last + 1 :])
             order.set_plan(v, steps, labels)
             # released since the round began: along its committed steps (the old plan)
             front = len(entry.committed) - 1
