@@ -217,6 +217,7 @@ class FleetProgram:
                 budget=tw.plan_budget,
                 wait_free_s=tw.wait_free_s,
                 wait_occupied_s=tw.wait_occupied_s,
+                path_heat=tw.path_heat,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}

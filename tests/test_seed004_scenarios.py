@@ -91,3 +91,30 @@ def test_path_heat_weights_follow_the_studys_formula():
         heat_weights(h, np.array([1]))
     with pytest.raises(ValueError, match="negative"):
         heat_weights(np.array([-1]))
+
+
+def test_path_heat_usage_follows_each_shortest_route_down_its_distances():
+    """h counts, per arc, the shortest routes that drive it: two routes along the top row
+    of a 2 x 4 grid share its last arcs; a route already at its goal, or cut off from it,
+    counts nothing."""
+    import numpy as np
+
+    from blocks.routing.heuristic import distances_to
+    from blocks.traffic.path_heat import usage_along_distances
+    from topology.grid import grid_plant
+
+    grid = grid_plant(np.ones((2, 4), dtype=bool))  # ids 0..3 top row, 4..7 below
+    to_3 = distances_to(grid, [3])[0]
+    h = usage_along_distances(grid, [(grid.idx(0), to_3), (grid.idx(1), to_3), (grid.idx(3), to_3)])
+    src, dst, _ = grid.arcs
+    ids = grid.ids
+    used = {
+        (int(ids[u]), int(ids[v])): int(n)
+        for u, v, n in zip(src.tolist(), dst.tolist(), h.tolist(), strict=True)
+        if n
+    }
+    assert sum(used.values()) == 3 + 2  # 0 -> 3 is three arcs, 1 -> 3 two
+    assert used.get((2, 3), 0) + used.get((6, 7), 0) + used.get((7, 3), 0) >= 1
+    assert all(n <= 2 for n in used.values())
+    cut_off = np.full(grid.n, np.inf)
+    assert usage_along_distances(grid, [(grid.idx(0), cut_off)]).sum() == 0

@@ -20,6 +20,7 @@ arrays out, in the order of ``plant.arcs``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -40,6 +41,38 @@ def arc_usage(plant: Plant, routes: Iterable[Sequence[int]]) -> np.ndarray:
                     f"route {list(route)} uses {a} -> {b}, which is no arc of the plant"
                 )
             h[min(arcs, key=lambda k: length[k])] += 1
+    return h
+
+
+def usage_along_distances(
+    plant: Plant, routes: Iterable[tuple[int, Sequence[float]]], limit: int | None = None
+) -> np.ndarray:
+    """h for shortest routes given by where they start and their goal's distance row:
+    ``routes`` is (start node index, distances of every node index to the goal). Each
+    route is followed down the distances (the first out-arc whose length closes the gap
+    exactly; what the heuristic table's A* would drive), for at most ``limit`` arcs
+    (None: the plant's node count). Counts per arc, in the order of ``plant.arcs``."""
+    h = np.zeros(plant.n_arcs, dtype=np.int64)
+    neighbors = plant.neighbors
+    cap = plant.n if limit is None else limit
+    for start, row in routes:
+        node = start
+        for _ in range(cap):
+            here = row[node]
+            if not here > 0 or not math.isfinite(here):
+                break  # at the goal, or cut off from it
+            step = next(
+                (
+                    (v, arc)
+                    for v, arc, length in neighbors[node]
+                    if abs(length + row[v] - here) <= 1e-6 * max(1.0, here)
+                ),
+                None,
+            )
+            if step is None:
+                break
+            node, arc = step
+            h[arc] += 1
     return h
 
 

@@ -73,6 +73,7 @@ from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
 from .pass_order import PassOrder
+from .path_heat import heat_weights, usage_along_distances
 from .reservation import ReservationMatrix
 from .sipp import ArcGeometry, SafeIntervalSearch, TimedPlan, TurnTimes, time_route
 from .time_windows import TimeWindowTable
@@ -132,11 +133,12 @@ class TimeWindowTraffic(FunctionBlock):
         budget: int = 200,
         wait_free_s: float = 15.0,
         wait_occupied_s: float = 30.0,
+        path_heat: bool = False,
     ) -> None:
         super().__init__()
         if not (math.isfinite(horizon_s) and horizon_s > 0):
             raise ValueError(f"horizon_s must be a positive number of seconds, got {horizon_s!r}")
-        window_s = horizon_s if window_s is None else window_s
+        window_s = math.inf if window_s is None else window_s
         if not window_s >= horizon_s:
             raise ValueError(
                 f"window_s must be at least horizon_s ({horizon_s:g} s), got {window_s!r}"
@@ -163,6 +165,8 @@ class TimeWindowTraffic(FunctionBlock):
         # conflicts are resolved this far ahead; plans are booked only up to horizon_s
         self.window_s = float(window_s)
         self.budget = int(budget)
+        self.path_heat = bool(path_heat)
+        self._weights: list[float] | None = None  # the round's path heat per arc (None: off)
         # the seed's wait thresholds: a vehicle that has waited this long for a node is
         # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
         # on the node); one that then finds no path for T_w2 is reported stranded
@@ -361,11 +365,33 @@ class TimeWindowTraffic(FunctionBlock):
             self._book_committed(entry)
             if entry.goal is not None and not entry.kept:
                 movers.append(entry)
+        self._weights = self._heat() if self.path_heat else None
         late = self._late
         self._queue = sorted(
             movers, key=lambda e: (e.vehicle not in late, self.priority(e.vehicle))
         )
         self._late = set()
+
+    def _heat(self) -> list[float]:
+        """The seed's path heat for this round's searches: ``h`` from the shortest route
+        of every vehicle with a goal, from its frontier (the routes the period will
+        drive if nobody is steered off them), ``b`` from the vehicles driving along each
+        arc now (from the node they hold to the one they were released next)."""
+        plant, table = self.plant, self.heuristic
+        routes = [
+            (plant.idx(e.committed[-1]), table.row(e.goal))
+            for e in self._entries.values()
+            if e.goal is not None and table.has_row(e.goal) and table.row(e.goal) is not None
+        ]
+        usage = usage_along_distances(plant, routes)
+        occupancy = np.zeros(plant.n_arcs, dtype=np.int64)
+        ids = plant.ids
+        for holds in self.reservation.holds.values():
+            if len(holds) >= 2:
+                arcs = plant.arc_index.get((int(ids[holds[0]]), int(ids[holds[1]])))
+                if arcs:
+                    occupancy[arcs[0]] += 1
+        return heat_weights(usage, occupancy).tolist()
 
     def _entry(self, v: int, control) -> _Entry | None:
         """What ``v`` is committed to: the nodes it holds and, while it drives on during
@@ -571,7 +597,12 @@ class TimeWindowTraffic(FunctionBlock):
             self.expansions += used
             if search.done:
                 self._search = None
-                self._book(self._entries[search.vehicle], search.plan)
+                plan = search.plan
+                if plan is not None and len(plan.nodes) > 1 and plan.claims[1] >= self._until:
+                    # it only waits where it is until the cut-off: no plan. Taken as one,
+                    # every vehicle in a jam would wait for the cut-off, round after round
+                    plan = None
+                self._book(self._entries[search.vehicle], plan)
 
     def _start_search(self, entry: _Entry) -> SafeIntervalSearch:
         goal = entry.goal
@@ -591,6 +622,7 @@ class TimeWindowTraffic(FunctionBlock):
             allowed=self._allowed,
             geometry=self.geometry,
             until=self._until,
+            weights=self._weights,
         )
 
     def _time_fixed(self, entry: _Entry) -> TimedPlan | None:
