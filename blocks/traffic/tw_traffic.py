@@ -23,11 +23,12 @@ the vehicles that have somewhere to go one after another through the free window
    station first; a vehicle whose plan failed in the last round before every other): a
    :class:`SafeIntervalSearch` from the frontier, at the time the vehicle is estimated to
    reach it, to its goal, where it may stay. A route given by the job (a return lane) is
-   timed along its nodes instead (:func:`time_route`). Plans are windowed: conflicts are
-   resolved up to the round's cut-off (``window_s`` ahead, and past every committed
-   window), and only the steps that start within ``horizon_s`` (no later than the
-   cut-off) are booked; beyond them nothing is released before the next round. A vehicle without a plan stands at its frontier,
-   booked for good where nobody was planned across it already. When its plan fails
+   timed along its nodes instead (:func:`time_route`). Only the steps that start within
+   ``horizon_s`` are booked; beyond them nothing is released before the next round. With
+   ``window_s`` set, plans are windowed too: conflicts are resolved only up to the round's
+   cut-off (``window_s`` ahead, and past every committed window). A vehicle without a
+   plan stands at its frontier, booked for good where nobody was planned across it
+   already. When its plan fails
    because vehicles planned before it cross its frontier before it can get away, they
    give way: their plans are dropped and made again after its own (:meth:`_yield_to`).
 3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
@@ -162,7 +163,8 @@ class TimeWindowTraffic(FunctionBlock):
         self.priority = priority
         self.speed, self.turns = float(speed), turns
         self.gap_s, self.horizon_s, self.replan_s = float(gap_s), float(horizon_s), replan_s
-        # conflicts are resolved this far ahead; plans are booked only up to horizon_s
+        # conflicts are resolved this far ahead (inf: no cut-off); plans are booked only up
+        # to horizon_s
         self.window_s = float(window_s)
         self.budget = int(budget)
         self.path_heat = bool(path_heat)
@@ -378,11 +380,11 @@ class TimeWindowTraffic(FunctionBlock):
         drive if nobody is steered off them), ``b`` from the vehicles driving along each
         arc now (from the node they hold to the one they were released next)."""
         plant, table = self.plant, self.heuristic
-        routes = [
-            (plant.idx(e.committed[-1]), table.row(e.goal))
-            for e in self._entries.values()
-            if e.goal is not None and table.has_row(e.goal) and table.row(e.goal) is not None
-        ]
+        routes = []
+        for e in self._entries.values():
+            row = table.row(e.goal) if e.goal is not None and table.has_row(e.goal) else None
+            if row is not None:
+                routes.append((plant.idx(e.committed[-1]), row))
         usage = usage_along_distances(plant, routes)
         occupancy = np.zeros(plant.n_arcs, dtype=np.int64)
         ids = plant.ids
