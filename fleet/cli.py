@@ -102,7 +102,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.bus or args.vehicles != "simulated":
         raise CliError(f"--bus and --vehicles are for the fleet program, not {args.program!r}")
     if args.web or args.web_token:
-        raise CliError(f"--web serves the fleet's transport orders, not {args.program!r}")
+        raise CliError(f"--web serves the fleet program's API and page, not {args.program!r}")
     drivers = [modbus_server(args.modbus, args.modbus_writable)] if args.modbus else []
     return run_program(args, args.program, PROGRAMS[args.program], drivers)
 

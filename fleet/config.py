@@ -106,6 +106,8 @@ class FleetConfig:
     battery: BatteryConfig = field(default_factory=BatteryConfig)
     # the simulated vehicles' drive ([simulation]; real vehicles bring their own)
     agv: AgvParams = field(default_factory=AgvParams)
+    # [web] address: serve the HTTP API and the operator's page there (None: not served)
+    web_address: tuple[str, int] | None = None
 
     @property
     def level(self) -> str:
@@ -202,6 +204,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     cfg.time_windows = _time_windows(
         TableReader(source, top.get("time_windows", dict, {}), "time_windows.")
     )
+    cfg.web_address = _web(TableReader(source, top.get("web", dict, {}), "web."))
     if cfg.traffic not in TRAFFIC_MODES:
         raise routing.fail(
             "traffic", f"must be one of {', '.join(TRAFFIC_MODES)}, got {cfg.traffic!r}"
@@ -244,6 +247,27 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
     )
     r.finish()
     return cfg
+
+
+def _web(r: TableReader) -> tuple[str, int] | None:
+    text = r.get("address", str, None)
+    r.finish()
+    if text is None:
+        return None
+    try:
+        return host_port(text)
+    except ValueError as exc:
+        raise r.fail("address", str(exc)) from None
+
+
+def host_port(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (an IPv6 host in brackets) as (host, port); ValueError naming what is
+    wrong."""
+    host, sep, port = text.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"expected HOST:PORT, e.g. 127.0.0.1:8080, got {text!r}")
+    return host, int(port)
 
 
 def _plant(reader: TableReader, base: Path) -> Plant:

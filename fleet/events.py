@@ -62,6 +62,7 @@ class EventLog(FunctionBlock):
         self.blockades = blockades
         self.events: deque[Event] = deque(maxlen=capacity)
         self.counts: Counter[str] = Counter()
+        self.added = 0  # events of the run so far: event k (from 1) is the k-th added
         self._deadlocks_seen = 0
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
@@ -71,6 +72,7 @@ class EventLog(FunctionBlock):
 
     def add(self, time_s: float, kind: str, vehicle: int | None, text: str) -> None:
         self.events.append(Event(round(time_s, 3), kind, vehicle, text))
+        self.added += 1
         self.counts[kind] += 1
 
     def cycle(self, ctx: CycleContext) -> None:

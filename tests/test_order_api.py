@@ -438,7 +438,7 @@ def test_an_address_in_use_is_a_clear_error_at_start():
         before = set(threading.enumerate())
         cfg = load_config(CONFIG)
         program = FleetProgram(cfg)
-        program.rt.add_driver(WebServer(program.orders, "127.0.0.1", running.port, token=TOKEN))
+        program.rt.add_driver(WebServer(program, "127.0.0.1", running.port, token=TOKEN))
         try:
             with pytest.raises(
                 StartupError,

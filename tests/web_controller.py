@@ -52,7 +52,7 @@ class Controller:
         cfg.watchdog = WATCHDOG_S
         clock = PacedClock(self.speed) if self.scanning else VirtualClock()
         self.program = FleetProgram(cfg, clock=clock)
-        self.web = WebServer(self.program.orders, "127.0.0.1", 0, token=TOKEN, **self.web_options)
+        self.web = WebServer(self.program, "127.0.0.1", 0, token=TOKEN, **self.web_options)
         self.program.rt.add_driver(self.web)
         if not self.scanning:
             self.program.rt.start()

@@ -26,10 +26,12 @@ transition is time-stamped in the order's ``history`` with the time the caller p
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+CHANGE_LOG = 4096  # state changes the book remembers for live views
 MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
 
 
@@ -172,6 +174,12 @@ class OrderBook:
         # the DISPATCHABLE ones, in the order added: a scan asks for them every cycle, and a
         # long run's book is mostly final orders
         self._dispatchable: dict[str, TransportOrder] = {}
+        # orders per state, kept on every transition: read every refresh of a live view
+        self._counts: dict[str, int] = {state.value: 0 for state in OrderState}
+        # the ids of the orders that changed state, newest last: live views read what changed
+        # since they last looked (``changed_since``) instead of the whole book
+        self.revision = 0  # transitions so far
+        self._changed: deque[tuple[int, str]] = deque(maxlen=CHANGE_LOG)
 
     # ----- the pool ------------------------------------------------------------------------
     def add(self, order: TransportOrder, now_s: float) -> TransportOrder:
@@ -193,6 +201,7 @@ class OrderBook:
             )
         _check_time(order, now_s)
         self._orders[oid] = order
+        self._counts[order.state.value] += 1
         order.history.append((now_s, OrderState.RAW))
         self.transition(order, OrderState.DISPATCHABLE, now_s)
         return order
@@ -227,10 +236,19 @@ class OrderBook:
 
     def counts(self) -> dict[str, int]:
         """Orders per state, every state named (zeros included), for reports."""
-        out = {state.value: 0 for state in OrderState}
-        for order in self._orders.values():
-            out[order.state.value] += 1
-        return out
+        return dict(self._counts)
+
+    def changed_since(self, revision: int) -> list[TransportOrder] | None:
+        """The orders that changed state after ``revision`` (each once, in the order of their
+        last change), or None if more changed than the journal remembers."""
+        if revision >= self.revision:
+            return []
+        if self.revision - revision > len(self._changed):
+            return None
+        newest_first = dict.fromkeys(
+            oid for rev, oid in reversed(self._changed) if rev > revision
+        )
+        return [self._orders[oid] for oid in reversed(newest_first)]
 
     # ----- the life cycle ------------------------------------------------------------------
     def transition(
@@ -249,8 +267,12 @@ class OrderBook:
         if state is OrderState.DISPATCHABLE and order.state is OrderState.BEING_PROCESSED:
             self.abandon_sections(order)
             order.assigned = None
+        self._counts[order.state.value] -= 1
+        self._counts[state.value] += 1
         order.state = state
         order.reason = reason
+        self.revision += 1
+        self._changed.append((self.revision, order.id))
         order.history.append((now_s, state))
         if state is OrderState.DISPATCHABLE:
             self._dispatchable[order.id] = order

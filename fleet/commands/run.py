@@ -143,7 +143,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     if args.modbus:
         program.rt.add_driver(modbus(args.modbus))
     if web_options is not None:  # stopped with the runtime, like every driver
-        program.rt.add_driver(web.web_server(web_options, program.orders))
+        program.rt.add_driver(web.web_server(web_options, program))
     total = (
         args.cycles
         if args.cycles is not None

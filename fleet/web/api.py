@@ -1,41 +1,78 @@
-"""The HTTP API, version 1: transport orders (FastAPI).
+"""The HTTP API, version 1 (FastAPI), and the operator's page.
 
+    GET    /api/v1/plant                       the plant model and the closed segments
+    GET    /api/v1/vehicles                    every vehicle (list)
+    GET    /api/v1/vehicles/{id}               one vehicle (404: no such vehicle)
     GET    /api/v1/orders?offset=0&limit=100   a page of the order book, in the order added
     GET    /api/v1/orders/{id}                 one order (404: no such order)
     POST   /api/v1/orders                      add an order (201; needs the token)
     DELETE /api/v1/orders/{id}                 withdraw an order (needs the token)
+    GET    /api/v1/blockades                   the closed segments
+    PUT    /api/v1/blockades/{a}/{b}           close a segment, both ways (needs the token)
+    DELETE /api/v1/blockades/{a}/{b}           reopen it (needs the token)
+    GET    /api/v1/tags                        every tag: name, address, type, writable
+    GET    /api/v1/tags/values?names=a,b       the watch table: values, forced or not
+    GET    /api/v1/tags/{name}                 one tag's value
+    PUT    /api/v1/tags/{name}                 write a writable tag (needs the token)
+    PUT    /api/v1/tags/{name}/force           force a writable tag (needs the token)
+    DELETE /api/v1/tags/{name}/force           unforce it (needs the token)
+    GET    /api/v1/stats                       cycle statistics and the fleet's counters
+    GET    /api/v1/events?after=0&limit=100    the event log, oldest first
+    GET    /api/v1/stream                      server-sent events: snapshots at 10 Hz at most
     GET    /openapi.json                       the schema of all of it
+    GET    /                                   the operator's page (static files, no build step)
 
-Every answer comes from the scan through the :class:`~fleet.web.desk.OrderDesk` (why:
-its docstring). A handler never blocks the event loop, let alone the scan: it waits for
+Every answer comes from the scan through a desk (:class:`~fleet.web.desk.OrderDesk`,
+:class:`~fleet.web.fleet_desk.FleetDesk`; why: their docstrings), the stream from the
+:class:`~fleet.web.feed.LiveFeed`. A handler never blocks the event loop, let alone the scan: it waits for
 the desk's Future for at most ``answer_timeout`` seconds, then answers 503 "controller not
 scanning". A request the scan had not taken by then is cancelled and never applied; one
 it had taken is decided within that scan, so the handler waits once more for it.
 
 Errors are JSON, ``{"error": "one line", "field": "get"}`` (``field`` null when the error
-is about no field): 400 unreadable JSON, 422 a field is wrong, 404 no such order (or
-path), 409 the id is in use or the order cannot be withdrawn in its state, 503 the
-controller is not scanning or the run has ended, 500 a bug (its traceback is logged); 400/401/403/413 from the guard
-(:mod:`fleet.web.guard`). On every error the book is as before.
+is about no field): 400 unreadable JSON, 422 a field is wrong, 404 no such order, vehicle,
+node, segment or tag (or path), 403 a tag that is read-only, 409 the id is in use, the
+order cannot be withdrawn in its state, or no vehicle takes orders, 503 the controller is
+not scanning, the run has ended or every stream place is taken, 500 a bug (its traceback
+is logged); 400/401/403/413/429 from the guard (:mod:`fleet.web.guard`). On every error
+nothing has changed.
 """
 
 from __future__ import annotations
 
 import asyncio
 from concurrent.futures import Future
+from pathlib import Path as FilePath
 from typing import Annotated, Any
 from urllib.parse import quote
 
 from fastapi import FastAPI, Path, Query, Request, Security
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from fastapi.security import HTTPBearer
+from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException
 
 from blocks.dispatch.orders import OrderError, check_order
 
 from .desk import MAX_OFFSET, MAX_PAGE, ControllerStopped, OrderDesk
-from .models import ErrorOut, OrderIn, OrderOut, OrderPage
+from .feed import Busy, LiveFeed
+from .fleet_desk import MAX_WATCH, FleetDesk, Refusal
+from .models import (
+    BlockadeOut,
+    ErrorOut,
+    EventPage,
+    OrderIn,
+    OrderOut,
+    OrderPage,
+    PlantOut,
+    StatsOut,
+    TagInfo,
+    TagOut,
+    TagValueIn,
+    VehicleOut,
+)
+from .views import MAX_EVENTS
 
 PREFIX = "/api/v1"
 ANSWER_TIMEOUT = 5.0  # seconds a request waits for the scan before 503
@@ -44,10 +81,19 @@ DEFAULT_PAGE = 100
 # documents the token in the schema; the guard enforces it before a request gets here
 _BEARER = HTTPBearer(auto_error=False, description="the token given at start (--web-token)")
 _ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorOut} for code in (400, 404, 409, 413, 422, 503)
+    code: {"model": ErrorOut} for code in (400, 404, 409, 413, 422, 429, 503)
 }
 _WRITE_ERRORS = {**_ERRORS, 401: {"model": ErrorOut}, 403: {"model": ErrorOut}}
 OrderId = Annotated[str, Path(description="the order's id (URL-encoded)")]
+NodeId = Annotated[int, Path(ge=0, le=0xFFFF, description="a node at one end of the segment")]
+TagName = Annotated[str, Path(min_length=1, max_length=100, description="the tag's name")]
+PAGE_DIR = FilePath(__file__).with_name("page")
+# the page loads nothing from elsewhere, and no other site may frame it
+_PAGE_HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+    "X-Content-Type-Options": "nosniff",
+    "Cache-Control": "no-cache",
+}
 
 
 class ApiError(Exception):
@@ -58,15 +104,24 @@ class ApiError(Exception):
         self.status, self.message, self.field = status, message, field
 
 
-def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAPI:
+def build_app(
+    fleet: FleetDesk,
+    orders: OrderDesk | None,
+    feed: LiveFeed,
+    answer_timeout: float = ANSWER_TIMEOUT,
+) -> FastAPI:
+    """The application: ``orders`` is None when no vehicle of the run takes orders (the
+    order book is then empty, and adding an order is refused)."""
     app = FastAPI(
         title="plc-runtime fleet API",
         version="1",
-        description="Transport orders of a running fleet controller (docs/orders.md).",
+        description="A running fleet controller: plant, vehicles, transport orders, "
+        "blockades, tags, statistics, events (docs/api.md, docs/operator-guide.md).",
         docs_url=None,  # the interactive pages load scripts from a CDN; openapi.json is enough
         redoc_url=None,
         redirect_slashes=False,
     )
+    tag_catalogue: list[dict[str, Any]] = []  # the tag table does not change while running
 
     async def ask(future: Future, action: str) -> Any:
         """The desk's answer, or ApiError."""
@@ -86,11 +141,36 @@ def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAP
                 raise ApiError(
                     503,
                     "controller not scanning: the request was taken but not decided within "
-                    f"{answer_timeout:g} s; GET the order to see whether it was applied",
+                    f"{answer_timeout:g} s; read it back to see whether it was applied",
                 ) from None
+        except Refusal as exc:
+            raise ApiError(exc.status, exc.message, exc.field) from None
         except (OrderError, ControllerStopped) as exc:
             raise _error(exc, action) from None
 
+    def order_desk() -> OrderDesk:
+        if orders is None:
+            raise ApiError(
+                409,
+                "no vehicle of this run takes transport orders (every one runs recipes; "
+                "docs/orders.md)",
+            )
+        return orders
+
+    # ----- plant and vehicles ---------------------------------------------------------------
+    @app.get(f"{PREFIX}/plant", response_model=PlantOut, responses=_ERRORS)
+    async def show_plant() -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_plant(), "plant"))
+
+    @app.get(f"{PREFIX}/vehicles", response_model=list[VehicleOut], responses=_ERRORS)
+    async def list_vehicles() -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_vehicles(), "vehicles"))
+
+    @app.get(f"{PREFIX}/vehicles/{{vehicle}}", response_model=VehicleOut, responses=_ERRORS)
+    async def show_vehicle(vehicle: Annotated[int, Path(ge=0, le=0xFFFF)]) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_vehicle(vehicle), "vehicle"))
+
+    # ----- orders ---------------------------------------------------------------------------
     @app.get(f"{PREFIX}/orders", response_model=OrderPage, responses=_ERRORS)
     async def list_orders(
         offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="first order, from 0")] = 0,
@@ -98,11 +178,15 @@ def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAP
             DEFAULT_PAGE
         ),
     ) -> OrderPage:
-        return OrderPage.of(await ask(desk.ask_page(offset, limit), "list"))
+        if orders is None:
+            return OrderPage(total=0, offset=offset, orders=[])
+        return OrderPage.of(await ask(orders.ask_page(offset, limit), "list"))
 
     @app.get(f"{PREFIX}/orders/{{order_id:path}}", response_model=OrderOut, responses=_ERRORS)
     async def show_order(order_id: OrderId) -> OrderOut:
-        return OrderOut.of(await ask(desk.ask_order(order_id), "show"))
+        if orders is None:
+            raise ApiError(404, f"order {order_id!r}: no such order", "id")
+        return OrderOut.of(await ask(orders.ask_order(order_id), "show"))
 
     @app.post(
         f"{PREFIX}/orders",
@@ -112,6 +196,7 @@ def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAP
         dependencies=[Security(_BEARER)],
     )
     async def add_order(new: OrderIn) -> JSONResponse:
+        desk = order_desk()
         order = new.order()
         try:
             check_order(order)  # what needs no plant: get = put, the time window, the id
@@ -131,7 +216,121 @@ def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAP
         dependencies=[Security(_BEARER)],
     )
     async def withdraw_order(order_id: OrderId) -> OrderOut:
-        return OrderOut.of(await ask(desk.ask_withdraw(order_id), "withdraw"))
+        return OrderOut.of(await ask(order_desk().ask_withdraw(order_id), "withdraw"))
+
+    # ----- blockades ------------------------------------------------------------------------
+    @app.get(f"{PREFIX}/blockades", response_model=list[list[int]], responses=_ERRORS)
+    async def list_blockades() -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_blockades(), "blockades"))
+
+    @app.put(
+        f"{PREFIX}/blockades/{{a}}/{{b}}",
+        response_model=BlockadeOut,
+        responses=_WRITE_ERRORS,
+        dependencies=[Security(_BEARER)],
+    )
+    async def close_segment(a: NodeId, b: NodeId) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_blockade(a, b, True), "blockade"))
+
+    @app.delete(
+        f"{PREFIX}/blockades/{{a}}/{{b}}",
+        response_model=BlockadeOut,
+        responses=_WRITE_ERRORS,
+        dependencies=[Security(_BEARER)],
+    )
+    async def reopen_segment(a: NodeId, b: NodeId) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_blockade(a, b, False), "blockade"))
+
+    # ----- tags: watch, write, force -------------------------------------------------------
+    @app.get(f"{PREFIX}/tags", response_model=list[TagInfo], responses=_ERRORS)
+    async def list_tags() -> JSONResponse:
+        if not tag_catalogue:
+            tag_catalogue.extend(fleet.tag_catalogue())
+        return JSONResponse(tag_catalogue)
+
+    @app.get(f"{PREFIX}/tags/values", response_model=list[TagOut], responses=_ERRORS)
+    async def watch_tags(
+        names: Annotated[
+            str, Query(min_length=1, description="tag names, comma-separated (at most 200)")
+        ],
+    ) -> JSONResponse:
+        wanted = [n.strip() for n in names.split(",")]
+        if len(wanted) > MAX_WATCH:
+            raise ApiError(422, f"{len(wanted)} tags: at most {MAX_WATCH} at once", "names")
+        return JSONResponse(await ask(fleet.ask_tags(wanted), "tags"))
+
+    @app.get(f"{PREFIX}/tags/{{name}}", response_model=TagOut, responses=_ERRORS)
+    async def read_tag(name: TagName) -> JSONResponse:
+        return JSONResponse((await ask(fleet.ask_tags([name]), "tag"))[0])
+
+    @app.put(
+        f"{PREFIX}/tags/{{name}}",
+        response_model=TagOut,
+        responses=_WRITE_ERRORS,
+        dependencies=[Security(_BEARER)],
+    )
+    async def write_tag(name: TagName, new: TagValueIn) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_write(name, new.value), "write"))
+
+    @app.put(
+        f"{PREFIX}/tags/{{name}}/force",
+        response_model=TagOut,
+        responses=_WRITE_ERRORS,
+        dependencies=[Security(_BEARER)],
+    )
+    async def force_tag(name: TagName, new: TagValueIn) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_force(name, new.value), "force"))
+
+    @app.delete(
+        f"{PREFIX}/tags/{{name}}/force",
+        response_model=TagOut,
+        responses=_WRITE_ERRORS,
+        dependencies=[Security(_BEARER)],
+    )
+    async def unforce_tag(name: TagName) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_unforce(name), "unforce"))
+
+    # ----- statistics, events, the stream --------------------------------------------------
+    @app.get(f"{PREFIX}/stats", response_model=StatsOut, responses=_ERRORS)
+    async def show_stats() -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_stats(), "stats"))
+
+    @app.get(f"{PREFIX}/events", response_model=EventPage, responses=_ERRORS)
+    async def list_events(
+        after: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="the last event seen")] = 0,
+        limit: Annotated[int, Query(ge=1, le=MAX_EVENTS, description="events at most")] = 100,
+    ) -> JSONResponse:
+        return JSONResponse(await ask(fleet.ask_events(after, limit), "events"))
+
+    @app.get(
+        f"{PREFIX}/stream",
+        response_class=StreamingResponse,
+        responses={
+            200: {
+                "content": {"text/event-stream": {}},
+                "description": "server-sent events 'snapshot', at most 10 per second: "
+                "vehicles, blockades, scan statistics, order counts and the orders changed",
+            },
+            503: {"model": ErrorOut},
+        },
+    )
+    async def stream() -> StreamingResponse:
+        try:
+            body = feed.open_stream()
+        except Busy as exc:
+            raise ApiError(503, f"stream: {exc}; retry later") from None
+        return StreamingResponse(
+            body,
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+        )
+
+    # ----- the operator's page ---------------------------------------------------------------
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(PAGE_DIR / "index.html", headers=_PAGE_HEADERS)
+
+    app.mount("/static", _Static(directory=PAGE_DIR), name="static")
 
     @app.exception_handler(ApiError)
     async def api_error(request: Request, exc: ApiError) -> JSONResponse:
@@ -151,6 +350,15 @@ def build_app(desk: OrderDesk, answer_timeout: float = ANSWER_TIMEOUT) -> FastAP
         return _json(exc.status_code, f"{request.method} {request.url.path}: {exc.detail}")
 
     return app
+
+
+class _Static(StaticFiles):
+    """The page's files, with the page's security headers."""
+
+    async def get_response(self, path: str, scope: Any) -> Any:
+        response = await super().get_response(path, scope)
+        response.headers.update(_PAGE_HEADERS)
+        return response
 
 
 async def _outcome(future: Future, timeout: float) -> Any:

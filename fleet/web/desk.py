@@ -93,36 +93,20 @@ class Page:
     orders: tuple[OrderView, ...]
 
 
-class OrderDesk:
+class Desk:
     """Thread-safe requests from the HTTP side, answered by :meth:`answer` in the scan.
 
-    Every ``ask_*`` method returns a ``concurrent.futures.Future``: it ends with an
-    :class:`OrderView` or a :class:`Page`, or raises ``OrderError`` (the book refused) or
-    :class:`ControllerStopped`. ``Future.cancel()`` succeeds only while the scan has not
-    taken the request, and a cancelled request is never applied."""
+    ``_ask(work)`` queues ``work(future) -> cost``, run in the scan at the quiet point; it
+    ends the ``concurrent.futures.Future`` it is given with an answer or an exception.
+    ``Future.cancel()`` succeeds only while the scan has not taken the request, and a
+    cancelled request is never applied."""
 
-    def __init__(self, orders: OrderSystem, budget: int = SCAN_BUDGET) -> None:
-        self._orders = orders
-        self._book: OrderBook = orders.book
+    def __init__(self, budget: int = SCAN_BUDGET) -> None:
         self._budget = budget
         self._queue: queue.SimpleQueue[tuple[Callable[[Future], int], Future]] = queue.SimpleQueue()
         self._handed_over: set[Future] = set()  # given to the OrderSystem, not answered yet
         self._lock = threading.Lock()  # guards _handed_over and _closed
         self._closed = False
-
-    # ----- the HTTP side (any thread) -----------------------------------------------------
-    def ask_page(self, offset: int, limit: int) -> Future:
-        """Orders ``offset`` .. ``offset + limit - 1`` (``limit`` at most MAX_PAGE)."""
-        return self._ask(lambda done: self._page(done, offset, limit))
-
-    def ask_order(self, order_id: str) -> Future:
-        return self._ask(lambda done: self._show(done, order_id))
-
-    def ask_add(self, order: TransportOrder) -> Future:
-        return self._ask(lambda done: self._hand_over(done, self._orders.submit(order)))
-
-    def ask_withdraw(self, order_id: str) -> Future:
-        return self._ask(lambda done: self._hand_over(done, self._orders.withdraw(order_id)))
 
     @property
     def waiting(self) -> int:
@@ -158,33 +142,19 @@ class OrderDesk:
                 done.set_exception(exc)
         return taken
 
-    def _page(self, done: Future, offset: int, limit: int) -> int:
-        orders = tuple(
-            OrderView.of(o) for o in itertools.islice(self._book, offset, offset + limit)
-        )
-        done.set_result(Page(len(self._book), offset, orders))
-        return max(1, len(orders))
-
-    def _show(self, done: Future, order_id: str) -> int:
-        try:
-            done.set_result(OrderView.of(self._book.get(order_id)))
-        except OrderError as exc:
-            done.set_exception(exc)
-        return 1
-
-    def _hand_over(self, done: Future, decided: Future) -> int:
-        """Chain the OrderSystem's answer (given in this scan, by its intake) to ``done``,
-        copying the order the moment it is decided."""
+    def _hand_over(self, done: Future, decided: Future, copy: Callable[[object], object]) -> int:
+        """Chain an answer decided later in this scan (``decided``) to ``done``, passing
+        its result through ``copy`` (in the scan thread) the moment it is decided."""
         with self._lock:
             self._handed_over.add(done)
 
-        def copy(f: Future) -> None:
+        def settle(f: Future) -> None:
             with self._lock:
                 self._handed_over.discard(done)
             exc = f.exception()
-            _settle(done, exc if exc is not None else OrderView.of(f.result()))
+            _settle(done, exc if exc is not None else copy(f.result()))
 
-        decided.add_done_callback(copy)
+        decided.add_done_callback(settle)
         return 1
 
     def close(self) -> None:
@@ -202,6 +172,52 @@ class OrderDesk:
                 return
             if done.set_running_or_notify_cancel():
                 done.set_exception(ControllerStopped("the run has ended"))
+
+
+class OrderDesk(Desk):
+    """The order book's requests. Every ``ask_*`` method returns a Future that ends with an
+    :class:`OrderView` or a :class:`Page`, or raises ``OrderError`` (the book refused) or
+    :class:`ControllerStopped`."""
+
+    def __init__(self, orders: OrderSystem, budget: int = SCAN_BUDGET) -> None:
+        super().__init__(budget)
+        self._orders = orders
+        self._book: OrderBook = orders.book
+
+    # ----- the HTTP side (any thread) -----------------------------------------------------
+    def ask_page(self, offset: int, limit: int) -> Future:
+        """Orders ``offset`` .. ``offset + limit - 1`` (``limit`` at most MAX_PAGE)."""
+        return self._ask(lambda done: self._page(done, offset, limit))
+
+    def ask_order(self, order_id: str) -> Future:
+        return self._ask(lambda done: self._show(done, order_id))
+
+    def ask_add(self, order: TransportOrder) -> Future:
+        return self._ask(lambda done: self._hand_over(done, self._orders.submit(order), _view))
+
+    def ask_withdraw(self, order_id: str) -> Future:
+        return self._ask(
+            lambda done: self._hand_over(done, self._orders.withdraw(order_id), _view)
+        )
+
+    # ----- the scan side ------------------------------------------------------------------
+    def _page(self, done: Future, offset: int, limit: int) -> int:
+        orders = tuple(
+            OrderView.of(o) for o in itertools.islice(self._book, offset, offset + limit)
+        )
+        done.set_result(Page(len(self._book), offset, orders))
+        return max(1, len(orders))
+
+    def _show(self, done: Future, order_id: str) -> int:
+        try:
+            done.set_result(OrderView.of(self._book.get(order_id)))
+        except OrderError as exc:
+            done.set_exception(exc)
+        return 1
+
+
+def _view(order: object) -> OrderView:
+    return OrderView.of(order)  # type: ignore[arg-type]
 
 
 def _settle(done: Future, outcome: object) -> None:

@@ -6,16 +6,20 @@ changed:
 1. **Host** (only when the server listens on loopback): the ``Host`` header must name a
    loopback address or ``localhost``, else 400. A web page that rebinds its own DNS name to
    127.0.0.1 could otherwise read the API from a browser on this machine.
-2. **Token** for the methods that change something (POST, DELETE): ``Authorization: Bearer
+2. **Rate**: at most ``max_rate`` requests per second from one client address (a token
+   bucket holding one second's worth), else 429 with ``Retry-After``. Before the token, so
+   guessing tokens is as slow as everything else.
+3. **Token** for the methods that change something (POST, PUT, DELETE): ``Authorization: Bearer
    TOKEN``; none (or another scheme) is 401, a wrong one 403. Compared in constant time.
    Checked before the body is read, so no unauthenticated body is even parsed.
-3. **Body size**: at most ``max_body`` bytes (a declared ``Content-Length`` over it is
+4. **Body size**: at most ``max_body`` bytes (a declared ``Content-Length`` over it is
    refused before reading; a chunked body is counted while it arrives), else 413.
-4. **Requests in flight**: at most ``max_in_flight`` at once (each may wait up to the
-   answer timeout for the scan), else 503.
+5. **Requests in flight**: at most ``max_in_flight`` at once (each may wait up to the
+   answer timeout for the scan), else 503. A stream (``unmetered`` paths) lasts as long
+   as its client stays, so it is not counted here; the live feed limits streams itself.
 
-Refusals of 1 to 3 are logged, one warning line each (who, what, why), like the Modbus
-server's.
+Refusals of 1 to 4 are logged, one warning line each (who, what, why), like the Modbus
+server's; a client refused for its rate is logged once per second at most.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import ipaddress
 import json
 import logging
 import secrets
+import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
@@ -38,6 +43,8 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 WRITE_METHODS = frozenset({"POST", "DELETE", "PUT", "PATCH"})
 MAX_BODY = 16 * 1024
 MAX_IN_FLIGHT = 32
+MAX_RATE = 100.0  # requests per second from one client address
+MAX_CLIENTS = 1024  # addresses whose rate is tracked; the idlest is forgotten beyond
 
 
 class Guard:
@@ -50,6 +57,8 @@ class Guard:
         loopback: bool,
         max_body: int = MAX_BODY,
         max_in_flight: int = MAX_IN_FLIGHT,
+        max_rate: float = MAX_RATE,
+        unmetered: tuple[str, ...] = (),
     ) -> None:
         self.app = app
         self._token = token.encode()
@@ -57,7 +66,12 @@ class Guard:
         self.loopback = loopback
         self.max_body = max_body
         self.max_in_flight = max_in_flight
+        self.max_rate = max_rate
+        self.unmetered = frozenset(unmetered)
         self.in_flight = 0  # only touched in the server's event loop
+        self.refused = 0  # requests refused, for the statistics
+        # client address -> (tokens, monotonic time of the last refill, last rate warning)
+        self._buckets: dict[str, list[float]] = {}
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -67,6 +81,15 @@ class Guard:
         if self.loopback and not _loopback_host(headers.get("host")):
             await self._refuse(
                 scope, send, 400, f"Host header {headers.get('host')!r} not accepted"
+            )
+            return
+        if not self._admit(scope):
+            self.refused += 1
+            await _reply(
+                send,
+                429,
+                f"too many requests: the limit is {self.max_rate:g} per second per client",
+                [(b"retry-after", b"1")],
             )
             return
         if scope["method"] in WRITE_METHODS:
@@ -88,12 +111,14 @@ class Guard:
                 f"request body of {int(declared):,} bytes: the limit is {self.max_body:,} bytes",
             )
             return
-        if self.in_flight >= self.max_in_flight:
+        metered = scope["path"] not in self.unmetered
+        if metered and self.in_flight >= self.max_in_flight:
+            self.refused += 1
             await _reply(
                 send, 503, f"too many requests in flight (the limit is {self.max_in_flight}): retry"
             )
             return
-        self.in_flight += 1
+        self.in_flight += metered
         try:
             body = await self._body(receive)
             if body is None:
@@ -103,7 +128,7 @@ class Guard:
                 return
             await self.app(scope, _replay(body, receive), send)
         finally:
-            self.in_flight -= 1
+            self.in_flight -= metered
 
     async def _body(self, receive: Receive) -> bytes | None:
         """The whole request body, or None once it passes ``max_body``."""
@@ -120,7 +145,38 @@ class Guard:
             more = message.get("more_body", False)
         return b"".join(chunks)
 
+    def _admit(self, scope: Scope) -> bool:
+        """Take a token from the client address's bucket; False (and a warning, once a
+        second at most) when it is empty."""
+        client = scope.get("client")
+        address = client[0] if client else "?"
+        now = time.monotonic()
+        bucket = self._buckets.get(address)
+        if bucket is None:
+            if len(self._buckets) >= MAX_CLIENTS:
+                idlest = min(self._buckets, key=lambda a: self._buckets[a][1])
+                del self._buckets[idlest]
+            bucket = self._buckets[address] = [self.max_rate, now, -1.0]
+        tokens = min(self.max_rate, bucket[0] + (now - bucket[1]) * self.max_rate)
+        bucket[1] = now
+        if tokens >= 1.0:
+            bucket[0] = tokens - 1.0
+            return True
+        bucket[0] = tokens
+        if now - bucket[2] >= 1.0:
+            bucket[2] = now
+            log.warning(
+                "%s: refused %s %s from %s: 429, over %g requests per second",
+                self.where,
+                scope["method"],
+                scope["path"],
+                address,
+                self.max_rate,
+            )
+        return False
+
     async def _refuse(self, scope: Scope, send: Send, status: int, why: str) -> None:
+        self.refused += 1
         client = scope.get("client")
         peer = f"{client[0]}:{client[1]}" if client else "?"
         log.warning(
@@ -135,9 +191,12 @@ class Guard:
         await _reply(send, status, why)
 
 
-async def _reply(send: Send, status: int, error: str) -> None:
+async def _reply(
+    send: Send, status: int, error: str, extra: list[tuple[bytes, bytes]] | None = None
+) -> None:
     body = json.dumps({"error": error, "field": None}, separators=(",", ":")).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+    headers += extra or []
     if status == 401:
         headers.append((b"www-authenticate", b"Bearer"))
     await send({"type": "http.response.start", "status": status, "headers": headers})

@@ -9,6 +9,7 @@ deadline has ``end_s`` null in both directions (JSON has no infinity).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -102,3 +103,123 @@ class ErrorOut(BaseModel):
 
     error: str
     field: str | None = None
+
+
+class NodeOut(BaseModel):
+    id: int
+    name: str
+    x: float = Field(description="metres")
+    y: float = Field(description="metres")
+    role: str = Field(description="transit, station, entry, exit, charger, parking or queue")
+    functions: list[int] = Field(description="functions a station provides")
+    queue_for: int | None = Field(description="role queue: the station it is a waiting place of")
+    area: str | None = Field(description="the single-vehicle area it belongs to")
+
+
+class EdgeOut(BaseModel):
+    a: int = Field(description="source node")
+    b: int = Field(description="target node")
+    length: float = Field(description="metres")
+    bidirectional: bool = Field(description="false: one-way from a to b")
+    routable: bool
+
+
+class PlantOut(BaseModel):
+    """The plant model, with the segments closed now."""
+
+    name: str
+    nodes: list[NodeOut]
+    edges: list[EdgeOut]
+    stations: list[int]
+    chargers: list[int]
+    parking: list[int]
+    queues: dict[str, list[int]] = Field(description="station -> its queue positions, in order")
+    functions: dict[str, str] = Field(description="function id -> name")
+    blockades: list[list[int]] = Field(description="closed segments as [a, b], a < b")
+
+
+class VehicleOut(BaseModel):
+    """A vehicle as the controller knows it (its reports, its routes, its job)."""
+
+    id: int
+    state: str = Field(
+        description="offline, idle, planning, driving, waiting, arrived, no_route, stale, "
+        "fault or suspect"
+    )
+    node: int | None = Field(description="the node it last reported")
+    next: int | None = Field(description="the next node it reports (null: standing)")
+    target: int | None = Field(description="the node it is sent to")
+    released: list[int] = Field(description="nodes released to it and not reached, in order")
+    planned: list[int] = Field(description="planned nodes after the released ones")
+    battery: int | None = Field(description="charge in % (null: not reported yet)")
+    speed_cm_s: int
+    order: str | None = Field(description="its active transport order")
+    next_order: str | None = Field(description="its next transport order")
+    recipe: str | None = Field(description="its recipe (vehicles that run recipes)")
+    waiting_for: int | None = Field(description="the vehicle holding the node it waits for")
+    online: bool
+    stale: bool = Field(description="silent for longer than stale_after: nothing released")
+    fault: bool
+    suspect: bool = Field(description="an implausible report: stopped (docs/security.md)")
+    suspect_reason: str
+    held: bool = Field(description="an operator holds it")
+    waits: int
+    replans: int
+
+
+class BlockadeOut(BaseModel):
+    a: int
+    b: int
+    closed: bool
+
+
+class TagInfo(BaseModel):
+    name: str
+    address: str
+    type: str
+    writable: bool = Field(description="clients may write and force it")
+    comment: str
+
+
+class TagOut(TagInfo):
+    value: bool | int | float
+    forced: bool
+    forced_value: bool | int | float | None
+
+
+class TagValueIn(BaseModel):
+    """A value to write or force: a JSON number, or true/false for a BOOL."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    value: bool | int | float = Field(allow_inf_nan=False)
+
+
+class EventOut(BaseModel):
+    seq: int = Field(description="the event's number in the run, from 1")
+    time_s: float
+    kind: str
+    vehicle: int | None
+    text: str
+
+
+class EventPage(BaseModel):
+    first: int = Field(description="the oldest event the log still keeps")
+    last: int = Field(description="the newest event's number (0: none yet)")
+    events: list[EventOut]
+
+
+class StatsOut(BaseModel):
+    """The runtime's cycle statistics (times in microseconds) and the fleet's counters."""
+
+    state: str
+    cycles: int
+    cycle_time_s: float
+    sim_time_s: float
+    overruns: int
+    fault_reason: str | None
+    watchdog_ms: float
+    scan: dict[str, Any] = Field(description="whole scans: cycles, exec_us, lateness_us")
+    tasks: dict[str, Any] = Field(description="per task, as scan")
+    drivers: dict[str, Any]
+    fleet: dict[str, Any]

@@ -1,10 +1,11 @@
 """``plc-runtime run CONFIG --web HOST:PORT [--web-token TOKEN]``: the options and their checks.
 
+The address comes from ``--web``, else from the configuration's ``[web] address``; without
+either nothing is served.
 The token for writes comes from ``--web-token``, else from the environment variable
 ``PLC_RUNTIME_TOKEN`` (not shown by ``ps`` to other users, unlike a command line), else it
 is generated and printed once on stderr. Everything is checked before the program is built:
-a bad address or token, or a configuration in which no vehicle takes transport orders, is
-one line and nothing runs.
+a bad address or token is one line and nothing runs.
 """
 
 from __future__ import annotations
@@ -18,12 +19,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from plc_runtime.cli import CliError
-from plc_runtime.errors import ConfigError
-
-from ..config import FleetConfig
-from ..order_system import OrderSystem
+from ..config import FleetConfig, host_port
 
 if TYPE_CHECKING:
+    from ..program import FleetProgram
     from .server import WebServer
 
 TOKEN_ENV = "PLC_RUNTIME_TOKEN"
@@ -44,8 +43,8 @@ def add_options(run: argparse.ArgumentParser) -> None:
     run.add_argument(
         "--web",
         metavar="HOST:PORT",
-        help="fleet: serve the transport orders over HTTP (e.g. 127.0.0.1:8080; "
-        "docs/orders.md); writes need a token",
+        help="fleet: serve the HTTP API and the operator's page (e.g. 127.0.0.1:8080; "
+        "overrides [web] address; docs/operator-guide.md); writes need a token",
     )
     run.add_argument(
         "--web-token",
@@ -56,32 +55,33 @@ def add_options(run: argparse.ArgumentParser) -> None:
 
 
 def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None:
-    """The checked ``--web`` options, None without ``--web``."""
-    if args.web is None:
+    """The checked web options (``--web``, else ``[web] address``), None without either."""
+    if args.web is None and cfg.web_address is None:
         if args.web_token is not None:
-            raise CliError("--web-token is the token of the HTTP API --web HOST:PORT starts")
+            raise CliError(
+                "--web-token is the token of the HTTP API that --web HOST:PORT (or [web] "
+                "address) starts"
+            )
         return None
-    host, sep, port = args.web.rpartition(":")
-    host = host.removeprefix("[").removesuffix("]")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise CliError(f"--web {args.web!r}: expected HOST:PORT, e.g. 127.0.0.1:8080")
-    if not cfg.order_vehicles:
-        raise ConfigError(
-            f"--web: no vehicle of {cfg.source} takes transport orders (every one runs "
-            "recipes), and the HTTP API serves transport orders (docs/orders.md)"
-        )
+    if args.web is not None:
+        try:
+            host, port = host_port(args.web)
+        except ValueError as exc:
+            raise CliError(f"--web: {exc}") from None
+    else:
+        host, port = cfg.web_address
     token, where = args.web_token, "--web-token"
     if token is None:
         token, where = os.environ.get(TOKEN_ENV), TOKEN_ENV
     if token is None:
-        return WebOptions(host, int(port), new_token(), True)
+        return WebOptions(host, port, new_token(), True)
     if len(token) < MIN_TOKEN_CHARS or not bearer_token(token):
         raise CliError(
             f"{where}: a bearer token needs {MIN_TOKEN_CHARS} characters or more of "
             "A-Z a-z 0-9 - . _ ~ + / (got "
             f"{len(token)} characters{'' if bearer_token(token) else ', some not allowed'})"
         )
-    return WebOptions(host, int(port), token, False)
+    return WebOptions(host, port, token, False)
 
 
 def bearer_token(text: str) -> bool:
@@ -89,17 +89,17 @@ def bearer_token(text: str) -> bool:
     return _TOKEN.fullmatch(text) is not None
 
 
-def web_server(options: WebOptions, orders: OrderSystem) -> WebServer:
+def web_server(options: WebOptions, program: FleetProgram) -> WebServer:
     """The server, announcing where it listens (and a generated token) on stderr."""
     from .server import WebServer  # FastAPI and uvicorn: only for a run that serves HTTP
 
     def announce(url: str) -> None:
-        line = f"plc-runtime: HTTP API on {url}/api/v1"
+        line = f"plc-runtime: operator page on {url}/, HTTP API on {url}/api/v1"
         if options.generated:
             line += f"; token for writes: {options.token}"
         print(line, file=sys.stderr, flush=True)
 
-    return WebServer(orders, options.host, options.port, token=options.token, announce=announce)
+    return WebServer(program, options.host, options.port, token=options.token, announce=announce)
 
 
 def new_token() -> str:

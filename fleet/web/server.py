@@ -1,9 +1,11 @@
-"""WebServer: the HTTP API served by uvicorn in its own thread and event loop, beside the scan.
+"""WebServer: the HTTP API and the operator's page, served by uvicorn in its own thread and
+event loop, beside the scan.
 
 It is an IoDriver of the runtime, which gives it exactly the life it needs: ``open`` (the
 startup phase) binds the socket and starts the server thread, ``read_inputs`` (every tick's
-quiet point, in the scan thread) answers the requests waiting in the :class:`OrderDesk`, and
-``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
+quiet point, in the scan thread) answers the requests waiting in the desks
+(:class:`FleetDesk`, :class:`OrderDesk`) and hands the live feed its snapshot when one is
+due, and ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
 thread and closes the socket. So a run never leaves the server behind.
 
 The socket is bound here, before the thread starts, so an address in use is a clear error
@@ -16,6 +18,7 @@ and ``X-Forwarded-For`` from a client is not believed.
 
 from __future__ import annotations
 
+import asyncio
 import os
 import socket
 import threading
@@ -27,10 +30,12 @@ import uvicorn
 from io_drivers.modbus_server import is_loopback
 from plc_runtime import ConfigError, ProcessImage
 
-from ..order_system import OrderSystem
-from .api import ANSWER_TIMEOUT, build_app
+from ..program import FleetProgram
+from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
-from .guard import MAX_BODY, MAX_IN_FLIGHT, Guard
+from .feed import RATE_HZ, LiveFeed
+from .fleet_desk import FleetDesk
+from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
 
 START_TIMEOUT = 10.0  # seconds for the server thread to start serving
 STOP_TIMEOUT = 10.0  # seconds for it to end (it answers what is in flight first, up to 2 s)
@@ -43,20 +48,24 @@ class _Server(uvicorn.Server):
     def __init__(self, config: uvicorn.Config) -> None:
         super().__init__(config)
         self.serving = threading.Event()
+        self.on_start: Callable[[asyncio.AbstractEventLoop], None] | None = None
 
     async def startup(self, sockets: list[socket.socket] | None = None) -> None:
         await super().startup(sockets)
+        if self.on_start is not None:
+            self.on_start(asyncio.get_running_loop())
         self.serving.set()
 
 
 class WebServer:
-    """The HTTP API of ``orders`` on ``host:port`` (port 0: a free one); POST and DELETE need
-    ``token``. ``announce(url)`` is called once it listens (the command line prints it).
-    ``answer_timeout``, ``max_body`` and ``max_in_flight``: see api.py and guard.py."""
+    """The HTTP API of ``program`` on ``host:port`` (port 0: a free one); writes (POST,
+    PUT, DELETE) need ``token``. ``announce(url)`` is called once it listens (the command
+    line prints it). ``answer_timeout``, ``max_body``, ``max_in_flight``, ``max_rate`` and
+    ``stream_hz``: see api.py, guard.py and feed.py."""
 
     def __init__(
         self,
-        orders: OrderSystem,
+        program: FleetProgram,
         host: str = "127.0.0.1",
         port: int = 0,
         *,
@@ -65,17 +74,24 @@ class WebServer:
         answer_timeout: float = ANSWER_TIMEOUT,
         max_body: int = MAX_BODY,
         max_in_flight: int = MAX_IN_FLIGHT,
+        max_rate: float = MAX_RATE,
+        stream_hz: float = RATE_HZ,
         announce: Callable[[str], None] | None = None,
     ) -> None:
         self.name = name
         self.host, self.requested_port = host, port
         self.port: int | None = None  # the bound port while open
-        self._orders = orders
-        self.desk = OrderDesk(orders)
+        self._program = program
+        self._orders = program.orders
+        self.desk = OrderDesk(program.orders) if program.orders is not None else None
+        self.fleet_desk = FleetDesk(program)
+        self.feed = LiveFeed(program, stream_hz)
         self._token = token
         self._answer_timeout = answer_timeout
         self._max_body = max_body
         self._max_in_flight = max_in_flight
+        self._max_rate = max_rate
+        self.guard: Guard | None = None
         self._announce = announce
         self._socket: socket.socket | None = None
         self._server: _Server | None = None
@@ -105,14 +121,19 @@ class WebServer:
             why = os.strerror(exc.errno) if exc.errno and exc.errno > 0 else exc.strerror or exc
             raise ConfigError(f"HTTP API on {self.host}:{self.requested_port}: {why}") from None
         self.port = self._socket.getsockname()[1]
-        self.desk = OrderDesk(self._orders)  # a fresh queue for every start
-        app = Guard(
-            build_app(self.desk, self._answer_timeout),
+        # fresh queues for every start
+        self.desk = OrderDesk(self._orders) if self._orders is not None else None
+        self.fleet_desk = FleetDesk(self._program)
+        self.feed = LiveFeed(self._program, 1.0 / self.feed.period_s, self.feed.max_streams)
+        app = self.guard = Guard(
+            build_app(self.fleet_desk, self.desk, self.feed, self._answer_timeout),
             token=self._token,
             where=f"{self.name} {self.host}:{self.port}",
             loopback=loopback,
             max_body=self._max_body,
             max_in_flight=self._max_in_flight,
+            max_rate=self._max_rate,
+            unmetered=(f"{PREFIX}/stream",),
         )
         config = uvicorn.Config(
             app,
@@ -128,6 +149,7 @@ class WebServer:
             timeout_graceful_shutdown=GRACEFUL_S,
         )
         self._server = _Server(config)
+        self._server.on_start = self.feed.attach
         self._error = None
         self._thread = threading.Thread(target=self._serve, name=f"fleet-{self.name}", daemon=True)
         self._thread.start()
@@ -150,14 +172,20 @@ class WebServer:
             server.serving.set()
 
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
-        self.answered += self.desk.answer()
+        self.answered += self.fleet_desk.answer()
+        if self.desk is not None:
+            self.answered += self.desk.answer()
+        self.feed.publish()
 
     def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
         """Nothing: the API writes no outputs."""
 
     def close(self) -> None:
         """Fail what waits, stop the server thread, close the socket. Idempotent."""
-        self.desk.close()
+        self.fleet_desk.close()
+        if self.desk is not None:
+            self.desk.close()
+        self.feed.detach()
         server, thread, sock = self._server, self._thread, self._socket
         self._server = self._thread = self._socket = None
         if server is not None:
@@ -175,7 +203,15 @@ class WebServer:
         self.port = None
 
     def stats(self) -> dict[str, object]:
-        return {"port": self.port, "answered": self.answered, "waiting": self.desk.waiting}
+        guard = self.guard
+        return {
+            "port": self.port,
+            "answered": self.answered,
+            "waiting": self.fleet_desk.waiting + (self.desk.waiting if self.desk else 0),
+            "streams": self.feed.streams,
+            "snapshots": self.feed.published,
+            "refused": guard.refused if guard is not None else 0,
+        }
 
 
 def _bind(host: str, port: int) -> socket.socket:
