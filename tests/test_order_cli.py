@@ -39,7 +39,10 @@ from fleet.web.options import TOKEN_ENV, web_options
 from plc_runtime.cli import CliError
 
 ERROR = "plc-runtime: error: "
-ANNOUNCE = re.compile(r"plc-runtime: HTTP API on (http://127\.0\.0\.1:(\d+))/api/v1(.*)")
+ANNOUNCE = re.compile(
+    r"plc-runtime: operator page on http://127\.0\.0\.1:\d+/, "
+    r"HTTP API on (http://127\.0\.0\.1:(\d+))/api/v1(.*)"
+)
 FINISH_WALL_S = 120.0
 START_WALL_S = 60.0
 
@@ -337,11 +340,7 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "line"),
     [
-        (
-            [str(ROOT / "examples" / "workshop.toml"), "--web", "127.0.0.1:0"],
-            "--web: no vehicle of",
-        ),
-        ([str(CONFIG), "--web", "8080"], "--web '8080': expected HOST:PORT, e.g. 127.0.0.1:8080"),
+        ([str(CONFIG), "--web", "8080"], "--web: expected HOST:PORT, e.g. 127.0.0.1:8080, got '8080'"),
         ([str(CONFIG), "--web", "127.0.0.1:99999"], "expected HOST:PORT"),
         (
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "short"],
@@ -353,7 +352,7 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
             "some not allowed",
         ),
         ([str(CONFIG), "--web-token", TOKEN], "--web-token is the token of the HTTP API"),
-        (["--program", "demo", "--web", "127.0.0.1:0"], "--web serves the fleet's transport"),
+        (["--program", "demo", "--web", "127.0.0.1:0"], "--web serves the fleet program's API and page"),
     ],
 )
 def test_run_refuses_bad_web_options_in_one_line(tmp_path, capsys, argv, line):

@@ -41,14 +41,17 @@ class Reply:
 
 
 class Controller:
-    def __init__(self, *, speed: float = 50.0, scanning: bool = True, **web: Any) -> None:
+    def __init__(
+        self, *, speed: float = 50.0, scanning: bool = True, config: Path = CONFIG, **web: Any
+    ) -> None:
         self.speed, self.scanning, self.web_options = speed, scanning, web
+        self.config = config
         self._thread: threading.Thread | None = None
         self._failed: BaseException | None = None
 
     def __enter__(self) -> Controller:
         self._before = set(threading.enumerate())  # another controller's server may be up
-        cfg = load_config(CONFIG)
+        cfg = load_config(self.config)
         cfg.watchdog = WATCHDOG_S
         clock = PacedClock(self.speed) if self.scanning else VirtualClock()
         self.program = FleetProgram(cfg, clock=clock)

@@ -261,7 +261,7 @@ def build_app(
 
     @app.get(f"{PREFIX}/tags/{{name}}", response_model=TagOut, responses=_ERRORS)
     async def read_tag(name: TagName) -> JSONResponse:
-        return JSONResponse((await ask(fleet.ask_tags([name]), "tag"))[0])
+        return JSONResponse(await ask(fleet.ask_tag(name), "tag"))
 
     @app.put(
         f"{PREFIX}/tags/{{name}}",

@@ -73,6 +73,9 @@ class FleetDesk(Desk):
     def ask_tags(self, names: list[str]) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._read(names), len(names)))
 
+    def ask_tag(self, name: str) -> Future:
+        return self._ask(lambda done: self._answer(done, lambda: self._read([name], "name")[0]))
+
     def ask_write(self, name: str, value: object) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._change(name, "write", value)))
 
@@ -132,12 +135,14 @@ class FleetDesk(Desk):
         except PlcError:
             raise Refusal(404, f"there is no tag {name!r}", field) from None
 
-    def _read(self, names: list[str]) -> list[dict[str, Any]]:
+    def _read(self, names: list[str], field: str | None = None) -> list[dict[str, Any]]:
+        """The tags' values; an unknown name is refused naming ``field`` (else its place in
+        ``names``)."""
         image = self._program.rt.image
         forces = image.forces
         out = []
         for i, name in enumerate(names):
-            tag = self._tag(name, f"names[{i}]")
+            tag = self._tag(name, field or f"names[{i}]")
             out.append(
                 {
                     "name": tag.name,

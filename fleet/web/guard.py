@@ -70,6 +70,7 @@ class Guard:
         self.unmetered = frozenset(unmetered)
         self.in_flight = 0  # only touched in the server's event loop
         self.refused = 0  # requests refused, for the statistics
+        self.clock: Callable[[], float] = time.monotonic  # seconds, for the rate
         # client address -> (tokens, monotonic time of the last refill, last rate warning)
         self._buckets: dict[str, list[float]] = {}
 
@@ -150,7 +151,7 @@ class Guard:
         second at most) when it is empty."""
         client = scope.get("client")
         address = client[0] if client else "?"
-        now = time.monotonic()
+        now = self.clock()
         bucket = self._buckets.get(address)
         if bucket is None:
             if len(self._buckets) >= MAX_CLIENTS:

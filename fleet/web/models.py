@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from blocks.dispatch.orders import MAX_ID_CHARS, TransportOrder
 
@@ -188,11 +188,24 @@ class TagOut(TagInfo):
 
 
 class TagValueIn(BaseModel):
-    """A value to write or force: a JSON number, or true/false for a BOOL."""
+    """A value to write or force: a JSON number, or true/false for a BOOL. Its range is the
+    tag's type's, checked by the process image."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
 
-    value: bool | int | float = Field(allow_inf_nan=False)
+    value: Any = Field(
+        description="a JSON number, or true/false",
+        json_schema_extra={"anyOf": [{"type": "number"}, {"type": "boolean"}]},
+    )
+
+    @field_validator("value")
+    @classmethod
+    def _number(cls, value: Any) -> bool | int | float:
+        if not isinstance(value, bool | int | float) or (
+            isinstance(value, float) and not math.isfinite(value)
+        ):
+            raise ValueError(f"expected a finite JSON number or true/false, got {value!r}")
+        return value
 
 
 class EventOut(BaseModel):

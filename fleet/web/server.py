@@ -33,7 +33,7 @@ from plc_runtime import ConfigError, ProcessImage
 from ..program import FleetProgram
 from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
-from .feed import RATE_HZ, LiveFeed
+from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
 from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
 
@@ -60,8 +60,8 @@ class _Server(uvicorn.Server):
 class WebServer:
     """The HTTP API of ``program`` on ``host:port`` (port 0: a free one); writes (POST,
     PUT, DELETE) need ``token``. ``announce(url)`` is called once it listens (the command
-    line prints it). ``answer_timeout``, ``max_body``, ``max_in_flight``, ``max_rate`` and
-    ``stream_hz``: see api.py, guard.py and feed.py."""
+    line prints it). ``answer_timeout``, ``max_body``, ``max_in_flight``, ``max_rate``,
+    ``stream_hz`` and ``max_streams``: see api.py, guard.py and feed.py."""
 
     def __init__(
         self,
@@ -76,6 +76,7 @@ class WebServer:
         max_in_flight: int = MAX_IN_FLIGHT,
         max_rate: float = MAX_RATE,
         stream_hz: float = RATE_HZ,
+        max_streams: int = MAX_STREAMS,
         announce: Callable[[str], None] | None = None,
     ) -> None:
         self.name = name
@@ -85,7 +86,7 @@ class WebServer:
         self._orders = program.orders
         self.desk = OrderDesk(program.orders) if program.orders is not None else None
         self.fleet_desk = FleetDesk(program)
-        self.feed = LiveFeed(program, stream_hz)
+        self.feed = LiveFeed(program, stream_hz, max_streams)
         self._token = token
         self._answer_timeout = answer_timeout
         self._max_body = max_body
