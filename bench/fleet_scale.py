@@ -59,6 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from blocks.jobs.recipe import Recipe  # noqa: E402
 from fleet.config import FleetConfig  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
+from plc_runtime.clock import WallClock  # noqa: E402
 from topology import Plant, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
 from vehicles.fleet import Faults  # noqa: E402
@@ -113,6 +114,7 @@ def make_program(
     traffic: str = "reactive",
     delay_rate: float = 0.0,
     plan_budget: int | None = None,
+    clock: WallClock | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -134,7 +136,7 @@ def make_program(
     )
     if plan_budget is not None:
         cfg.time_windows.plan_budget = plan_budget
-    return FleetProgram(cfg)
+    return FleetProgram(cfg, clock=clock)
 
 
 @dataclass

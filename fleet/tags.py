@@ -385,6 +385,11 @@ class FleetStatus(FunctionBlock):
         self._add_total("fleet.total.starts", 1)
         self._mirror_fleet(0, sums)
 
+    def rows(self) -> np.ndarray:
+        """Every vehicle's words as the last scan left them, row ``v - 1`` for vehicle
+        ``v`` (a view of the image: copy it to keep it)."""
+        return self._words.vehicles
+
     def cycle(self, ctx: CycleContext) -> None:
         sums = self._mirror_vehicles()
         self._mirror_fleet(ctx.cycle + 1, sums)

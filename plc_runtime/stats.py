@@ -51,6 +51,14 @@ class ScanStats:
         self._exec_sum_ns += exec_ns
         self.cycles += 1
 
+    def copy(self) -> ScanStats:
+        """A frozen copy (two array copies, some microseconds): a monitor in another thread
+        computes the percentiles of ``to_dict`` on it, outside the scan."""
+        clone = object.__new__(ScanStats)
+        clone.__dict__.update(self.__dict__)
+        clone._exec, clone._late = self._exec.copy(), self._late.copy()
+        return clone
+
     def _recent(self, data: np.ndarray) -> np.ndarray:
         return data[: min(self.cycles, self.window)]
 

@@ -340,7 +340,10 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "line"),
     [
-        ([str(CONFIG), "--web", "8080"], "--web: expected HOST:PORT, e.g. 127.0.0.1:8080, got '8080'"),
+        (
+            [str(CONFIG), "--web", "8080"],
+            "--web: expected HOST:PORT, e.g. 127.0.0.1:8080, got '8080'",
+        ),
         ([str(CONFIG), "--web", "127.0.0.1:99999"], "expected HOST:PORT"),
         (
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "short"],
@@ -352,7 +355,10 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
             "some not allowed",
         ),
         ([str(CONFIG), "--web-token", TOKEN], "--web-token is the token of the HTTP API"),
-        (["--program", "demo", "--web", "127.0.0.1:0"], "--web serves the fleet program's API and page"),
+        (
+            ["--program", "demo", "--web", "127.0.0.1:0"],
+            "--web serves the fleet program's API and page",
+        ),
     ],
 )
 def test_run_refuses_bad_web_options_in_one_line(tmp_path, capsys, argv, line):

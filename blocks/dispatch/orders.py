@@ -245,9 +245,7 @@ class OrderBook:
             return []
         if self.revision - revision > len(self._changed):
             return None
-        newest_first = dict.fromkeys(
-            oid for rev, oid in reversed(self._changed) if rev > revision
-        )
+        newest_first = dict.fromkeys(oid for rev, oid in reversed(self._changed) if rev > revision)
         return [self._orders[oid] for oid in reversed(newest_first)]
 
     # ----- the life cycle ------------------------------------------------------------------

@@ -55,6 +55,7 @@ from starlette.exceptions import HTTPException
 
 from blocks.dispatch.orders import OrderError, check_order
 
+from . import views
 from .desk import MAX_OFFSET, MAX_PAGE, ControllerStopped, OrderDesk
 from .feed import Busy, LiveFeed
 from .fleet_desk import MAX_WATCH, FleetDesk, Refusal
@@ -160,15 +161,21 @@ def build_app(
     # ----- plant and vehicles ---------------------------------------------------------------
     @app.get(f"{PREFIX}/plant", response_model=PlantOut, responses=_ERRORS)
     async def show_plant() -> JSONResponse:
+        """The plant model: nodes with their position in metres and role, segments,
+        stations, chargers, parking and queue positions, and the segments closed now."""
         return JSONResponse(await ask(fleet.ask_plant(), "plant"))
 
     @app.get(f"{PREFIX}/vehicles", response_model=list[VehicleOut], responses=_ERRORS)
     async def list_vehicles() -> JSONResponse:
-        return JSONResponse(await ask(fleet.ask_vehicles(), "vehicles"))
+        """Every vehicle as the controller knows it: its reports, its released and
+        planned route, its job, its flags."""
+        return JSONResponse(views.render_vehicles(await ask(fleet.ask_vehicles(), "vehicles")))
 
     @app.get(f"{PREFIX}/vehicles/{{vehicle}}", response_model=VehicleOut, responses=_ERRORS)
     async def show_vehicle(vehicle: Annotated[int, Path(ge=0, le=0xFFFF)]) -> JSONResponse:
-        return JSONResponse(await ask(fleet.ask_vehicle(vehicle), "vehicle"))
+        """One vehicle (404: no such vehicle)."""
+        copied = await ask(fleet.ask_vehicle(vehicle), "vehicle")
+        return JSONResponse(views.render_vehicles(copied)[0])
 
     # ----- orders ---------------------------------------------------------------------------
     @app.get(f"{PREFIX}/orders", response_model=OrderPage, responses=_ERRORS)
@@ -178,12 +185,14 @@ def build_app(
             DEFAULT_PAGE
         ),
     ) -> OrderPage:
+        """A page of the order book, in the order the orders were added."""
         if orders is None:
             return OrderPage(total=0, offset=offset, orders=[])
         return OrderPage.of(await ask(orders.ask_page(offset, limit), "list"))
 
     @app.get(f"{PREFIX}/orders/{{order_id:path}}", response_model=OrderOut, responses=_ERRORS)
     async def show_order(order_id: OrderId) -> OrderOut:
+        """One transport order with its history and sections (404: no such order)."""
         if orders is None:
             raise ApiError(404, f"order {order_id!r}: no such order", "id")
         return OrderOut.of(await ask(orders.ask_order(order_id), "show"))
@@ -196,6 +205,8 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def add_order(new: OrderIn) -> JSONResponse:
+        """Add a transport order (checked like an order file; 201 and its Location).
+        Needs the token."""
         desk = order_desk()
         order = new.order()
         try:
@@ -216,11 +227,13 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def withdraw_order(order_id: OrderId) -> OrderOut:
+        """Withdraw an open order (409 if it is final). Needs the token."""
         return OrderOut.of(await ask(order_desk().ask_withdraw(order_id), "withdraw"))
 
     # ----- blockades ------------------------------------------------------------------------
     @app.get(f"{PREFIX}/blockades", response_model=list[list[int]], responses=_ERRORS)
     async def list_blockades() -> JSONResponse:
+        """The closed segments, each as [a, b] with a < b."""
         return JSONResponse(await ask(fleet.ask_blockades(), "blockades"))
 
     @app.put(
@@ -230,6 +243,8 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def close_segment(a: NodeId, b: NodeId) -> JSONResponse:
+        """Close the segment a-b both ways, as the blockade command of the Modbus map
+        does: vehicles replan around it. Needs the token."""
         return JSONResponse(await ask(fleet.ask_blockade(a, b, True), "blockade"))
 
     @app.delete(
@@ -239,11 +254,13 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def reopen_segment(a: NodeId, b: NodeId) -> JSONResponse:
+        """Reopen the segment a-b. Needs the token."""
         return JSONResponse(await ask(fleet.ask_blockade(a, b, False), "blockade"))
 
     # ----- tags: watch, write, force -------------------------------------------------------
     @app.get(f"{PREFIX}/tags", response_model=list[TagInfo], responses=_ERRORS)
     async def list_tags() -> JSONResponse:
+        """Every tag: name, address, type, whether clients may write and force it."""
         if not tag_catalogue:
             tag_catalogue.extend(fleet.tag_catalogue())
         return JSONResponse(tag_catalogue)
@@ -254,6 +271,8 @@ def build_app(
             str, Query(min_length=1, description="tag names, comma-separated (at most 200)")
         ],
     ) -> JSONResponse:
+        """The watch table: the values of the named tags as the last scan left them, and
+        their forces."""
         wanted = [n.strip() for n in names.split(",")]
         if len(wanted) > MAX_WATCH:
             raise ApiError(422, f"{len(wanted)} tags: at most {MAX_WATCH} at once", "names")
@@ -261,6 +280,7 @@ def build_app(
 
     @app.get(f"{PREFIX}/tags/{{name}}", response_model=TagOut, responses=_ERRORS)
     async def read_tag(name: TagName) -> JSONResponse:
+        """One tag's value (404: no such tag)."""
         return JSONResponse(await ask(fleet.ask_tag(name), "tag"))
 
     @app.put(
@@ -270,6 +290,8 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def write_tag(name: TagName, new: TagValueIn) -> JSONResponse:
+        """Write a writable tag at the next quiet point (403: the tag is read-only).
+        Needs the token."""
         return JSONResponse(await ask(fleet.ask_write(name, new.value), "write"))
 
     @app.put(
@@ -279,6 +301,8 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def force_tag(name: TagName, new: TagValueIn) -> JSONResponse:
+        """Force a writable tag until unforced: the program sees the forced value every
+        scan (CODESYS semantics). Needs the token."""
         return JSONResponse(await ask(fleet.ask_force(name, new.value), "force"))
 
     @app.delete(
@@ -288,18 +312,23 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def unforce_tag(name: TagName) -> JSONResponse:
+        """Remove a tag's force. Needs the token."""
         return JSONResponse(await ask(fleet.ask_unforce(name), "unforce"))
 
     # ----- statistics, events, the stream --------------------------------------------------
     @app.get(f"{PREFIX}/stats", response_model=StatsOut, responses=_ERRORS)
     async def show_stats() -> JSONResponse:
-        return JSONResponse(await ask(fleet.ask_stats(), "stats"))
+        """Cycle statistics of the runtime (execution time and lateness in microseconds:
+        last, min, max, mean, p50, p99 over the recent scans), per task and whole scans,
+        the drivers' counters and the fleet's."""
+        return JSONResponse(views.render_stats(await ask(fleet.ask_stats(), "stats")))
 
     @app.get(f"{PREFIX}/events", response_model=EventPage, responses=_ERRORS)
     async def list_events(
         after: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="the last event seen")] = 0,
         limit: Annotated[int, Query(ge=1, le=MAX_EVENTS, description="events at most")] = 100,
     ) -> JSONResponse:
+        """The event log, oldest first: events numbered after `after`, at most `limit`."""
         return JSONResponse(await ask(fleet.ask_events(after, limit), "events"))
 
     @app.get(
@@ -315,6 +344,9 @@ def build_app(
         },
     )
     async def stream() -> StreamingResponse:
+        """Server-sent events: a `snapshot` at most 10 times a second while the client
+        stays (vehicles, closed segments, the scan's counters, order counts and the
+        orders that changed)."""
         try:
             body = feed.open_stream()
         except Busy as exc:

@@ -196,9 +196,7 @@ class OrderDesk(Desk):
         return self._ask(lambda done: self._hand_over(done, self._orders.submit(order), _view))
 
     def ask_withdraw(self, order_id: str) -> Future:
-        return self._ask(
-            lambda done: self._hand_over(done, self._orders.withdraw(order_id), _view)
-        )
+        return self._ask(lambda done: self._hand_over(done, self._orders.withdraw(order_id), _view))
 
     # ----- the scan side ------------------------------------------------------------------
     def _page(self, done: Future, offset: int, limit: int) -> int:

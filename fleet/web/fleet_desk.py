@@ -38,7 +38,8 @@ class Refusal(Exception):
 
 class FleetDesk(Desk):
     """Requests about the fleet; each ``ask_*`` returns a Future ending with a JSON-ready
-    value, or raising :class:`Refusal` or ``ControllerStopped``."""
+    value or a copy to render (vehicles, statistics: :mod:`fleet.web.views`), or raising
+    :class:`Refusal` or ``ControllerStopped``."""
 
     def __init__(self, program: FleetProgram, budget: int = SCAN_BUDGET) -> None:
         super().__init__(budget)
@@ -51,7 +52,9 @@ class FleetDesk(Desk):
 
     def ask_vehicles(self) -> Future:
         n = len(self._program.vehicles)
-        return self._ask(lambda done: self._answer(done, lambda: views.vehicles(self._program), n))
+        return self._ask(
+            lambda done: self._answer(done, lambda: views.copy_vehicles(self._program), n)
+        )
 
     def ask_vehicle(self, vehicle: int) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._vehicle(vehicle)))
@@ -63,7 +66,7 @@ class FleetDesk(Desk):
         return self._ask(lambda done: self._answer(done, lambda: self._set_blockade(a, b, closed)))
 
     def ask_stats(self) -> Future:
-        return self._ask(lambda done: self._answer(done, lambda: views.stats(self._program)))
+        return self._ask(lambda done: self._answer(done, lambda: views.copy_stats(self._program)))
 
     def ask_events(self, after: int, limit: int) -> Future:
         return self._ask(
@@ -77,10 +80,14 @@ class FleetDesk(Desk):
         return self._ask(lambda done: self._answer(done, lambda: self._read([name], "name")[0]))
 
     def ask_write(self, name: str, value: object) -> Future:
-        return self._ask(lambda done: self._answer(done, lambda: self._change(name, "write", value)))
+        return self._ask(
+            lambda done: self._answer(done, lambda: self._change(name, "write", value))
+        )
 
     def ask_force(self, name: str, value: object) -> Future:
-        return self._ask(lambda done: self._answer(done, lambda: self._change(name, "force", value)))
+        return self._ask(
+            lambda done: self._answer(done, lambda: self._change(name, "force", value))
+        )
 
     def ask_unforce(self, name: str) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._change(name, "unforce")))
@@ -111,10 +118,10 @@ class FleetDesk(Desk):
     def _plant_model(self) -> dict[str, Any]:
         return views.plant(self._plant, views.blockades(self._program))
 
-    def _vehicle(self, vehicle: int) -> dict[str, Any]:
+    def _vehicle(self, vehicle: int) -> tuple[Any, list[views.VehicleCopy]]:
         if vehicle not in self._program.controls:
             raise Refusal(404, f"there is no vehicle {vehicle}", "vehicle")
-        return views.vehicles(self._program, [vehicle])[0]
+        return views.copy_vehicles(self._program, [vehicle])
 
     def _set_blockade(self, a: int, b: int, closed: bool) -> dict[str, Any]:
         plant = self._plant

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from plc_runtime.cli import CliError
+
 from ..config import FleetConfig, host_port
 
 if TYPE_CHECKING:
