@@ -1,11 +1,13 @@
-"""The fleet controller's HTTP API: transport orders added, withdrawn and read at run time.
+"""The fleet controller's operator page and HTTP API: plant, vehicles, transport orders,
+blockades, tags (watch, write, force), statistics, events and a live stream.
 
-``server.WebServer`` is an IoDriver that serves the API (``api``, ``models``) with uvicorn
-in its own thread; every request passes the guard (``guard``: host, token, body size) and
-is answered by the scan at its quiet point through the ``desk.OrderDesk``.
-``plc-runtime run CONFIG --web HOST:PORT`` starts it (``options``), ``plc-runtime order``
-talks to it. It is version 1 of the API the operator's web interface builds on.
+``server.WebServer`` is an IoDriver that serves the API (``api``, ``models``) and the page
+(``page/``) with uvicorn in its own thread; every request passes the guard (``guard``: host,
+rate, token, body size) and is answered by the scan between two scans through the desks
+(``desk`` for orders, ``fleet_desk`` for the rest), which copy what is asked (``views``);
+``feed`` streams snapshots. ``plc-runtime run CONFIG --web HOST:PORT`` starts it
+(``options``), ``plc-runtime order`` talks to it, ``apidoc`` renders docs/api.md.
 
-Nothing is imported here: the command line loads FastAPI and uvicorn only when ``--web``
-is given.
+Nothing is imported here: the command line loads FastAPI and uvicorn only when the web
+server is asked for.
 """

@@ -7,13 +7,13 @@ its sections) that the program changes while its blocks run, and the book has no
 so any read from another thread could see an order half-way through a transition. A copy
 published by the scan every cycle would cost every scan the whole book, asked for or not.
 A request queue costs nothing while nobody asks, and a request is answered where nothing
-changes the book: ``WebServer.read_inputs`` calls :meth:`OrderDesk.answer` at the tick's
-quiet point, before the program's blocks. The answers are copies (:class:`OrderView`),
+changes the book: ``WebServer.write_outputs`` calls :meth:`OrderDesk.answer` at the end of
+every scan, after its outputs are copied out and before the next scan's blocks run. The answers are copies (:class:`OrderView`),
 so the HTTP thread never touches a live order.
 
 Changes go the same way: an order to add or withdraw is taken from the queue at the quiet
 point and handed to :class:`~fleet.order_system.OrderSystem` (``submit`` / ``withdraw``),
-whose intake applies it in the same scan; the answer is copied in the scan thread the
+whose intake applies it in the next scan; the answer is copied in the scan thread the
 moment the intake has decided. A request that nobody took yet can be cancelled (the HTTP
 side gave up waiting: the controller is not scanning), and then it is never applied, so a
 client that got an error knows that nothing changed.

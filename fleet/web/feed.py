@@ -1,14 +1,23 @@
 """The live stream (server-sent events): one snapshot of the fleet at most ``rate_hz`` times
 per wall second, shared by every client, so a slow client never slows the scan.
 
-The scan's side, :meth:`LiveFeed.publish`, runs at the quiet point (``WebServer.read_inputs``)
-and does nothing while nobody listens or before the period has passed since the last
+The scan's side, :meth:`LiveFeed.publish`, runs at the end of every scan
+(``WebServer.write_outputs``) and does nothing while nobody listens or before the period has passed since the last
 snapshot; otherwise it copies the vehicles (their words and routes), the scan's counters,
 the order counts and the orders that changed state since the last snapshot (from the book's
 journal, not the whole book) and hands the copy to the server's event loop. That is all the
 scan ever pays: the copy is rendered and encoded to JSON once, in the server's thread, and
-every client is sent the newest one. A client that cannot keep up is not queued for: when it is ready again it gets the
-newest snapshot and skips the ones it missed, so its memory is one snapshot, whatever its
+every client is sent the newest one.
+
+A snapshot names only the vehicles that changed since the one before (``"full": false``;
+most vehicles stand or drive on between two snapshots), so a hundred vehicles cost some
+kilobytes a snapshot, not fifty. A client gets the whole snapshot (``"full": true``, every
+vehicle, and ``"resync": true`` for the orders) when it is new or has missed one, so it can
+always rebuild the picture from what it gets. Speeds are not streamed (they change every
+snapshot while a vehicle speeds up or brakes); ``GET /vehicles`` has them.
+
+A client that cannot keep up is not queued for: when it is ready again it gets the newest
+snapshot, whole, and skips the ones it missed, so its memory is one snapshot, whatever its
 speed. Each client gets a comment line every ``KEEPALIVE_S`` seconds when nothing changes,
 so a proxy does not close an idle stream.
 
@@ -35,6 +44,10 @@ KEEPALIVE_S = 15.0
 MAX_CHANGED = 500  # orders sent per snapshot; more: the client reloads the list
 
 
+def _event(snapshot: dict[str, Any]) -> bytes:
+    return f"event: snapshot\ndata: {json.dumps(snapshot, separators=(',', ':'))}\n\n".encode()
+
+
 class Busy(Exception):
     """Every stream place is taken."""
 
@@ -51,8 +64,11 @@ class LiveFeed:
         self._last = -float("inf")
         self._revision = 0
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._version = 0
-        self._encoded = b""
+        self._version = 0  # snapshots arrived in the server's loop
+        self._base: dict[str, Any] = {}  # the newest snapshot but its vehicles
+        self._vehicles: dict[int, dict[str, Any]] = {}  # the newest rendered vehicles
+        self._delta = b""  # the newest snapshot, with the vehicles that changed only
+        self._whole = b""  # the same with every vehicle (encoded when a client needs it)
         self._changed: asyncio.Event | None = None
 
     # ----- the scan side --------------------------------------------------------------------
@@ -62,8 +78,8 @@ class LiveFeed:
         if not self.streams or loop is None:
             return False
         now = time.monotonic()
-        if now - self._last < 0.9 * self.period_s:  # quiet points come once a cycle: a tenth of
-            return False  # slack keeps a 50 ms cycle at 10 Hz, not every third cycle
+        if now - self._last < 0.9 * self.period_s:  # asked once a cycle: a tenth of slack
+            return False  # keeps a 50 ms cycle at 10 Hz, not every third cycle
         self._last = now
         snapshot = self._snapshot()
         try:
@@ -117,15 +133,33 @@ class LiveFeed:
             changed.set()
 
     def _arrive(self, snapshot: dict[str, Any]) -> None:
-        snapshot["vehicles"] = views.render_vehicles(snapshot["vehicles"])
+        """A new snapshot from the scan: rendered, and its delta encoded at once (every
+        client that kept up gets it); the whole one only when a client needs it."""
+        vehicles = views.render_vehicles(snapshot.pop("vehicles"))
+        for v in vehicles:
+            del v["speed_cm_s"]  # changes every snapshot while a vehicle speeds up or brakes
         if "orders" in snapshot:
             orders = snapshot["orders"]
             orders["changed"] = [views.order(o) for o in orders["changed"]]
+        changed = [v for v in vehicles if self._vehicles.get(v["id"]) != v]
+        self._vehicles = {v["id"]: v for v in vehicles}
         self._version += 1
-        self._encoded = f"event: snapshot\ndata: {json.dumps(snapshot)}\n\n".encode()
-        changed, self._changed = self._changed, asyncio.Event()
-        if changed is not None:
-            changed.set()
+        self._base = snapshot
+        self._delta = _event({**snapshot, "full": False, "vehicles": changed})
+        self._whole = b""
+        changed_event, self._changed = self._changed, asyncio.Event()
+        if changed_event is not None:
+            changed_event.set()
+
+    def _whole_snapshot(self) -> bytes:
+        """The newest snapshot with every vehicle, for a client that is new or missed one;
+        its orders say ``resync``: the changes it missed are only in the book."""
+        if not self._whole:
+            whole = {**self._base, "full": True, "vehicles": list(self._vehicles.values())}
+            if "orders" in whole:
+                whole["orders"] = {**whole["orders"], "resync": True, "changed": []}
+            self._whole = _event(whole)
+        return self._whole
 
     def open_stream(self) -> AsyncIterator[bytes]:
         """A client's stream (Busy when every place is taken). The place is taken when the
@@ -140,9 +174,10 @@ class LiveFeed:
             yield b"retry: 1000\n\n"
             seen = 0
             while True:
-                if self._version != seen and self._encoded:
+                if self._version != seen:
+                    kept_up = seen and seen == self._version - 1
                     seen = self._version
-                    yield self._encoded
+                    yield self._delta if kept_up else self._whole_snapshot()
                     continue
                 changed = self._changed
                 if changed is None:

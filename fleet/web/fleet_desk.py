@@ -165,8 +165,8 @@ class FleetDesk(Desk):
         return out
 
     def _change(self, name: str, action: str, value: object = None) -> dict[str, Any]:
-        """Write, force or unforce a writable tag, applied at once: the scan is at its
-        quiet point (before the inputs are copied in), where queued writes take effect."""
+        """Write, force or unforce a writable tag, applied at once: no block runs between
+        two scans, where the runtime applies queued writes too; the next scan sees it."""
         tag = self._tag(name)
         if not tag.writable:
             raise Refusal(

@@ -2,8 +2,9 @@
 event loop, beside the scan.
 
 It is an IoDriver of the runtime, which gives it exactly the life it needs: ``open`` (the
-startup phase) binds the socket and starts the server thread, ``read_inputs`` (every tick's
-quiet point, in the scan thread) answers the requests waiting in the desks
+startup phase) binds the socket and starts the server thread, ``write_outputs`` (the end of
+every scan, in the scan thread, a quiet point: no block runs until the next scan) answers
+the requests waiting in the desks
 (:class:`FleetDesk`, :class:`OrderDesk`) and hands the live feed its snapshot when one is
 due, and ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
 thread and closes the socket. So a run never leaves the server behind.
@@ -173,13 +174,18 @@ class WebServer:
             server.serving.set()
 
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
+        """Nothing: requests are answered at the end of the scan (``write_outputs``)."""
+
+    def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
+        """The end of the scan, after the outputs are copied out: no block runs until the
+        next scan, so this is a quiet point too, and the answers show the scan just ended.
+        Answering here rather than at the scan's start matters on the wall clock: the
+        server's thread renders and sends what it is given while the scan waits for its
+        next release, instead of competing with the scan for the interpreter."""
         self.answered += self.fleet_desk.answer()
         if self.desk is not None:
             self.answered += self.desk.answer()
         self.feed.publish()
-
-    def write_outputs(self, image: ProcessImage, now_ns: int) -> None:
-        """Nothing: the API writes no outputs."""
 
     def close(self) -> None:
         """Fail what waits, stop the server thread, close the socket. Idempotent."""

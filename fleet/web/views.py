@@ -1,7 +1,7 @@
 """Copies of the running fleet for the HTTP side, and their JSON-ready form.
 
 The ``copy_*`` functions (and ``blockades``, ``events``, ``light_stats``) run in the scan
-thread at the quiet point (through the desk or the live feed): they read the program's
+thread between two scans (through the desk or the live feed): they read the program's
 blocks and return values nobody else holds, so the HTTP thread never touches a live block.
 They copy as little as they can (the vehicles' words in one numpy copy, the statistics'
 ring buffers as arrays), because whatever they cost, the scan pays. The ``render_*``

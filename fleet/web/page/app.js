@@ -500,10 +500,14 @@
 
   const nodeName = (id) => (id === null || id === undefined ? "" : plant.nodes.get(id)?.name || "");
 
+  // The newest state of every vehicle: a snapshot names only those that changed.
+  const known = new Map();
+
   function updateVehicles(list) {
     const counts = new Map();
+    for (const v of list) known.set(v.id, v);
     // a transition per vehicle repaints the whole map every frame: worth it for a few only
-    $("#plant").classList.toggle("animated", list.length <= ANIMATE_UP_TO);
+    $("#plant").classList.toggle("animated", known.size <= ANIMATE_UP_TO);
     for (const v of list) {
       const view = vehicleView(v.id);
       const at = v.node === null || v.node === undefined ? null : plant.nodes.get(v.node);
@@ -523,8 +527,6 @@
         setAttr(view.g, "transform", `translate(${round3(x)},${round3(-y)})`);
         setAttr(view.g, "data-x", round3(x));
         setAttr(view.g, "data-y", round3(y));
-        const station = plant.stationOf.get(v.node);
-        if (station !== undefined) counts.set(station, (counts.get(station) || 0) + 1);
       }
       // routes: released from where it stands, planned on from the last released node
       const rel = at ? [v.node, ...v.released] : [];
@@ -535,6 +537,10 @@
       setAttr(view.planned, "points", plan.length > 1 ? routePoints(plan) : "");
       setText(view.tip, `agv${v.id}: ${v.state}${v.battery !== null ? `, battery ${v.battery} %` : ""}${v.order ? `, order ${v.order}` : ""}`);
       updateVehicleRow(view, v, kind);
+    }
+    for (const v of known.values()) {
+      const station = v.node === null || v.node === undefined ? undefined : plant.stationOf.get(v.node);
+      if (station !== undefined) counts.set(station, (counts.get(station) || 0) + 1);
     }
     for (const [station, text] of plant.queueCounts) {
       const n = counts.get(station) || 0;
@@ -1024,10 +1030,12 @@
 
   // ----- the live stream -----------------------------------------------------------------------
   // Snapshots may come faster than the screen repaints (a hidden tab repaints never): the
-  // newest waits for the next frame and older ones are skipped. Orders and events cannot be
-  // skipped (each snapshot names only what changed since the one before), so they are taken
-  // as they arrive.
+  // vehicles they name are gathered, newest state first, and drawn at the next frame. Orders
+  // and events are taken as they arrive (each snapshot names only what changed since the one
+  // before). A snapshot marked "full" names every vehicle (the first, or one after a miss).
   let latest = null;
+  let streamed = false;
+  let pendingVehicles = new Map();
   let frameAsked = false;
   let source = null;
   let opened = false;
@@ -1049,6 +1057,8 @@
       setOrdersAvailable(false);
     }
     if (typeof s.events === "number" && s.events > events.last) fetchEvents(s.events);
+    for (const v of s.vehicles || []) pendingVehicles.set(v.id, v);
+    streamed = true;
     latest = s;
     if (!frameAsked) {
       frameAsked = true;
@@ -1061,7 +1071,9 @@
     const s = latest;
     latest = null;
     if (!s) return;
-    updateVehicles(s.vehicles || []);
+    const changed = [...pendingVehicles.values()];
+    pendingVehicles = new Map();
+    updateVehicles(changed);
     setBlockades(s.blockades || []);
     updateStats(s);
   }
@@ -1128,7 +1140,7 @@
     loadTagNames();
     try {
       const [list, stats, log] = await Promise.all([api("GET", "/vehicles"), api("GET", "/stats"), api("GET", "/events?after=0&limit=1")]);
-      if (!latest) updateVehicles(list);
+      if (!streamed) updateVehicles(list); // the stream's first snapshot has them all, and newer
       updateStats(stats);
       fetchEvents(log.last);
     } catch (exc) {
