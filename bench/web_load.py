@@ -47,7 +47,7 @@ from pathlib import Path
 CYCLE_S = 0.050
 WATCHDOG_S = 1.0  # count late scans instead of stopping the run
 TOKEN = "bench-token-0123456789abcdef"
-REQUESTERS = 4  # connections the requests are spread over (each waits for a quiet point)
+REQUESTERS = 8  # connections the requests are spread over (each waits one or two cycles)
 READS = (  # (path, weight): what an operator's browser and a SCADA poller ask
     ("/api/v1/vehicles", 6),
     ("/api/v1/stats", 4),

@@ -360,6 +360,11 @@ class FleetStatus(FunctionBlock):
         self._epoch = -1
         self._blocked = 0
 
+    @property
+    def blocked_segments(self) -> int:
+        """Segments closed after the last scan (counted when the constraints changed)."""
+        return self._blocked
+
     def startup(self, ctx: CycleContext) -> None:
         """Bind the buffers: per vehicle, where its input record, the control byte of its
         route command and its row of words are; then the first rows (no node 0 before a

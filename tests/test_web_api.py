@@ -411,7 +411,7 @@ def test_the_feed_copies_nothing_while_nobody_listens():
         feed = LiveFeed(program)
         program.rt.start()
         program.rt.step(20)
-        assert feed.publish() is False and feed.published == 0
+        assert feed.due_snapshot() is None and feed.published == 0
     finally:
         program.close()
 

@@ -59,6 +59,7 @@ from . import views
 from .desk import MAX_OFFSET, MAX_PAGE, ControllerStopped, OrderDesk
 from .feed import Busy, LiveFeed
 from .fleet_desk import MAX_WATCH, FleetDesk, Refusal
+from .gate import ScanGate
 from .models import (
     BlockadeOut,
     ErrorOut,
@@ -109,6 +110,7 @@ def build_app(
     fleet: FleetDesk,
     orders: OrderDesk | None,
     feed: LiveFeed,
+    gate: ScanGate,
     answer_timeout: float = ANSWER_TIMEOUT,
 ) -> FastAPI:
     """The application: ``orders`` is None when no vehicle of the run takes orders (the
@@ -123,12 +125,13 @@ def build_app(
         redirect_slashes=False,
     )
     tag_catalogue: list[dict[str, Any]] = []  # the tag table does not change while running
+    plant_model: dict[str, Any] = {}  # nor does the plant
 
     async def ask(future: Future, action: str) -> Any:
         """The desk's answer, or ApiError."""
         try:
             try:
-                return await _outcome(future, answer_timeout)
+                return await _outcome(future, answer_timeout, gate)
             except TimeoutError:
                 if future.cancel():
                     raise ApiError(
@@ -137,7 +140,7 @@ def build_app(
                         "nothing was changed",
                     ) from None
             try:  # the scan took it just now: its answer comes within this scan
-                return await _outcome(future, answer_timeout)
+                return await _outcome(future, answer_timeout, gate)
             except TimeoutError:
                 raise ApiError(
                     503,
@@ -163,7 +166,10 @@ def build_app(
     async def show_plant() -> JSONResponse:
         """The plant model: nodes with their position in metres and role, segments,
         stations, chargers, parking and queue positions, and the segments closed now."""
-        return JSONResponse(await ask(fleet.ask_plant(), "plant"))
+        closed = await ask(fleet.ask_plant(), "plant")
+        if not plant_model:  # built once, here: the plant does not change while running
+            plant_model.update(views.plant(fleet.plant, []))
+        return JSONResponse({**plant_model, "blockades": closed})
 
     @app.get(f"{PREFIX}/vehicles", response_model=list[VehicleOut], responses=_ERRORS)
     async def list_vehicles() -> JSONResponse:
@@ -390,7 +396,7 @@ def openapi_schema() -> dict[str, Any]:
     """The API's OpenAPI schema, as ``/openapi.json`` serves it, without a running program:
     the routes need their desks only when a request comes."""
     unused: Any = None
-    return build_app(unused, unused, unused).openapi()
+    return build_app(unused, unused, unused, unused).openapi()
 
 
 class _Static(StaticFiles):
@@ -402,26 +408,22 @@ class _Static(StaticFiles):
         return response
 
 
-async def _outcome(future: Future, timeout: float) -> Any:
+async def _outcome(future: Future, timeout: float, gate: ScanGate) -> Any:
     """Wait for a Future the scan thread ends, without blocking the loop; TimeoutError after
-    ``timeout`` s. Giving up never touches ``future`` (only the caller may cancel it)."""
+    ``timeout`` s. Giving up never touches ``future`` (only the caller may cancel it).
+
+    The scan does not wake the loop for each answer: it wakes it once, at the end of the
+    scan, through the gate (each wake-up would hand the interpreter to this thread in the
+    middle of the scan's work), and every waiting handler looks at its Future then."""
     loop = asyncio.get_running_loop()
-    arrived = loop.create_future()
-
-    def wake(_: Future) -> None:
-        try:
-            loop.call_soon_threadsafe(_set_arrived, arrived)
-        except RuntimeError:  # the server's loop has closed: nobody waits any more
-            pass
-
-    future.add_done_callback(wake)
-    await asyncio.wait_for(arrived, timeout)
+    deadline = loop.time() + timeout
+    while not future.done():
+        left = deadline - loop.time()
+        if left <= 0:
+            raise TimeoutError
+        if not await gate.wait(left):
+            await asyncio.sleep(min(left, 0.01))  # the run is ending: its desks end the Future
     return future.result()
-
-
-def _set_arrived(arrived: asyncio.Future) -> None:
-    if not arrived.done():  # not given up on meanwhile
-        arrived.set_result(None)
 
 
 def _error(exc: OrderError | ControllerStopped, action: str) -> ApiError:

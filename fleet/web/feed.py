@@ -1,7 +1,7 @@
 """The live stream (server-sent events): one snapshot of the fleet at most ``rate_hz`` times
 per wall second, shared by every client, so a slow client never slows the scan.
 
-The scan's side, :meth:`LiveFeed.publish`, runs at the end of every scan
+The scan's side, :meth:`LiveFeed.due_snapshot`, runs at the end of every scan
 (``WebServer.write_outputs``) and does nothing while nobody listens or before the period has passed since the last
 snapshot; otherwise it copies the vehicles (their words and routes), the scan's counters,
 the order counts and the orders that changed state since the last snapshot (from the book's
@@ -57,6 +57,7 @@ class LiveFeed:
         self, program: FleetProgram, rate_hz: float = RATE_HZ, max_streams: int = MAX_STREAMS
     ) -> None:
         self._program = program
+        self._segments = views.ClosedSegments(program)
         self.period_s = 1.0 / rate_hz
         self.max_streams = max_streams
         self.streams = 0  # clients now; changed only in the server's loop, read by the scan
@@ -72,22 +73,18 @@ class LiveFeed:
         self._changed: asyncio.Event | None = None
 
     # ----- the scan side --------------------------------------------------------------------
-    def publish(self) -> bool:
-        """A snapshot for the clients, if any listen and the period has passed."""
-        loop = self._loop
-        if not self.streams or loop is None:
-            return False
+    def due_snapshot(self) -> dict[str, Any] | None:
+        """A snapshot for the clients, if any listen and the period has passed (else None):
+        the caller hands it to the server's loop (:meth:`arrive`), with its other news of
+        the scan in one wake-up."""
+        if not self.streams or self._loop is None:
+            return None
         now = time.monotonic()
         if now - self._last < 0.9 * self.period_s:  # asked once a cycle: a tenth of slack
-            return False  # keeps a 50 ms cycle at 10 Hz, not every third cycle
+            return None  # keeps a 50 ms cycle at 10 Hz, not every third cycle
         self._last = now
-        snapshot = self._snapshot()
-        try:
-            loop.call_soon_threadsafe(self._arrive, snapshot)
-        except RuntimeError:  # the server's loop has closed
-            return False
         self.published += 1
-        return True
+        return self._snapshot()
 
     def _snapshot(self) -> dict[str, Any]:
         """The scan's copy: counters, the vehicles' words and routes, the closed segments,
@@ -97,7 +94,7 @@ class LiveFeed:
             **views.light_stats(p),
             "fleet": views.fleet_counters(p),
             "vehicles": views.copy_vehicles(p),
-            "blockades": views.blockades(p),
+            "blockades": self._segments(),
             "events": p.events.added,
         }
         if p.orders is not None:
@@ -132,7 +129,7 @@ class LiveFeed:
         if changed is not None:
             changed.set()
 
-    def _arrive(self, snapshot: dict[str, Any]) -> None:
+    def arrive(self, snapshot: dict[str, Any]) -> None:
         """A new snapshot from the scan: rendered, and its delta encoded at once (every
         client that kept up gets it); the whole one only when a client needs it."""
         vehicles = views.render_vehicles(snapshot.pop("vehicles"))

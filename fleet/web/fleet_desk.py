@@ -44,11 +44,13 @@ class FleetDesk(Desk):
     def __init__(self, program: FleetProgram, budget: int = SCAN_BUDGET) -> None:
         super().__init__(budget)
         self._program = program
-        self._plant = program.cfg.plant
+        self.plant = program.cfg.plant  # fixed while the program runs: any thread reads it
+        self._segments = views.ClosedSegments(program)
 
     # ----- the HTTP side (any thread) -----------------------------------------------------
     def ask_plant(self) -> Future:
-        return self._ask(lambda done: self._answer(done, self._plant_model))
+        """The closed segments: the rest of the plant model is fixed (``views.plant``)."""
+        return self._ask(lambda done: self._answer(done, self._segments))
 
     def ask_vehicles(self) -> Future:
         n = len(self._program.vehicles)
@@ -60,7 +62,7 @@ class FleetDesk(Desk):
         return self._ask(lambda done: self._answer(done, lambda: self._vehicle(vehicle)))
 
     def ask_blockades(self) -> Future:
-        return self._ask(lambda done: self._answer(done, lambda: views.blockades(self._program)))
+        return self._ask(lambda done: self._answer(done, self._segments))
 
     def ask_blockade(self, a: int, b: int, closed: bool) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._set_blockade(a, b, closed)))
@@ -115,16 +117,13 @@ class FleetDesk(Desk):
             done.set_exception(exc)
         return cost
 
-    def _plant_model(self) -> dict[str, Any]:
-        return views.plant(self._plant, views.blockades(self._program))
-
     def _vehicle(self, vehicle: int) -> tuple[Any, list[views.VehicleCopy]]:
         if vehicle not in self._program.controls:
             raise Refusal(404, f"there is no vehicle {vehicle}", "vehicle")
         return views.copy_vehicles(self._program, [vehicle])
 
     def _set_blockade(self, a: int, b: int, closed: bool) -> dict[str, Any]:
-        plant = self._plant
+        plant = self.plant
         for field, node in (("a", a), ("b", b)):
             if node not in plant.index:
                 raise Refusal(404, f"there is no node {node} in plant {plant.name!r}", field)

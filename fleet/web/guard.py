@@ -18,6 +18,9 @@ changed:
    answer timeout for the scan), else 503. A stream (``unmetered`` paths) lasts as long
    as its client stays, so it is not counted here; the live feed limits streams itself.
 
+A request that passed waits for the end of the next scan before the application sees it
+(``gate``, :mod:`fleet.web.gate` says why).
+
 Refusals of 1 to 4 are logged, one warning line each (who, what, why), like the Modbus
 server's; a client refused for its rate is logged once per second at most.
 """
@@ -31,6 +34,8 @@ import secrets
 import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
+
+from .gate import ScanGate
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +64,7 @@ class Guard:
         max_in_flight: int = MAX_IN_FLIGHT,
         max_rate: float = MAX_RATE,
         unmetered: tuple[str, ...] = (),
+        gate: ScanGate | None = None,
     ) -> None:
         self.app = app
         self._token = token.encode()
@@ -68,6 +74,7 @@ class Guard:
         self.max_in_flight = max_in_flight
         self.max_rate = max_rate
         self.unmetered = frozenset(unmetered)
+        self.gate = gate
         self.in_flight = 0  # only touched in the server's event loop
         self.refused = 0  # requests refused, for the statistics
         self.clock: Callable[[], float] = time.monotonic  # seconds, for the rate
@@ -127,6 +134,8 @@ class Guard:
                     scope, send, 413, f"request body over the limit of {self.max_body:,} bytes"
                 )
                 return
+            if self.gate is not None:
+                await self.gate.wait()
             await self.app(scope, _replay(body, receive), send)
         finally:
             self.in_flight -= metered

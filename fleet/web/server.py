@@ -25,6 +25,7 @@ import socket
 import threading
 import warnings
 from collections.abc import Callable
+from functools import partial
 
 import uvicorn
 
@@ -36,11 +37,13 @@ from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
 from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
+from .gate import ScanGate
 from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
 
 START_TIMEOUT = 10.0  # seconds for the server thread to start serving
 STOP_TIMEOUT = 10.0  # seconds for it to end (it answers what is in flight first, up to 2 s)
 GRACEFUL_S = 2.0
+GATE_S = 0.5  # a request waits this long at most for a scan to end before it goes in
 
 
 class _Server(uvicorn.Server):
@@ -88,6 +91,7 @@ class WebServer:
         self.desk = OrderDesk(program.orders) if program.orders is not None else None
         self.fleet_desk = FleetDesk(program)
         self.feed = LiveFeed(program, stream_hz, max_streams)
+        self.gate = ScanGate(min(answer_timeout, GATE_S))
         self._token = token
         self._answer_timeout = answer_timeout
         self._max_body = max_body
@@ -127,8 +131,9 @@ class WebServer:
         self.desk = OrderDesk(self._orders) if self._orders is not None else None
         self.fleet_desk = FleetDesk(self._program)
         self.feed = LiveFeed(self._program, 1.0 / self.feed.period_s, self.feed.max_streams)
+        self.gate = ScanGate(min(self._answer_timeout, GATE_S))
         app = self.guard = Guard(
-            build_app(self.fleet_desk, self.desk, self.feed, self._answer_timeout),
+            build_app(self.fleet_desk, self.desk, self.feed, self.gate, self._answer_timeout),
             token=self._token,
             where=f"{self.name} {self.host}:{self.port}",
             loopback=loopback,
@@ -136,6 +141,7 @@ class WebServer:
             max_in_flight=self._max_in_flight,
             max_rate=self._max_rate,
             unmetered=(f"{PREFIX}/stream",),
+            gate=self.gate,
         )
         config = uvicorn.Config(
             app,
@@ -151,7 +157,7 @@ class WebServer:
             timeout_graceful_shutdown=GRACEFUL_S,
         )
         self._server = _Server(config)
-        self._server.on_start = self.feed.attach
+        self._server.on_start = self._attach
         self._error = None
         self._thread = threading.Thread(target=self._serve, name=f"fleet-{self.name}", daemon=True)
         self._thread.start()
@@ -161,6 +167,11 @@ class WebServer:
             raise ConfigError(f"HTTP API on {self.url}: {why}")
         if self._announce is not None:
             self._announce(self.url)
+
+    def _attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        """The server's loop runs: the feed and the gate hand over to it from now on."""
+        self.feed.attach(loop)
+        self.gate.attach(loop)
 
     def _serve(self) -> None:
         """The server thread: uvicorn's own event loop until ``should_exit``."""
@@ -185,7 +196,8 @@ class WebServer:
         self.answered += self.fleet_desk.answer()
         if self.desk is not None:
             self.answered += self.desk.answer()
-        self.feed.publish()
+        snapshot = self.feed.due_snapshot()
+        self.gate.scan_ended(None if snapshot is None else partial(self.feed.arrive, snapshot))
 
     def close(self) -> None:
         """Fail what waits, stop the server thread, close the socket. Idempotent."""
@@ -193,6 +205,7 @@ class WebServer:
         if self.desk is not None:
             self.desk.close()
         self.feed.detach()
+        self.gate.detach()
         server, thread, sock = self._server, self._thread, self._socket
         self._server = self._thread = self._socket = None
         if server is not None:

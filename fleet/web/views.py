@@ -30,7 +30,8 @@ MAX_EVENTS = 500  # events in one page of the log
 
 
 def plant(p: Plant, blocked: list[list[int]]) -> dict[str, Any]:
-    """The plant model: nodes (position in metres, role), segments, what stands where."""
+    """The plant model: nodes (position in metres, role), segments, what stands where. The
+    plant never changes while the program runs, so this may run in any thread."""
     nodes = [
         {
             "id": n.id,
@@ -71,6 +72,22 @@ def blockades(program: FleetProgram) -> list[list[int]]:
     """The closed segments, each once as [lower id, higher id], sorted."""
     closed = {(min(a, b), max(a, b)) for a, b in program.blockades.blocked_segments()}
     return [list(s) for s in sorted(closed)]
+
+
+class ClosedSegments:
+    """``blockades(program)``, computed again only when a segment was closed or reopened
+    (the routing constraints count their changes): most scans change none."""
+
+    def __init__(self, program: FleetProgram) -> None:
+        self._program = program
+        self._epoch = -1
+        self._closed: list[list[int]] = []
+
+    def __call__(self) -> list[list[int]]:
+        epoch = self._program.blockades.epoch
+        if epoch != self._epoch:
+            self._epoch, self._closed = epoch, blockades(self._program)
+        return self._closed
 
 
 class VehicleCopy(NamedTuple):
@@ -217,7 +234,7 @@ def fleet_counters(program: FleetProgram) -> dict[str, Any]:
         "recipes_completed": len(program.completed),
         "deadlocks_detected": program.resolver.detected,
         "deadlocks_resolved": program.resolver.resolved,
-        "blocked_segments": len(blockades(program)),
+        "blocked_segments": program.status.blocked_segments,
     }
     if program.monitor is not None:
         m = program.monitor
