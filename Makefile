@@ -22,9 +22,9 @@ test: $(STAMP)
 # for the fleet ones (docs/benchmarks.md, "Running them"); each script prints its own wall
 # time at the end.
 bench: $(STAMP)
-	@echo "make bench: about 210 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
+	@echo "make bench: about 215 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 60, time_windows 0.1, lorr 20). make bench-quick runs them all reduced in about 5 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 60, time_windows 0.1, lorr 20, web_load 4). make bench-quick runs them all reduced in about 6 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -37,6 +37,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/time_windows.py
 	$(BIN)/python bench/lorr.py
+	$(BIN)/python bench/web_load.py
 
 # Every benchmark in a reduced form (smaller plants, fewer cycles, timesteps and fleet sizes),
 # with the same tables and ratios: a check that they all still run, not numbers to record.
@@ -51,6 +52,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/time_windows.py --quick
 	$(BIN)/python bench/lorr.py --quick
+	$(BIN)/python bench/web_load.py --quick
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

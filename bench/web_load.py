@@ -70,6 +70,11 @@ def generate(port: int, clients: int, rate: float) -> dict[str, float]:
     paths = [p for p, w in READS for _ in range(w)]
     latencies: list[float] = []
     errors = [0]
+    why: dict[str, int] = {}  # what the errors were: HTTP status or exception
+
+    def failed(reason: str) -> None:
+        errors[0] += 1
+        why[reason] = why.get(reason, 0) + 1
 
     def stream(i: int) -> None:
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
@@ -83,8 +88,9 @@ def generate(port: int, clients: int, rate: float) -> dict[str, float]:
                     break
                 if line.startswith(b"data: "):
                     snapshots[i] += 1
-        except (OSError, threading.BrokenBarrierError):
-            errors[0] += 1
+        except (OSError, threading.BrokenBarrierError) as exc:
+            if not stop.is_set():
+                failed(f"stream {type(exc).__name__}")
         finally:
             conn.close()
 
@@ -98,9 +104,10 @@ def generate(port: int, clients: int, rate: float) -> dict[str, float]:
                 conn.request("GET", paths[k % len(paths)])
                 reply = conn.getresponse()
                 reply.read()
-                errors[0] += reply.status != 200
-            except (OSError, http.client.HTTPException):
-                errors[0] += 1
+                if reply.status != 200:
+                    failed(str(reply.status))
+            except (OSError, http.client.HTTPException) as exc:
+                failed(type(exc).__name__)
                 conn.close()
                 conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
             latencies.append(time.monotonic() - t0)
@@ -127,6 +134,7 @@ def generate(port: int, clients: int, rate: float) -> dict[str, float]:
         "requests_per_s": len(latencies) / took,
         "request_p99_ms": latencies[int(0.99 * (len(latencies) - 1))] * 1e3 if latencies else 0.0,
         "errors": errors[0],
+        "why": why,
     }
 
 
@@ -173,8 +181,10 @@ def run(mode: str, args: argparse.Namespace) -> dict[str, object]:
         late = program.rt.stats.scan.lateness_ns()[-len(whole) :]
         got = {}
         if generator is not None:
-            out, _ = generator.communicate("", timeout=60)
-            got = json.loads(out)
+            generator.stdin.close()  # the measured run is over: the generator winds down
+            program.rt.run(cycles=round(2.0 / CYCLE_S))  # answering what is in flight
+            got = json.loads(generator.stdout.read())
+            generator.wait(60)
     finally:
         if generator is not None and generator.poll() is None:
             generator.kill()
@@ -250,7 +260,11 @@ def report(runs: list[dict[str, object]], args: argparse.Namespace, began: float
         )
     Console(width=220).print(table)
     errors = sum(int(r.get("errors", 0)) for r in runs)
-    print(f"generator errors: {errors}")
+    why: dict[str, int] = {}
+    for r in runs:
+        for reason, n in r.get("why", {}).items():
+            why[reason] = why.get(reason, 0) + n
+    print(f"generator errors: {errors} {why or ''}")
     print(f"wall time {time.monotonic() - began:.1f} s")
 
 

@@ -381,6 +381,20 @@ def test_the_stream_sends_the_orders_that_changed(ctl):
         conn.close()
 
 
+def test_a_client_that_does_not_read_holds_back_nobody(ctl):
+    """A stream nobody reads: the others get their snapshots and the scan goes on (the
+    feed keeps the newest snapshot only, never a queue per client)."""
+    stalled = http.client.HTTPConnection("127.0.0.1", ctl.port, timeout=WAIT_WALL_S)
+    try:
+        stalled.request("GET", f"{API}/stream")
+        assert stalled.getresponse().status == 200  # and never read from again
+        cycles = ctl.program.rt.ticks
+        snapshots, _ = read_snapshots(ctl.port, 20)
+        assert snapshots[-1]["cycles"] > cycles
+    finally:
+        stalled.close()
+
+
 def test_streams_are_limited_and_their_places_given_back():
     with Controller(max_streams=2) as ctl:
         first = http.client.HTTPConnection("127.0.0.1", ctl.port, timeout=WAIT_WALL_S)
