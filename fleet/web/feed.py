@@ -54,9 +54,14 @@ class Busy(Exception):
 
 class LiveFeed:
     def __init__(
-        self, program: FleetProgram, rate_hz: float = RATE_HZ, max_streams: int = MAX_STREAMS
+        self,
+        program: FleetProgram,
+        rate_hz: float = RATE_HZ,
+        max_streams: int = MAX_STREAMS,
+        fleet_copy: views.FleetCopy | None = None,
     ) -> None:
         self._program = program
+        self._fleet_copy = fleet_copy or views.FleetCopy(program)
         self._segments = views.ClosedSegments(program)
         self.period_s = 1.0 / rate_hz
         self.max_streams = max_streams
@@ -93,7 +98,7 @@ class LiveFeed:
         snap: dict[str, Any] = {
             **views.light_stats(p),
             "fleet": views.fleet_counters(p),
-            "vehicles": views.copy_vehicles(p),
+            "vehicles": self._fleet_copy(),
             "blockades": self._segments(),
             "events": p.events.added,
         }

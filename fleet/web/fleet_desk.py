@@ -41,9 +41,15 @@ class FleetDesk(Desk):
     value or a copy to render (vehicles, statistics: :mod:`fleet.web.views`), or raising
     :class:`Refusal` or ``ControllerStopped``."""
 
-    def __init__(self, program: FleetProgram, budget: int = SCAN_BUDGET) -> None:
+    def __init__(
+        self,
+        program: FleetProgram,
+        budget: int = SCAN_BUDGET,
+        fleet_copy: views.FleetCopy | None = None,
+    ) -> None:
         super().__init__(budget)
         self._program = program
+        self._fleet_copy = fleet_copy or views.FleetCopy(program)
         self.plant = program.cfg.plant  # fixed while the program runs: any thread reads it
         self._segments = views.ClosedSegments(program)
 
@@ -54,9 +60,7 @@ class FleetDesk(Desk):
 
     def ask_vehicles(self) -> Future:
         n = len(self._program.vehicles)
-        return self._ask(
-            lambda done: self._answer(done, lambda: views.copy_vehicles(self._program), n)
-        )
+        return self._ask(lambda done: self._answer(done, self._fleet_copy, n))
 
     def ask_vehicle(self, vehicle: int) -> Future:
         return self._ask(lambda done: self._answer(done, lambda: self._vehicle(vehicle)))

@@ -39,6 +39,7 @@ from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
 from .gate import ScanGate
 from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
+from .views import FleetCopy
 
 START_TIMEOUT = 10.0  # seconds for the server thread to start serving
 STOP_TIMEOUT = 10.0  # seconds for it to end (it answers what is in flight first, up to 2 s)
@@ -129,8 +130,11 @@ class WebServer:
         self.port = self._socket.getsockname()[1]
         # fresh queues for every start
         self.desk = OrderDesk(self._orders) if self._orders is not None else None
-        self.fleet_desk = FleetDesk(self._program)
-        self.feed = LiveFeed(self._program, 1.0 / self.feed.period_s, self.feed.max_streams)
+        shared = FleetCopy(self._program)  # one copy of the vehicles per scan, for all
+        self.fleet_desk = FleetDesk(self._program, fleet_copy=shared)
+        self.feed = LiveFeed(
+            self._program, 1.0 / self.feed.period_s, self.feed.max_streams, fleet_copy=shared
+        )
         self.gate = ScanGate(min(self._answer_timeout, GATE_S))
         app = self.guard = Guard(
             build_app(self.fleet_desk, self.desk, self.feed, self.gate, self._answer_timeout),

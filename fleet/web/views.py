@@ -132,6 +132,22 @@ def copy_vehicles(
     return rows, copies
 
 
+class FleetCopy:
+    """``copy_vehicles(program)`` once per scan, shared by whoever asks in it (the stream's
+    snapshot and the requests answered at the same scan's end)."""
+
+    def __init__(self, program: FleetProgram) -> None:
+        self._program = program
+        self._scan = -1
+        self._copy: tuple[np.ndarray, list[VehicleCopy]] | None = None
+
+    def __call__(self) -> tuple[np.ndarray, list[VehicleCopy]]:
+        scan = self._program.rt.ticks
+        if self._copy is None or scan != self._scan:
+            self._scan, self._copy = scan, copy_vehicles(self._program)
+        return self._copy
+
+
 def render_vehicles(copied: tuple[np.ndarray, list[VehicleCopy]]) -> list[dict[str, Any]]:
     """Anywhere: the vehicles as the API sends them."""
     rows, copies = copied
