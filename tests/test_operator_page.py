@@ -198,10 +198,7 @@ def test_clicking_a_segment_closes_it_and_the_route_changes(page):
 
 def test_a_tag_is_forced_and_unforced_in_the_watch_table(page):
     browser, ctl = page
-    browser.find_element(By.ID, "watch-name").send_keys("agv3.hold")
-    browser.find_element(By.ID, "watch-add").click()
-    row = '#watch tbody tr[data-name="agv3.hold"]'
-    wait(browser).until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
+    row = watch(browser, "agv3.hold")
     browser.find_element(By.CSS_SELECTOR, f"{row} input.force-value").send_keys("1")
     browser.find_element(By.CSS_SELECTOR, f"{row} button.force").click()
     wait(browser).until(
@@ -224,12 +221,18 @@ def test_a_tag_is_forced_and_unforced_in_the_watch_table(page):
 
 def test_a_read_only_tag_cannot_be_forced_from_the_page(page):
     browser, _ = page
-    browser.find_element(By.ID, "watch-name").send_keys("agv1.node")
-    browser.find_element(By.ID, "watch-add").click()
-    row = '#watch tbody tr[data-name="agv1.node"]'
-    wait(browser).until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
+    row = watch(browser, "agv1.node")
     for kind in ("write", "force", "unforce"):
         assert not browser.find_element(By.CSS_SELECTOR, f"{row} button.{kind}").is_enabled()
+
+
+def watch(browser, name: str) -> str:
+    """Add a tag to the watch table; the CSS selector of its row, once it is shown."""
+    browser.find_element(By.ID, "watch-name").send_keys(name)
+    browser.find_element(By.ID, "watch-add").click()
+    row = f'#watch tbody tr[data-name="{name}"]'
+    wait(browser).until(lambda d: d.find_elements(By.CSS_SELECTOR, row))
+    return row
 
 
 def centre(browser, node: int) -> tuple[float, float]:
