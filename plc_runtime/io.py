@@ -7,6 +7,13 @@ the program sees it from this cycle's snapshot on) and ``write_outputs`` after c
 A driver must never block: bounded work, no waiting, no retries inside the cycle; bad
 frames are counted, not raised. An exception from a driver is a programming error and
 faults the runtime like one from a block.
+
+A driver that serves clients from a thread of its own (an HMI or web server) may also
+define ``after_scan()``: the runtime calls it after each scan, once the scan's time is
+recorded, outside the watchdog, just before the scan thread waits for its next release.
+That is the moment to wake the server's thread: woken from inside a scan, it would work
+while the scan runs and take the interpreter from it. Such a thread should also wait on
+``Runtime.between_scans`` before it works, for what wakes it by itself (its sockets).
 """
 
 from __future__ import annotations

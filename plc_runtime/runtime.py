@@ -137,6 +137,10 @@ class Runtime:
         self._lock = threading.RLock()
         self._stopping = threading.Event()  # set while stop() waits for the lock
         self._scan_thread: int | None = None  # thread id while a scan runs
+        # Set whenever no scan runs. A thread serving clients (an HMI server) waits on it
+        # before it works, so it never competes with a scan for the interpreter.
+        self.between_scans = threading.Event()
+        self.between_scans.set()
         self._scan_ran = False  # whether any task ran in the last tick
         self._retain_layout_before: list[tuple[str, str]] = []
 
@@ -402,10 +406,25 @@ class Runtime:
                 self._next_retain_save = self.clock.now_ns() + round(self.retain_interval * 1e9)
                 self._retain.save_or_warn(self._collect_retain())  # costs lateness, not scan time
             self._scan_thread = threading.get_ident()
+            self.between_scans.clear()
             try:
                 self._run_tick(k, release)
             finally:
                 self._scan_thread = None
+                self.between_scans.set()
+            if self.state == RUN:
+                self._after_scan()
+
+    def _after_scan(self) -> None:
+        """The drivers' ``after_scan`` (io.py): outside the scan's time and watchdog."""
+        for driver in self.drivers:
+            after = getattr(driver, "after_scan", None)
+            if after is not None:
+                try:
+                    after()
+                except BaseException as exc:  # see _fault_on
+                    self._fault_on(f"driver {driver.name}: after_scan", exc)
+                    return
 
     def _run_tick(self, k: int, release: int) -> None:
         """One scan under the watchdog, then its statistics."""

@@ -124,7 +124,7 @@ class FleetDesk(Desk):
     def _vehicle(self, vehicle: int) -> tuple[Any, list[views.VehicleCopy]]:
         if vehicle not in self._program.controls:
             raise Refusal(404, f"there is no vehicle {vehicle}", "vehicle")
-        return views.copy_vehicles(self._program, [vehicle])
+        return self._fleet_copy.of([vehicle])
 
     def _set_blockade(self, a: int, b: int, closed: bool) -> dict[str, Any]:
         plant = self.plant

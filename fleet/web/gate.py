@@ -3,14 +3,22 @@
 The server's thread shares the interpreter with the scan. Whatever it computes while a
 scan runs (routing a request, checking its parameters, building its answer) holds the
 interpreter's lock that the scan needs, and the scan's execution time grows by it. A PLC
-puts its communication load where the cycle has time to spare; this does the same: a
-request that arrives is read and checked by the guard (host, rate, token, size: cheap),
-then waits here until the end of the next scan, and runs its handler in the time before
-the following one, where the scan waits for its release anyway. The handler's own question
-to the scan is answered at the end of the scan after that, so a request takes one to two
-cycles, as a request to a PLC's communication processor does. Handlers waiting for their
-answer are woken through the gate too. The server's loop looks every ``poll_s`` (5 ms)
-whether a scan has ended; the scan never wakes it (see ``_poll``).
+puts its communication load where the cycle has time to spare; this does the same, in two
+parts:
+
+* :class:`QuietSelector`: whatever wakes the server's loop (a request arriving, a timer),
+  the loop waits until no scan runs (``Runtime.between_scans``) before it does anything.
+  A scan pays at most for handing the interpreter over once, not for the server's work.
+* :class:`ScanGate`: a request that arrives is read and checked by the guard (host, rate,
+  token, size: cheap), then waits here until the end of the next scan, and runs its
+  handler in the time before the following one, where the scan waits for its release
+  anyway. The handler's own question to the scan is answered at the end of the scan after
+  that, so a request takes one to two cycles, as a request to a PLC's communication
+  processor does. Handlers waiting for their answer are woken through the gate too.
+
+The scan only notes that it has ended (``scan_ended``, no system call); the server's loop
+is woken after the scan (``after_scan``, which the runtime calls once the scan's time is
+recorded), and only when a request waits or the scan has news for it.
 
 When no scan ends within ``timeout`` seconds (the controller is stopping or stopped, or
 its scans are slow), a request goes in anyway; if the scan does not answer it either, the
@@ -20,42 +28,39 @@ desks' timeout answers ("controller not scanning").
 from __future__ import annotations
 
 import asyncio
+import selectors
+import threading
 from collections import deque
 from collections.abc import Callable
 
-POLL_S = 0.005  # how often the server's loop looks whether a scan has ended
+
+class QuietSelector(selectors.DefaultSelector):
+    """The server loop's selector: after every wake-up it waits (at most ``timeout``
+    seconds) until no scan runs, so the loop's work falls between scans."""
+
+    def __init__(self, between_scans: threading.Event, timeout: float) -> None:
+        super().__init__()
+        self._between_scans = between_scans
+        self._timeout = timeout
+
+    def select(self, timeout: float | None = None) -> list:
+        ready = super().select(timeout)
+        self._between_scans.wait(self._timeout)
+        return ready
 
 
 class ScanGate:
-    def __init__(self, timeout: float, poll_s: float = POLL_S) -> None:
+    def __init__(self, timeout: float) -> None:
         self.timeout = timeout
-        self.poll_s = poll_s
         self.waiting = 0  # requests at the gate; changed only in the server's loop
         self._loop: asyncio.AbstractEventLoop | None = None
         self._open: asyncio.Event | None = None
-        self._ended = 0  # scans ended; written by the scan thread only
         self._news: deque[Callable[[], None]] = deque()  # from the scan, for the loop
-        self._poller: asyncio.Task | None = None
 
     # ----- the server's loop ---------------------------------------------------------------
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
         self._open = asyncio.Event()
         self._loop = loop
-        self._poller = loop.create_task(self._poll())
-
-    async def _poll(self) -> None:
-        """Every ``poll_s``: if a scan has ended since, hand over its news and let the
-        waiters go on. The loop looks for itself rather than being woken by the scan:
-        waking it (a byte to its self-pipe) releases the interpreter inside the scan, and
-        a server thread that wants it then takes it and works while the scan waits."""
-        seen = self._ended
-        while self._open is not None:
-            await asyncio.sleep(self.poll_s)
-            if self._ended != seen:
-                seen = self._ended
-                while self._news:
-                    self._news.popleft()()
-                self._release()
 
     async def wait(self, timeout: float | None = None) -> bool:
         """Until the end of the next scan, or ``timeout`` (default: the gate's); False at
@@ -72,6 +77,12 @@ class ScanGate:
             self.waiting -= 1
         return True
 
+    def _scan_over(self) -> None:
+        """The scan's news, then every waiter goes on."""
+        while self._news:
+            self._news.popleft()()
+        self._release()
+
     def _release(self, again: bool = True) -> None:
         opened, self._open = self._open, asyncio.Event() if again else None
         if opened is not None:
@@ -79,12 +90,23 @@ class ScanGate:
 
     # ----- the scan thread -----------------------------------------------------------------
     def scan_ended(self, news: Callable[[], None] | None = None) -> None:
-        """A scan has ended: the waiting requests go on, after ``news`` (the scan's other
-        news for the server) runs in the server's loop, at its next look. No system call,
-        so the scan keeps the interpreter."""
+        """In the scan, at its end: ``news`` (the scan's other news for the server) is to
+        run in the server's loop before the waiting requests go on. No system call, so the
+        scan keeps the interpreter."""
         if news is not None:
             self._news.append(news)
-        self._ended += 1
+
+    def after_scan(self) -> None:
+        """After the scan (its time recorded): wake the server's loop if a request waits
+        (``waiting`` is read without a lock: one that starts waiting just now is let go
+        at the next scan's end) or the scan left news."""
+        loop = self._loop
+        if loop is None or not (self.waiting or self._news):
+            return
+        try:
+            loop.call_soon_threadsafe(self._scan_over)
+        except RuntimeError:  # the loop has closed: the run is ending
+            pass
 
     def detach(self) -> None:
         """The run ends: every waiter goes on, and later ones do not wait."""

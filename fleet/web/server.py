@@ -5,8 +5,9 @@ It is an IoDriver of the runtime, which gives it exactly the life it needs: ``op
 startup phase) binds the socket and starts the server thread, ``write_outputs`` (the end of
 every scan, in the scan thread, a quiet point: no block runs until the next scan) answers
 the requests waiting in the desks
-(:class:`FleetDesk`, :class:`OrderDesk`) and hands the live feed its snapshot when one is
-due, and ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
+(:class:`FleetDesk`, :class:`OrderDesk`) and copies the live feed's snapshot when one is
+due, ``after_scan`` (once the scan's time is recorded) wakes the server's loop to send the
+answers, and ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
 thread and closes the socket. So a run never leaves the server behind.
 
 The socket is bound here, before the thread starts, so an address in use is a clear error
@@ -37,7 +38,7 @@ from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
 from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
-from .gate import ScanGate
+from .gate import QuietSelector, ScanGate
 from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
 from .views import FleetCopy
 
@@ -178,11 +179,16 @@ class WebServer:
         self.gate.attach(loop)
 
     def _serve(self) -> None:
-        """The server thread: uvicorn's own event loop until ``should_exit``."""
+        """The server thread: uvicorn on an event loop whose selector waits, after every
+        wake-up, until no scan runs (gate.py), until ``should_exit``."""
         server, sock = self._server, self._socket
         assert server is not None and sock is not None
+        between_scans = self._program.rt.between_scans
         try:
-            server.run([sock])
+            with asyncio.Runner(
+                loop_factory=lambda: asyncio.SelectorEventLoop(QuietSelector(between_scans, GATE_S))
+            ) as runner:
+                runner.run(server.serve([sock]))
         except BaseException as exc:  # a failed start: open() reports it
             self._error = exc
         finally:
@@ -202,6 +208,11 @@ class WebServer:
             self.answered += self.desk.answer()
         snapshot = self.feed.due_snapshot()
         self.gate.scan_ended(None if snapshot is None else partial(self.feed.arrive, snapshot))
+
+    def after_scan(self) -> None:
+        """After the scan: the server's loop is woken if a request waits or a snapshot is
+        due (woken inside the scan, it would take the interpreter from it)."""
+        self.gate.after_scan()
 
     def close(self) -> None:
         """Fail what waits, stop the server thread, close the socket. Idempotent."""

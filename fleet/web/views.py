@@ -103,49 +103,56 @@ class VehicleCopy(NamedTuple):
     suspect_reason: str
 
 
-def copy_vehicles(
-    program: FleetProgram, ids: Iterable[int] | None = None
-) -> tuple[np.ndarray, list[VehicleCopy]]:
-    """In the scan: the vehicles' rows of words (fleet/tags.py, one numpy copy) and per
-    vehicle its routes and job, a few attribute reads each."""
-    chosen = program.vehicles if ids is None else list(ids)
-    rows = program.status.rows()[[v - 1 for v in chosen]]
-    copies = []
-    for v in chosen:
-        c, job = program.controls[v], program.jobs[v]
-        active = nxt = None
-        if isinstance(job, OrderRunner):
-            active = job.active.id if job.active is not None else None
-            nxt = job.next.id if job.next is not None else None
-        copies.append(
-            VehicleCopy(
-                v,
-                c.state,
-                tuple(c.released),
-                tuple(c.route),
-                active,
-                nxt,
-                job.recipe_name or None,
-                c.suspect_reason,
-            )
-        )
-    return rows, copies
-
-
 class FleetCopy:
-    """``copy_vehicles(program)`` once per scan, shared by whoever asks in it (the stream's
-    snapshot and the requests answered at the same scan's end)."""
+    """The vehicles' copy for the HTTP side: ``fleet_copy()`` copies every vehicle once per
+    scan, shared by whoever asks in it (the stream's snapshot and the requests answered at
+    the same scan's end); ``fleet_copy.of(ids)`` copies some.
+
+    In the scan: the vehicles' rows of words (fleet/tags.py, one numpy copy) and per vehicle
+    its routes and job, a few attribute reads each. Which block holds what is looked up
+    once, here, so a copy of a hundred vehicles is one list comprehension (about 40 us)."""
 
     def __init__(self, program: FleetProgram) -> None:
         self._program = program
+        self._members = {
+            v: (v, program.controls[v], job if isinstance(job, OrderRunner) else None, job)
+            for v in program.vehicles
+            for job in (program.jobs[v],)  # fixed once the program is built
+        }
+        self._all = list(self._members.values())
         self._scan = -1
         self._copy: tuple[np.ndarray, list[VehicleCopy]] | None = None
 
     def __call__(self) -> tuple[np.ndarray, list[VehicleCopy]]:
         scan = self._program.rt.ticks
         if self._copy is None or scan != self._scan:
-            self._scan, self._copy = scan, copy_vehicles(self._program)
+            self._scan = scan
+            self._copy = self._program.status.rows().copy(), self._take(self._all)
         return self._copy
+
+    def of(self, ids: Iterable[int]) -> tuple[np.ndarray, list[VehicleCopy]]:
+        members = [self._members[v] for v in ids]
+        return self._program.status.rows()[[m[0] - 1 for m in members]], self._take(members)
+
+    @staticmethod
+    def _take(members: list[tuple]) -> list[VehicleCopy]:
+        make = tuple.__new__  # VehicleCopy without its keyword handling: a third of the cost
+        return [
+            make(
+                VehicleCopy,
+                (
+                    v,
+                    c.state,
+                    tuple(c.released),
+                    tuple(c.route),
+                    None if runner is None or runner.active is None else runner.active.id,
+                    None if runner is None or runner.next is None else runner.next.id,
+                    job.recipe_name or None,
+                    c.suspect_reason,
+                ),
+            )
+            for v, c, runner, job in members
+        ]
 
 
 def render_vehicles(copied: tuple[np.ndarray, list[VehicleCopy]]) -> list[dict[str, Any]]:
