@@ -3,10 +3,10 @@ per wall second, shared by every client, so a slow client never slows the scan.
 
 The scan's side, :meth:`LiveFeed.due_snapshot`, runs at the end of every scan
 (``WebServer.write_outputs``) and does nothing while nobody listens or before the period
-has passed since the last snapshot; otherwise it copies the vehicles (their words and routes), the scan's counters,
-the order counts and the orders that changed state since the last snapshot (from the book's
-journal, not the whole book) and hands the copy to the server's event loop. That is all the
-scan ever pays: the copy is rendered and encoded to JSON once, in the server's thread, and
+has passed since the last snapshot; otherwise it copies the vehicles (their words and
+routes), the scan's counters, the order counts and the orders that changed state since
+the last snapshot (from the book's journal, not the whole book) and hands the copy to the
+server's event loop. That is all the scan ever pays: the copy is rendered and encoded to JSON once, in the server's thread, and
 every client is sent the newest one.
 
 A snapshot names only the vehicles that changed since the one before (``"full": false``;
@@ -81,7 +81,7 @@ class LiveFeed:
     def due_snapshot(self) -> dict[str, Any] | None:
         """A snapshot for the clients, if any listen and the period has passed (else None):
         the caller hands it to the server's loop (:meth:`arrive`) through the scan gate,
-        which the loop looks at by itself (the scan never wakes it)."""
+        which wakes the loop after the scan, not inside it."""
         if not self.streams or self._loop is None:
             return None
         now = time.monotonic()
