@@ -13,7 +13,9 @@ define ``after_scan()``: the runtime calls it after each scan, once the scan's t
 recorded, outside the watchdog, just before the scan thread waits for its next release.
 That is the moment to wake the server's thread: woken from inside a scan, it would work
 while the scan runs and take the interpreter from it. Such a thread should also wait on
-``Runtime.between_scans`` before it works, for what wakes it by itself (its sockets).
+``Runtime.between_scans`` before it works, for what wakes it by itself (its sockets), and
+the driver may ask for a ``Runtime.ask_quiet_lead``: the event then clears that long
+before each scan is due, so work is not started that would run into the scan.
 """
 
 from __future__ import annotations

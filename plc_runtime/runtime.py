@@ -137,10 +137,12 @@ class Runtime:
         self._lock = threading.RLock()
         self._stopping = threading.Event()  # set while stop() waits for the lock
         self._scan_thread: int | None = None  # thread id while a scan runs
-        # Set whenever no scan runs. A thread serving clients (an HMI server) waits on it
-        # before it works, so it never competes with a scan for the interpreter.
+        # Set whenever no scan runs or is about to (``quiet_lead``). A thread serving
+        # clients (an HMI server) waits on it before it works, so it never competes with a
+        # scan for the interpreter.
         self.between_scans = threading.Event()
         self.between_scans.set()
+        self._quiet_lead_ns = 0
         self._scan_ran = False  # whether any task ran in the last tick
         self._retain_layout_before: list[tuple[str, str]] = []
 
@@ -221,6 +223,19 @@ class Runtime:
         if any(d.name == driver.name for d in self.drivers):
             raise ConfigError(f"driver {driver.name!r} already added")
         self.drivers.append(driver)
+
+    @property
+    def quiet_lead(self) -> float:
+        """Seconds before each scan's release from which ``between_scans`` is already clear
+        (0: from the release). A thread that waits on it before it works then does not
+        start work that would run into the scan."""
+        return self._quiet_lead_ns / 1e9
+
+    def ask_quiet_lead(self, seconds: float) -> None:
+        """Make ``quiet_lead`` at least ``seconds`` (at most half the cycle time): what a
+        driver whose thread serves clients asks for when it opens."""
+        lead = _seconds(seconds, "quiet lead", high=self.cycle_time / 2)
+        self._quiet_lead_ns = max(self._quiet_lead_ns, round(lead * 1e9))
 
     # ----- operating state ----------------------------------------------------------------
     def start(self, mode: str = "warm") -> None:
@@ -393,27 +408,35 @@ class Runtime:
     def _tick(self) -> None:
         k = self.ticks
         release = self._t0 + k * self._tick_ns
+        due = release
         if self._min_cycle_ns and self._last_tick_start is not None:
-            self.clock.wait_until(max(release, self._last_tick_start + self._min_cycle_ns))
-        else:
-            self.clock.wait_until(release)
-        if self._stopping.is_set():
-            return  # another thread is stopping the runtime: let it have the lock
-        with self._lock:
-            if self.state != RUN:  # stopped by another thread while this one waited
-                return
-            if self.retain_interval and self.clock.now_ns() >= self._next_retain_save:
-                self._next_retain_save = self.clock.now_ns() + round(self.retain_interval * 1e9)
-                self._retain.save_or_warn(self._collect_retain())  # costs lateness, not scan time
-            self._scan_thread = threading.get_ident()
-            self.between_scans.clear()
-            try:
-                self._run_tick(k, release)
-            finally:
-                self._scan_thread = None
-                self.between_scans.set()
-            if self.state == RUN:
-                self._after_scan()
+            due = max(release, self._last_tick_start + self._min_cycle_ns)
+        if self._quiet_lead_ns:
+            self.clock.wait_until(due - self._quiet_lead_ns)
+            self.between_scans.clear()  # the scan is near: serving threads hold off now
+        try:
+            self.clock.wait_until(due)
+            if self._stopping.is_set():
+                return  # another thread is stopping the runtime: let it have the lock
+            with self._lock:
+                if self.state != RUN:  # stopped by another thread while this one waited
+                    return
+                if self.retain_interval and self.clock.now_ns() >= self._next_retain_save:
+                    self._next_retain_save = self.clock.now_ns() + round(self.retain_interval * 1e9)
+                    self._retain.save_or_warn(
+                        self._collect_retain()
+                    )  # costs lateness, not scan time
+                self._scan_thread = threading.get_ident()
+                self.between_scans.clear()
+                try:
+                    self._run_tick(k, release)
+                finally:
+                    self._scan_thread = None
+                    self.between_scans.set()
+                if self.state == RUN:
+                    self._after_scan()
+        finally:
+            self.between_scans.set()
 
     def _after_scan(self) -> None:
         """The drivers' ``after_scan`` (io.py): outside the scan's time and watchdog."""

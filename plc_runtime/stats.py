@@ -51,12 +51,20 @@ class ScanStats:
         self._exec_sum_ns += exec_ns
         self.cycles += 1
 
-    def copy(self) -> ScanStats:
-        """A frozen copy (two array copies, some microseconds): a monitor in another thread
-        computes the percentiles of ``to_dict`` on it, outside the scan."""
+    def copy(self, share_window: bool = False) -> ScanStats:
+        """A frozen copy: a monitor in another thread computes the percentiles of
+        ``to_dict`` on it, outside the scan.
+
+        ``share_window``: the counters are copied, the ring buffers are not (two copies of
+        ``window`` values each, which in a scan's cache-cold end cost several times their
+        microseconds). Recording overwrites one slot per scan in place and never moves the
+        buffers, so percentiles read later cover the window as it is then: the same
+        number of real scans, moved on by those recorded since, beside counters, min, max
+        and mean as they were at the copy."""
         clone = object.__new__(ScanStats)
         clone.__dict__.update(self.__dict__)
-        clone._exec, clone._late = self._exec.copy(), self._late.copy()
+        if not share_window:
+            clone._exec, clone._late = self._exec.copy(), self._late.copy()
         return clone
 
     def _recent(self, data: np.ndarray) -> np.ndarray:

@@ -318,3 +318,19 @@ def test_stop_request_in_the_last_tick_is_not_lost():
     assert rt.run(cycles=5) == 0  # and ends the next run at once
     assert rt.run(cycles=5) == 5
     rt.stop()
+
+
+def test_a_stats_copy_freezes_the_counters_and_may_share_the_window():
+    from plc_runtime.stats import ScanStats
+
+    live = ScanStats("main", window=4)
+    for ns in (10, 20, 30, 40):
+        live.record(ns, 0)
+    frozen, shared = live.copy(), live.copy(share_window=True)
+    live.record(1000, 7)  # overwrites the oldest slot in place
+    for copy in (frozen, shared):
+        assert copy.cycles == 4 and copy.exec_max_ns == 40 and copy.exec_mean_ns == 25
+    assert frozen.exec_percentile_ns(100) == 40  # its own arrays: the window at the copy
+    assert shared.exec_percentile_ns(100) == 1000  # the live window, moved on by one scan
+    assert shared.late_percentile_ns(100) == 7
+    assert live.cycles == 5 and live.exec_max_ns == 1000

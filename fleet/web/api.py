@@ -337,7 +337,9 @@ def build_app(
         limit: Annotated[int, Query(ge=1, le=MAX_EVENTS, description="events at most")] = 100,
     ) -> JSONResponse:
         """The event log, oldest first: events numbered after `after`, at most `limit`."""
-        return JSONResponse(await ask(fleet.ask_events(after, limit), "events"))
+        return JSONResponse(
+            views.render_events(await ask(fleet.ask_events(after, limit), "events"))
+        )
 
     @app.get(
         f"{PREFIX}/stream",

@@ -46,6 +46,9 @@ START_TIMEOUT = 10.0  # seconds for the server thread to start serving
 STOP_TIMEOUT = 10.0  # seconds for it to end (it answers what is in flight first, up to 2 s)
 GRACEFUL_S = 2.0
 GATE_S = 0.5  # a request waits this long at most for a scan to end before it goes in
+# The server's loop starts no work within this share of the cycle before a scan is due: a
+# burst of work started just before a scan would run into it (Runtime.quiet_lead).
+QUIET_LEAD = 0.1
 
 
 class _Server(uvicorn.Server):
@@ -129,6 +132,8 @@ class WebServer:
             why = os.strerror(exc.errno) if exc.errno and exc.errno > 0 else exc.strerror or exc
             raise ConfigError(f"HTTP API on {self.host}:{self.requested_port}: {why}") from None
         self.port = self._socket.getsockname()[1]
+        rt = self._program.rt
+        rt.ask_quiet_lead(QUIET_LEAD * rt.cycle_time)
         # fresh queues for every start
         self.desk = OrderDesk(self._orders) if self._orders is not None else None
         shared = FleetCopy(self._program)  # one copy of the vehicles per scan, for all

@@ -4,7 +4,8 @@ The ``copy_*`` functions (and ``blockades``, ``events``, ``light_stats``) run in
 thread between two scans (through the desk or the live feed): they read the program's
 blocks and return values nobody else holds, so the HTTP thread never touches a live block.
 They copy as little as they can (the vehicles' words in one numpy copy, the statistics'
-ring buffers as arrays), because whatever they cost, the scan pays. The ``render_*``
+counters but not their ring buffers, the events by reference), because whatever they cost,
+the scan pays. The ``render_*``
 functions turn a copy into the API's JSON in the server's thread, where building dicts and
 computing percentiles costs the scan nothing but a share of the processor. Nothing here
 changes the program.
@@ -13,6 +14,7 @@ changes the program.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from itertools import islice
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -22,6 +24,7 @@ from blocks.traffic.records import BATTERY_UNKNOWN, NO_NODE
 from plc_runtime.stats import ScanStats
 from topology import Plant
 
+from ..events import Event
 from ..program import FleetProgram
 from ..tags import V
 from .desk import OrderView
@@ -193,8 +196,9 @@ def _node(word: int) -> int | None:
 
 
 class StatsCopy(NamedTuple):
-    """What the scan copies of the statistics; the percentiles are computed from it
-    (``render_stats``) outside the scan."""
+    """What the scan copies of the statistics: the counters. The percentiles are computed
+    (``render_stats``) outside the scan, from the runtime's ring buffers as they are then
+    (``ScanStats.copy(share_window=True)``)."""
 
     runtime: dict[str, Any]
     scan: ScanStats
@@ -216,8 +220,8 @@ def copy_stats(program: FleetProgram) -> StatsCopy:
     }
     return StatsCopy(
         runtime,
-        rt.stats.scan.copy(),
-        {name: s.copy() for name, s in rt.stats.tasks.items()},
+        rt.stats.scan.copy(share_window=True),
+        {name: s.copy(share_window=True) for name, s in rt.stats.tasks.items()},
         {d.name: d.stats() for d in rt.drivers},
         fleet_counters(program),
     )
@@ -271,19 +275,32 @@ def fleet_counters(program: FleetProgram) -> dict[str, Any]:
     return fleet
 
 
-def events(program: FleetProgram, after: int, limit: int) -> dict[str, Any]:
+class EventsCopy(NamedTuple):
+    """The scan's part of an events answer: numbers and the (immutable) events chosen;
+    :func:`render_events` turns them into JSON in the server's thread."""
+
+    first: int
+    last: int
+    start: int
+    events: tuple[Event, ...]
+
+
+def events(program: FleetProgram, after: int, limit: int) -> EventsCopy:
     """Events numbered ``after + 1`` on (at most ``limit``), oldest first. Numbers count
     every event of the run from 1; the log keeps the newest, so ``first`` says where the
     kept ones begin."""
     log = program.events
     first = log.added - len(log.events) + 1
     start = max(after + 1, first)
-    kept = list(log.events)
-    chosen = kept[start - first : start - first + limit]
+    skip = start - first
+    return EventsCopy(first, log.added, start, tuple(islice(log.events, skip, skip + limit)))
+
+
+def render_events(c: EventsCopy) -> dict[str, Any]:
     return {
-        "first": first,
-        "last": log.added,
-        "events": [{"seq": start + i, **e.to_dict()} for i, e in enumerate(chosen)],
+        "first": c.first,
+        "last": c.last,
+        "events": [{"seq": c.start + i, **e.to_dict()} for i, e in enumerate(c.events)],
     }
 
 
