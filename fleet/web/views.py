@@ -2,13 +2,14 @@
 
 The ``copy_*`` functions (and ``blockades``, ``events``, ``light_stats``) run in the scan
 thread between two scans (through the desk or the live feed): they read the program's
-blocks and return values nobody else holds, so the HTTP thread never touches a live block.
-They copy as little as they can (the vehicles' words in one numpy copy, the statistics'
-counters but not their ring buffers, the events by reference), because whatever they cost,
-the scan pays. The ``render_*``
-functions turn a copy into the API's JSON in the server's thread, where building dicts and
-computing percentiles costs the scan nothing but a share of the processor. Nothing here
-changes the program.
+blocks and return values that nothing changes afterwards, so the HTTP thread never touches
+a live block. They copy as little as they can (the vehicles' words in one numpy copy, the
+events by reference, as they are immutable), because whatever they cost, the scan pays.
+The one shared thing is the statistics' ring buffers: the runtime overwrites one slot per
+scan in place, and the percentiles are read from them as they are when rendered. The
+``render_*`` functions turn a copy into the API's JSON in the server's thread, where
+building dicts and computing percentiles costs the scan nothing but a share of the
+processor. Nothing here changes the program.
 """
 
 from __future__ import annotations
