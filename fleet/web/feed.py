@@ -6,8 +6,8 @@ The scan's side, :meth:`LiveFeed.due_snapshot`, runs at the end of every scan
 has passed since the last snapshot; otherwise it copies the vehicles (their words and
 routes), the scan's counters, the order counts and the orders that changed state since
 the last snapshot (from the book's journal, not the whole book) and hands the copy to the
-server's event loop. That is all the scan ever pays: the copy is rendered and encoded to JSON once, in the server's thread, and
-every client is sent the newest one.
+server's event loop. That is all the scan ever pays: the copy is rendered and encoded to
+JSON once, in the server's thread, and every client is sent the newest one.
 
 A snapshot names only the vehicles that changed since the one before (``"full": false``;
 most vehicles stand or drive on between two snapshots), so a hundred vehicles cost some

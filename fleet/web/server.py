@@ -2,13 +2,13 @@
 event loop, beside the scan.
 
 It is an IoDriver of the runtime, which gives it exactly the life it needs: ``open`` (the
-startup phase) binds the socket and starts the server thread, ``write_outputs`` (the end of
-every scan, in the scan thread, a quiet point: no block runs until the next scan) answers
-the requests waiting in the desks
+startup phase) binds the socket, asks the runtime for a quiet lead before each scan and
+starts the server thread; ``write_outputs`` (the end of every scan, in the scan thread, a
+quiet point: no block runs until the next scan) answers the requests waiting in the desks
 (:class:`FleetDesk`, :class:`OrderDesk`) and copies the live feed's snapshot when one is
-due, ``after_scan`` (once the scan's time is recorded) wakes the server's loop to send the
-answers, and ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops the
-thread and closes the socket. So a run never leaves the server behind.
+due; ``after_scan`` (once the scan's time is recorded) wakes the server's loop to send the
+answers; ``close`` (every stop: the end of the run, Ctrl-C, a fault, a failed start) stops
+the thread and closes the socket. So a run never leaves the server behind.
 
 The socket is bound here, before the thread starts, so an address in use is a clear error
 at start and port 0 gives a free port (``port`` after ``open``). Binding anything but a
