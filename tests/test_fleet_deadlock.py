@@ -104,3 +104,39 @@ def test_a_queue_of_standing_vehicles_is_pushed_aside_by_priority_inheritance():
         assert p.resolver.unresolved == 0
     finally:
         p.close()
+
+
+def test_a_deadlock_nobody_can_leave_yet_is_retried_and_broken_once_there_is_room():
+    """Seen on the distribution centre: a vehicle stands in a dead-end spur (a queue place),
+    the vehicle heading for that spur stands at its mouth on a one-way ring lane, and each
+    waits for the other. Neither can step aside: the only free-looking node is the lane
+    ahead, and a third vehicle is working there. When that one has driven on, the waiting
+    one must be backed off onto it after all (it then drives a lap round the ring back to
+    the spur), not left standing for ever because the deadlock was reported once."""
+    ring = [(1, 0.0, 0.0), (2, 4.0, 0.0), (3, 8.0, 0.0), (4, 12.0, 0.0), (5, 12.0, 4.0)]
+    ring += [(6, 0.0, 4.0)]
+    nodes = [Node(i, f"lane{i}", x, y) for i, x, y in ring]
+    nodes[2] = Node(3, "work", 8.0, 0.0, "station", (3,))
+    nodes[4] = Node(5, "goal", 12.0, 4.0, "station", (5,))
+    nodes.append(Node(7, "spur", 4.0, -4.0, "station", (7,)))
+    edges = [Edge(a, b, 4.0, bidirectional=False) for a, b in [(1, 2), (2, 3), (3, 4), (4, 5)]]
+    edges += [Edge(5, 6, 12.0, bidirectional=False), Edge(6, 1, 4.0, bidirectional=False)]
+    edges.append(Edge(2, 7, 4.0))
+    plant = Plant.build(nodes, edges, name="spur", functions={3: "work", 5: "goal", 7: "spur"})
+    cfg = make_config(
+        plant,
+        {1: 2, 2: 7, 3: 3},  # vehicle 1 at the spur's mouth, 2 in the spur, 3 at work
+        {"to-spur": [7], "out": [5], "work": [3, 5]},
+        {3: [3], 5: [5], 7: [7]},
+        vehicle_recipes={1: ["to-spur"], 2: ["out"], 3: ["work"]},
+        rounds=1,
+    )
+    p = FleetProgram(cfg)
+    try:
+        run(p, 120)
+        assert p.resolver.unresolved >= 1  # nobody could move when it formed
+        assert p.resolver.resolved >= 1 and p.resolver.stranded() == []
+        assert sorted(r.vehicle for r in p.completed) == [1, 2, 3]
+        assert p.recorder.driven[1][:2] == [2, 3]  # backed off onto the lane ahead
+    finally:
+        p.close()

@@ -21,6 +21,7 @@ from fleet_scenarios import make_config
 from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
+from blocks.traffic.deadlock import MAX_BACK_OFFS
 from blocks.traffic.reservation import ReservationMatrix
 from fleet.program import FleetProgram
 from fleet.report import summary
@@ -224,7 +225,10 @@ def test_a_standing_vehicle_is_pushed_along_the_route_not_into_an_occupied_area(
 def test_where_the_only_room_is_an_occupied_area_the_deadlock_is_reported():
     """Vehicles 2 and 3 meet head-on on a line of three nodes; the only node either could
     give way to is the approach of the cell, where vehicle 1 stays. Nobody is backed off
-    into it: the deadlock is reported, both are stranded, and nothing collides."""
+    into it. They give way back and forth along the line (each time nobody can, the
+    deadlock is reported and tried again as the other moves) until that counts as a
+    livelock, 8 back-offs without progress; then the deadlock is reported for good, both
+    are stranded, and nothing collides."""
     p = spur_program(
         False,
         {1: 7, 2: 1, 3: 3},
@@ -233,9 +237,11 @@ def test_where_the_only_room_is_an_occupied_area_the_deadlock_is_reported():
         {1: ["cell"], 2: ["junction"], 3: ["west"]},
     )
     try:
-        step(p, 60)
+        step(p, 150)
         assert [r.vehicle for r in p.completed] == [1]
+        assert p.resolver.resolved == MAX_BACK_OFFS
         assert p.resolver.unresolved >= 1 and p.resolver.stranded() == [2, 3]
+        assert p.resolver.events[-1].backed_off is None
         assert all(6 not in p.recorder.driven[v] for v in (2, 3))
         result = summary(p, wall_s=1.0)
         assert result["stranded_vehicles"] == [2, 3] and result["area_conflicts"] == 0

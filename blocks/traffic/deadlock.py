@@ -36,8 +36,10 @@ the most urgent one in turn. Pushing cannot help where the plant has dead ends (
 a corridor without a loop): a waits-for circle that remains after the pushes is broken by
 backing off the least urgent vehicle that can step off the others' routes, which then does
 not retake the node it left while they still need it. A circle nobody in it can leave is
-reported (``unresolved``) and retried every scan: a blockade may clear, a vehicle may come
-back online. Every detection is recorded.
+reported (``unresolved``) and its back-off retried every scan: a blockade may clear, a
+vehicle may come back online, the vehicle in front of one of them on a one-way lane may
+drive on and leave it room to step aside. A livelock (a circle given way in too often
+without progress) is reported and not retried. Every detection is recorded.
 
 With ``pushes=False`` (time-window traffic: the plans fix who passes where first, and a
 vehicle moved off its plan would break that order) it only grants the starts the controls
@@ -103,6 +105,8 @@ class DeadlockResolver(FunctionBlock):
         # as unresolved instead of being shuffled back and forth forever
         self._attempts: dict[frozenset[int], tuple[tuple, int]] = {}
         self._last_rings: set[frozenset[int]] = set()
+        # unresolved cycles that are livelocks (given way too often): not retried
+        self._livelocks: set[frozenset[int]] = set()
         # one scan's decisions: vehicle -> node index it goes to (its own: it stays)
         self._next: dict[int, int] = {}
         self._reserved: dict[int, int] = {}  # node index -> the vehicle it was given to
@@ -128,10 +132,14 @@ class DeadlockResolver(FunctionBlock):
             for key, progress in self._stuck.items()
             if progress == tuple(self.priority(v) for v in sorted(key))
         }
+        self._livelocks &= self._stuck.keys()
         rings = self._cycles(waits)
         for ring in rings:
-            if frozenset(ring) not in self._last_rings:
+            key = frozenset(ring)
+            if key not in self._last_rings:
                 self._resolve(ctx, ring, waits, standing)
+            elif key in self._stuck and key not in self._livelocks:
+                self._retry(ctx, ring, waits, standing)
         self._last_rings = {frozenset(ring) for ring in rings}
 
     def _resolve(
@@ -165,8 +173,34 @@ class DeadlockResolver(FunctionBlock):
             self.unresolved += 1
             self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
             self._stuck[key] = progress
+            if tries >= MAX_BACK_OFFS:
+                self._livelocks.add(key)
             return
         self._attempts[key] = (progress, tries + 1)
+        self.resolved += 1
+        self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
+
+    def _retry(
+        self, ctx: CycleContext, ring: list[int], waits: Mapping[int, int], standing: Mapping
+    ) -> None:
+        """A cycle reported as unresolved, still there: try to back one of them off again.
+        Nobody in it could step aside when it formed, but the vehicles around them move on
+        (the one in front of a vehicle on a one-way lane drives away), and a blockade may
+        clear. Counted once; resolved when a back-off is found."""
+        if not self.pushes_allowed:
+            return
+        if any(self._next.get(v, standing[v]) != standing[v] for v in ring):
+            return  # this scan's pushes start one of them: it is breaking up by itself
+        victim, node = self._back_off_candidate(ring, waits)
+        if victim is None:
+            return
+        key = frozenset(ring)
+        vacated = self.controls[victim].current
+        needed = self._needed_by(set(ring) - {victim}, vacated)
+        self.controls[victim].back_off(ctx, node, needed)
+        progress = self._stuck.pop(key)
+        seen, tries = self._attempts.get(key, (None, 0))
+        self._attempts[key] = (progress, tries + 1 if seen == progress else 1)
         self.resolved += 1
         self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
 
