@@ -106,13 +106,13 @@ def test_a_queue_of_standing_vehicles_is_pushed_aside_by_priority_inheritance():
         p.close()
 
 
-def test_a_deadlock_nobody_can_leave_yet_is_retried_and_broken_once_there_is_room():
-    """Seen on the distribution centre: a vehicle stands in a dead-end spur (a queue place),
-    the vehicle heading for that spur stands at its mouth on a one-way ring lane, and each
-    waits for the other. Neither can step aside: the only free-looking node is the lane
-    ahead, and a third vehicle is working there. When that one has driven on, the waiting
-    one must be backed off onto it after all (it then drives a lap round the ring back to
-    the spur), not left standing for ever because the deadlock was reported once."""
+def spur_on_a_ring(side_branch: bool, **settings) -> FleetProgram:
+    """A one-way ring 1 -> 2 -> 3 -> 4 -> 5 -> 6 -> 1 with stations 3 and 5 on it and a
+    dead-end spur 2 - 7 (a station, like a queue place at the end of a spur). Vehicle 1
+    stands at the spur's mouth heading for it, vehicle 2 in the spur heading for 5, vehicle
+    3 works at 3 and then drives to 5. With ``side_branch``, a two-way branch 1 - 8 - 9 off
+    the ring: vehicle 4 stands at 1, queued behind vehicle 1 on its way to 3, and vehicle 5
+    works at 8 and then parks at 9."""
     ring = [(1, 0.0, 0.0), (2, 4.0, 0.0), (3, 8.0, 0.0), (4, 12.0, 0.0), (5, 12.0, 4.0)]
     ring += [(6, 0.0, 4.0)]
     nodes = [Node(i, f"lane{i}", x, y) for i, x, y in ring]
@@ -122,21 +122,54 @@ def test_a_deadlock_nobody_can_leave_yet_is_retried_and_broken_once_there_is_roo
     edges = [Edge(a, b, 4.0, bidirectional=False) for a, b in [(1, 2), (2, 3), (3, 4), (4, 5)]]
     edges += [Edge(5, 6, 12.0, bidirectional=False), Edge(6, 1, 4.0, bidirectional=False)]
     edges.append(Edge(2, 7, 4.0))
-    plant = Plant.build(nodes, edges, name="spur", functions={3: "work", 5: "goal", 7: "spur"})
-    cfg = make_config(
-        plant,
-        {1: 2, 2: 7, 3: 3},  # vehicle 1 at the spur's mouth, 2 in the spur, 3 at work
-        {"to-spur": [7], "out": [5], "work": [3, 5]},
-        {3: [3], 5: [5], 7: [7]},
-        vehicle_recipes={1: ["to-spur"], 2: ["out"], 3: ["work"]},
-        rounds=1,
-    )
-    p = FleetProgram(cfg)
+    functions = {3: "work", 5: "goal", 7: "spur"}
+    starts = {1: 2, 2: 7, 3: 3}
+    recipes = {"to-spur": [7], "out": [5], "work": [3, 5]}
+    jobs = {1: ["to-spur"], 2: ["out"], 3: ["work"]}
+    if side_branch:
+        nodes += [Node(8, "side", -4.0, 0.0, "station", (8,))]
+        nodes += [Node(9, "park", -8.0, 0.0, "station", (9,))]
+        edges += [Edge(1, 8, 4.0), Edge(8, 9, 4.0)]
+        functions.update({8: "side", 9: "park"})
+        starts.update({4: 1, 5: 8})
+        recipes.update({"to-work": [3], "park": [8, 9]})
+        jobs.update({4: ["to-work"], 5: ["park"]})
+    plant = Plant.build(nodes, edges, name="spur-on-a-ring", functions=functions)
+    clusters = {f: [f] for f in functions}  # each function's one station has its id
+    cfg = make_config(plant, starts, recipes, clusters, vehicle_recipes=jobs, rounds=1, **settings)
+    return FleetProgram(cfg)
+
+
+def test_a_deadlock_nobody_can_leave_yet_is_retried_and_broken_once_there_is_room():
+    """Seen on the distribution centre: a vehicle stands in a dead-end spur (a queue place),
+    the vehicle heading for that spur stands at its mouth on a one-way ring lane, and each
+    waits for the other. Neither can step aside: the only free-looking node is the lane
+    ahead, and a third vehicle is working there. When that one has driven on, the waiting
+    one must be backed off onto it after all (it then drives a lap round the ring back to
+    the spur), not left standing for ever because the deadlock was reported once."""
+    p = spur_on_a_ring(side_branch=False)
     try:
         run(p, 120)
         assert p.resolver.unresolved >= 1  # nobody could move when it formed
         assert p.resolver.resolved >= 1 and p.resolver.stranded() == []
         assert sorted(r.vehicle for r in p.completed) == [1, 2, 3]
         assert p.recorder.driven[1][:2] == [2, 3]  # backed off onto the lane ahead
+    finally:
+        p.close()
+
+
+def test_a_back_off_of_a_vehicle_queued_behind_a_deadlock_does_not_end_its_retries():
+    """As above, with vehicle 4 queued behind vehicle 1 and a side branch it can give way
+    into once vehicle 5 has left it. Backing vehicle 4 off makes room but breaks nothing:
+    the deadlock of vehicles 1 and 2 must still be tried again (and then broken), not
+    counted as resolved and forgotten. Replanning after a long wait, which might free them
+    by chance, is switched off."""
+    p = spur_on_a_ring(side_branch=True, wait_replan_s=1000.0)
+    try:
+        run(p, 200)
+        backed_off = [e.backed_off for e in p.resolver.events if e.backed_off is not None]
+        assert backed_off[:2] == [4, 1]  # the one behind first, then one of the two
+        assert sorted(r.vehicle for r in p.completed) == [1, 2, 3, 4, 5]
+        assert p.resolver.stranded() == []
     finally:
         p.close()

@@ -36,10 +36,12 @@ the most urgent one in turn. Pushing cannot help where the plant has dead ends (
 a corridor without a loop): a waits-for circle that remains after the pushes is broken by
 backing off the least urgent vehicle that can step off the others' routes, which then does
 not retake the node it left while they still need it. A circle nobody in it can leave is
-reported (``unresolved``) and its back-off retried every scan: a blockade may clear, a
-vehicle may come back online, the vehicle in front of one of them on a one-way lane may
-drive on and leave it room to step aside. A livelock (a circle given way in too often
-without progress) is reported and not retried. Every detection is recorded.
+reported (``unresolved``) and tried again every second (``RETRY_S``): a blockade may
+clear, a vehicle may come back online, the vehicle in front of one of them on a one-way
+lane may drive on and leave it room to step aside. So is a circle whose back-off went to a
+vehicle queued behind it, which makes room but breaks nothing by itself. A livelock (a
+circle given way in too often without progress) is reported and left alone. Every
+detection is recorded.
 
 With ``pushes=False`` (time-window traffic: the plans fix who passes where first, and a
 vehicle moved off its plan would break that order) it only grants the starts the controls
@@ -48,6 +50,7 @@ ask for, in priority order, and records any waits-for cycle without moving anyon
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -60,6 +63,8 @@ from .reservation import ReservationMatrix
 from .vehicle_control import VehicleControl
 
 MAX_BACK_OFFS = 8  # returns of one cycle without progress: then it is a livelock
+RETRY_S = 1.0  # a cycle nobody could leave is tried again this often
+RETRY_NS = round(RETRY_S * 1e9)
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
 WALLS = ("offline", "stale", "fault", "suspect")
 
@@ -74,8 +79,10 @@ class DeadlockEvent:
 
 class DeadlockResolver(FunctionBlock):
     detected = Output(0, doc="waits-for cycles found")
-    resolved = Output(0, doc="cycles broken: by a push, or by a back-off (may need several)")
-    unresolved = Output(0, doc="cycles nobody could leave when found (retried every scan)")
+    resolved = Output(
+        0, doc="pushes and back-offs that broke a cycle or made room behind one (may need several)"
+    )
+    unresolved = Output(0, doc="cycles nobody could leave (tried again every second)")
     pushes = Output(0, doc="standing vehicles moved aside for a more urgent one")
 
     def __init__(
@@ -98,7 +105,7 @@ class DeadlockResolver(FunctionBlock):
         self.table = table
         self.events: list[DeadlockEvent] = []
         # unresolved cycles already reported, with their members' progress at the time: they
-        # stay reported (stranded) until one of them reaches a new recipe step
+        # stay reported (stranded) until one of them reaches a new recipe step or backs off
         self._stuck: dict[frozenset[int], tuple] = {}
         # back-offs per cycle of vehicles while none of them reaches a new recipe step: a
         # plant where giving way only moves the deadlock (a dead-end corridor) is reported
@@ -107,6 +114,8 @@ class DeadlockResolver(FunctionBlock):
         self._last_rings: set[frozenset[int]] = set()
         # unresolved cycles that are livelocks (given way too often): not retried
         self._livelocks: set[frozenset[int]] = set()
+        # cycles still there to be tried again, and when (ns)
+        self._retry_at: dict[frozenset[int], float] = {}
         # one scan's decisions: vehicle -> node index it goes to (its own: it stays)
         self._next: dict[int, int] = {}
         self._reserved: dict[int, int] = {}  # node index -> the vehicle it was given to
@@ -127,37 +136,56 @@ class DeadlockResolver(FunctionBlock):
         waits = self._waits(standing, requests)
         self._arbitrate(standing, pushable, requests)
         self._execute(ctx, standing, requests)
-        self._stuck = {
-            key: progress
-            for key, progress in self._stuck.items()
-            if progress == tuple(self.priority(v) for v in sorted(key))
+        still = {
+            key: (seen, tries)
+            for key, (seen, tries) in self._attempts.items()
+            if seen == tuple(self.priority(v) for v in sorted(key))
         }
+        self._attempts = still  # (a vehicle that reached a new step starts afresh)
+        self._stuck = {key: p for key, p in self._stuck.items() if key in still}
         self._livelocks &= self._stuck.keys()
         rings = self._cycles(waits)
+        keys = {frozenset(ring) for ring in rings}
+        self._retry_at = {key: t for key, t in self._retry_at.items() if key in keys}
         for ring in rings:
             key = frozenset(ring)
             if key not in self._last_rings:
                 self._resolve(ctx, ring, waits, standing)
-            elif key in self._stuck and key not in self._livelocks:
-                self._retry(ctx, ring, waits, standing)
-        self._last_rings = {frozenset(ring) for ring in rings}
+            elif ctx.time_ns >= self._retry_at.get(key, math.inf):
+                self._resolve(ctx, ring, waits, standing, again=True)
+        self._last_rings = keys
 
     def _resolve(
-        self, ctx: CycleContext, ring: list[int], waits: Mapping[int, int], standing: Mapping
+        self,
+        ctx: CycleContext,
+        ring: list[int],
+        waits: Mapping[int, int],
+        standing: Mapping,
+        again: bool = False,
     ) -> None:
-        """A waits-for cycle has formed: count it, and if this scan's pushes did not break
-        it, back off the least urgent vehicle that can step off the others' routes. The
-        same vehicles in a cycle again without any of them reaching a new recipe step count
-        as one detection; after ``MAX_BACK_OFFS`` such returns it is a livelock: reported."""
+        """A waits-for cycle has formed (or, ``again``, is still there after a retry was
+        scheduled): count it, and if this scan's pushes did not break it, back off the least
+        urgent vehicle that can step off the others' routes. The same vehicles in a cycle
+        again without any of them reaching a new recipe step count as one detection; after
+        ``MAX_BACK_OFFS`` back-offs it is a livelock: reported, and left alone.
+
+        A cycle nobody could leave is reported once and tried again every ``RETRY_S``:
+        nobody could step aside when it formed, but the vehicles around them move on (the
+        one in front of a vehicle on a one-way lane drives away), and a blockade may clear.
+        So is a cycle whose back-off went to a vehicle queued behind it: that makes room,
+        but does not break the cycle by itself."""
         key = frozenset(ring)
-        if key in self._stuck:
-            return  # reported already; nothing has changed for them
+        if key in self._livelocks:
+            return
         progress = tuple(self.priority(v) for v in sorted(ring))
         seen, tries = self._attempts.get(key, (None, 0))
         if seen != progress:
             self.detected += 1
             tries = 0
         moved = [v for v in ring if self._next.get(v, standing[v]) != standing[v]]
+        if moved and again:
+            self._retry_at[key] = ctx.time_ns + RETRY_NS  # breaking up by itself: watch it
+            return
         victim, node = None, None
         if tries < MAX_BACK_OFFS:
             if moved:
@@ -170,39 +198,24 @@ class DeadlockResolver(FunctionBlock):
                     needed = self._needed_by(set(ring) - {victim}, vacated)
                     self.controls[victim].back_off(ctx, node, needed)
         if victim is None:
-            self.unresolved += 1
-            self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
-            self._stuck[key] = progress
+            self._attempts[key] = (progress, tries)
+            if key not in self._stuck:
+                self.unresolved += 1
+                self.events.append(DeadlockEvent(ctx.time, tuple(ring), None, None))
+                self._stuck[key] = progress
             if tries >= MAX_BACK_OFFS:
                 self._livelocks.add(key)
+            elif self.pushes_allowed:
+                self._retry_at[key] = ctx.time_ns + RETRY_NS
             return
         self._attempts[key] = (progress, tries + 1)
         self.resolved += 1
         self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
-
-    def _retry(
-        self, ctx: CycleContext, ring: list[int], waits: Mapping[int, int], standing: Mapping
-    ) -> None:
-        """A cycle reported as unresolved, still there: try to back one of them off again.
-        Nobody in it could step aside when it formed, but the vehicles around them move on
-        (the one in front of a vehicle on a one-way lane drives away), and a blockade may
-        clear. Counted once; resolved when a back-off is found."""
-        if not self.pushes_allowed:
-            return
-        if any(self._next.get(v, standing[v]) != standing[v] for v in ring):
-            return  # this scan's pushes start one of them: it is breaking up by itself
-        victim, node = self._back_off_candidate(ring, waits)
-        if victim is None:
-            return
-        key = frozenset(ring)
-        vacated = self.controls[victim].current
-        needed = self._needed_by(set(ring) - {victim}, vacated)
-        self.controls[victim].back_off(ctx, node, needed)
-        progress = self._stuck.pop(key)
-        seen, tries = self._attempts.get(key, (None, 0))
-        self._attempts[key] = (progress, tries + 1 if seen == progress else 1)
-        self.resolved += 1
-        self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
+        if victim in key:
+            self._stuck.pop(key, None)
+            self._retry_at.pop(key, None)
+        else:
+            self._retry_at[key] = ctx.time_ns + RETRY_NS
 
     # ----- the starts ---------------------------------------------------------------------------
     def _standing(self) -> tuple[dict[int, int], set[int]]:
