@@ -106,13 +106,13 @@ def test_a_queue_of_standing_vehicles_is_pushed_aside_by_priority_inheritance():
         p.close()
 
 
-def spur_on_a_ring(side_branch: bool, **settings) -> FleetProgram:
+def spur_on_a_ring(side_branch: bool, branch_busy: bool = True, **settings) -> FleetProgram:
     """A one-way ring 1 -> 2 -> 3 -> 4 -> 5 -> 6 -> 1 with stations 3 and 5 on it and a
     dead-end spur 2 - 7 (a station, like a queue place at the end of a spur). Vehicle 1
     stands at the spur's mouth heading for it, vehicle 2 in the spur heading for 5, vehicle
     3 works at 3 and then drives to 5. With ``side_branch``, a two-way branch 1 - 8 - 9 off
-    the ring: vehicle 4 stands at 1, queued behind vehicle 1 on its way to 3, and vehicle 5
-    works at 8 and then parks at 9."""
+    the ring: vehicle 4 stands at 1, queued behind vehicle 1 on its way to 3, and (if
+    ``branch_busy``) vehicle 5 works at 8 and then parks at 9."""
     ring = [(1, 0.0, 0.0), (2, 4.0, 0.0), (3, 8.0, 0.0), (4, 12.0, 0.0), (5, 12.0, 4.0)]
     ring += [(6, 0.0, 4.0)]
     nodes = [Node(i, f"lane{i}", x, y) for i, x, y in ring]
@@ -131,9 +131,9 @@ def spur_on_a_ring(side_branch: bool, **settings) -> FleetProgram:
         nodes += [Node(9, "park", -8.0, 0.0, "station", (9,))]
         edges += [Edge(1, 8, 4.0), Edge(8, 9, 4.0)]
         functions.update({8: "side", 9: "park"})
-        starts.update({4: 1, 5: 8})
-        recipes.update({"to-work": [3], "park": [8, 9]})
-        jobs.update({4: ["to-work"], 5: ["park"]})
+        starts[4], recipes["to-work"], jobs[4] = 1, [3], ["to-work"]
+        if branch_busy:
+            starts[5], recipes["park"], jobs[5] = 8, [8, 9], ["park"]
     plant = Plant.build(nodes, edges, name="spur-on-a-ring", functions=functions)
     clusters = {f: [f] for f in functions}  # each function's one station has its id
     cfg = make_config(plant, starts, recipes, clusters, vehicle_recipes=jobs, rounds=1, **settings)
@@ -158,18 +158,66 @@ def test_a_deadlock_nobody_can_leave_yet_is_retried_and_broken_once_there_is_roo
         p.close()
 
 
-def test_a_back_off_of_a_vehicle_queued_behind_a_deadlock_does_not_end_its_retries():
+@pytest.mark.parametrize("branch_busy", [False, True])
+def test_a_back_off_of_a_vehicle_queued_behind_a_deadlock_does_not_end_its_retries(
+    branch_busy,
+):
     """As above, with vehicle 4 queued behind vehicle 1 and a side branch it can give way
-    into once vehicle 5 has left it. Backing vehicle 4 off makes room but breaks nothing:
-    the deadlock of vehicles 1 and 2 must still be tried again (and then broken), not
-    counted as resolved and forgotten. Replanning after a long wait, which might free them
-    by chance, is switched off."""
-    p = spur_on_a_ring(side_branch=True, wait_replan_s=1000.0)
+    into: at once, or (``branch_busy``) once vehicle 5 has left it. Backing vehicle 4 off
+    makes room but breaks nothing: the deadlock of vehicles 1 and 2 must still be tried
+    again (and then broken), not counted as resolved and forgotten. Replanning after a
+    long wait, which might free them by chance, is switched off."""
+    p = spur_on_a_ring(side_branch=True, branch_busy=branch_busy, wait_replan_s=1000.0)
     try:
         run(p, 200)
         backed_off = [e.backed_off for e in p.resolver.events if e.backed_off is not None]
         assert backed_off[:2] == [4, 1]  # the one behind first, then one of the two
-        assert sorted(r.vehicle for r in p.completed) == [1, 2, 3, 4, 5]
+        assert sorted(r.vehicle for r in p.completed) == (
+            [1, 2, 3, 4, 5] if branch_busy else [1, 2, 3, 4]
+        )
+        assert p.resolver.stranded() == []
+    finally:
+        p.close()
+
+
+def test_a_deadlock_a_push_was_decided_for_is_watched_until_the_push_happens():
+    """Vehicle 1 in the spur and vehicle 2 at its mouth wait for each other. When they
+    meet, the only node to push vehicle 2 to is the ring lane ahead, and vehicle 3 is
+    driving there: the push is decided, to follow it. But vehicle 3 stops there and works
+    for a minute, so the push never happens. The deadlock must then be reported (both
+    stranded) and, once vehicle 3 has driven on, broken, not taken as resolved when the
+    push was decided and never looked at again."""
+    nodes = [Node(1, "one", 0.0, 0.0, "station", (1,)), Node(2, "mouth", 4.0, 0.0)]
+    nodes += [Node(3, "work", 8.0, 0.0, "station", (3,)), Node(4, "lane4", 12.0, 0.0)]
+    nodes += [Node(5, "goal", 12.0, 4.0, "station", (5,)), Node(6, "lane6", 0.0, 4.0)]
+    nodes += [
+        Node(7, "spur", 4.0, -4.0, "station", (7,)),
+        Node(8, "far", 8.0, -16.0, "station", (8,)),
+    ]
+    one_way = [(1, 2, 4.0), (2, 3, 4.0), (3, 4, 4.0), (4, 5, 4.0), (5, 6, 12.0), (6, 1, 4.0)]
+    edges = [Edge(a, b, length, bidirectional=False) for a, b, length in one_way]
+    edges += [Edge(2, 7, 4.0), Edge(8, 3, 16.0, bidirectional=False)]
+    functions = {1: "one", 3: "work", 5: "goal", 7: "spur", 8: "far"}
+    plant = Plant.build(nodes, edges, name="pushed-to-a-busy-node", functions=functions)
+    cfg = make_config(
+        plant,
+        {1: 7, 2: 1, 3: 8},
+        {"out": [7, 5], "in": [1, 7], "work": [3]},
+        {f: [f] for f in functions},
+        vehicle_recipes={1: ["out"], 2: ["in"], 3: ["work"]},
+        rounds=1,
+        wait_replan_s=1000.0,
+    )
+    p = FleetProgram(cfg)
+    # (per-station working times, which the configuration has no key for)
+    p.jobs[1].processing_s = {7: 10.0, 5: 1.0}
+    p.jobs[2].processing_s = {1: 1.0, 7: 1.0}
+    p.jobs[3].processing_s = {3: 60.0}
+    try:
+        run(p, 50)  # vehicle 3 works at 3 until about 72 s
+        assert p.resolver.unresolved >= 1 and p.resolver.stranded() == [1, 2]
+        run(p, 250)
+        assert sorted(r.vehicle for r in p.completed) == [1, 2, 3]
         assert p.resolver.stranded() == []
     finally:
         p.close()

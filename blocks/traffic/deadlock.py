@@ -38,19 +38,20 @@ backing off the least urgent vehicle that can step off the others' routes, which
 not retake the node it left while they still need it. A circle nobody in it can leave is
 reported (``unresolved``) and tried again every second (``RETRY_S``): a blockade may
 clear, a vehicle may come back online, the vehicle in front of one of them on a one-way
-lane may drive on and leave it room to step aside. So is a circle whose back-off went to a
-vehicle queued behind it, which makes room but breaks nothing by itself. A livelock (a
-circle given way in too often without progress) is reported and left alone. Every
-detection is recorded.
+lane may drive on and leave it room to step aside. Watched the same way are a circle whose
+back-off went to a vehicle queued behind it (that makes room, but breaks nothing by
+itself) and one a push was decided for (the node it was pushed to may never come free: the
+vehicle driving to it may stop there). A livelock (a circle given way in too often without
+progress) is reported and left alone. Every detection is recorded.
 
 With ``pushes=False`` (time-window traffic: the plans fix who passes where first, and a
 vehicle moved off its plan would break that order) it only grants the starts the controls
-ask for, in priority order, and records any waits-for cycle without moving anyone.
+ask for, in priority order, and records any waits-for cycle without moving anyone (nor
+retrying it).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -62,7 +63,7 @@ from topology import Plant
 from .reservation import ReservationMatrix
 from .vehicle_control import VehicleControl
 
-MAX_BACK_OFFS = 8  # returns of one cycle without progress: then it is a livelock
+MAX_BACK_OFFS = 8  # back-offs for one cycle without progress: then it is a livelock
 RETRY_S = 1.0  # a cycle nobody could leave is tried again this often
 RETRY_NS = round(RETRY_S * 1e9)
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
@@ -82,7 +83,7 @@ class DeadlockResolver(FunctionBlock):
     resolved = Output(
         0, doc="pushes and back-offs that broke a cycle or made room behind one (may need several)"
     )
-    unresolved = Output(0, doc="cycles nobody could leave (tried again every second)")
+    unresolved = Output(0, doc="cycles nobody could leave (retried each second, not livelocks)")
     pushes = Output(0, doc="standing vehicles moved aside for a more urgent one")
 
     def __init__(
@@ -104,8 +105,8 @@ class DeadlockResolver(FunctionBlock):
         self.priority = priority  # smaller is more urgent
         self.table = table
         self.events: list[DeadlockEvent] = []
-        # unresolved cycles already reported, with their members' progress at the time: they
-        # stay reported (stranded) until one of them reaches a new recipe step or backs off
+        # unresolved cycles already reported, with their members' progress at the time: not
+        # reported again until one of them reaches a new recipe step or is moved
         self._stuck: dict[frozenset[int], tuple] = {}
         # back-offs per cycle of vehicles while none of them reaches a new recipe step: a
         # plant where giving way only moves the deadlock (a dead-end corridor) is reported
@@ -115,7 +116,7 @@ class DeadlockResolver(FunctionBlock):
         # unresolved cycles that are livelocks (given way too often): not retried
         self._livelocks: set[frozenset[int]] = set()
         # cycles still there to be tried again, and when (ns)
-        self._retry_at: dict[frozenset[int], float] = {}
+        self._retry_at: dict[frozenset[int], int] = {}
         # one scan's decisions: vehicle -> node index it goes to (its own: it stays)
         self._next: dict[int, int] = {}
         self._reserved: dict[int, int] = {}  # node index -> the vehicle it was given to
@@ -151,7 +152,7 @@ class DeadlockResolver(FunctionBlock):
             key = frozenset(ring)
             if key not in self._last_rings:
                 self._resolve(ctx, ring, waits, standing)
-            elif ctx.time_ns >= self._retry_at.get(key, math.inf):
+            elif key in self._retry_at and ctx.time_ns >= self._retry_at[key]:
                 self._resolve(ctx, ring, waits, standing, again=True)
         self._last_rings = keys
 
@@ -184,6 +185,7 @@ class DeadlockResolver(FunctionBlock):
             tries = 0
         moved = [v for v in ring if self._next.get(v, standing[v]) != standing[v]]
         if moved and again:
+            self._attempts[key] = (progress, tries)
             self._retry_at[key] = ctx.time_ns + RETRY_NS  # breaking up by itself: watch it
             return
         victim, node = None, None
@@ -211,10 +213,12 @@ class DeadlockResolver(FunctionBlock):
         self._attempts[key] = (progress, tries + 1)
         self.resolved += 1
         self.events.append(DeadlockEvent(ctx.time, tuple(ring), victim, node))
-        if victim in key:
+        if victim in key and not moved:
             self._stuck.pop(key, None)
             self._retry_at.pop(key, None)
         else:
+            # a push is only decided (its node may never come free: the vehicle driving
+            # to it may stop there), or the one behind made room: watch it
             self._retry_at[key] = ctx.time_ns + RETRY_NS
 
     # ----- the starts ---------------------------------------------------------------------------
@@ -389,8 +393,8 @@ class DeadlockResolver(FunctionBlock):
                 control.wait_for(ctx, blocker, int(ids[node]))
 
     def stranded(self) -> list[int]:
-        """Vehicles in a waits-for cycle nobody could break (for the summary)."""
-        return sorted({v for ring in self._stuck for v in ring})
+        """Vehicles standing in a waits-for cycle nobody could break (for the summary)."""
+        return sorted({v for ring in self._stuck if ring in self._last_rings for v in ring})
 
     @staticmethod
     def _cycles(waits: Mapping[int, int]) -> list[list[int]]:
