@@ -209,12 +209,16 @@ def test_a_deadlock_a_push_was_decided_for_is_watched_until_the_push_happens():
         wait_replan_s=1000.0,
     )
     p = FleetProgram(cfg)
-    # (per-station working times, which the configuration has no key for)
+    # (working times per function, which the configuration has no key for; each function's
+    # one station has the function's id)
     p.jobs[1].processing_s = {7: 10.0, 5: 1.0}
     p.jobs[2].processing_s = {1: 1.0, 7: 1.0}
     p.jobs[3].processing_s = {3: 60.0}
     try:
-        run(p, 50)  # vehicle 3 works at 3 until about 72 s
+        run(p, 50)  # vehicle 3 reaches 3 at about 33 s and works there until about 93 s
+        events = p.resolver.events
+        assert (events[0].backed_off, events[0].to_node) == (2, 3)  # the push, decided
+        assert events[1].backed_off is None  # reported once vehicle 3 stood on node 3
         assert p.resolver.unresolved >= 1 and p.resolver.stranded() == [1, 2]
         run(p, 250)
         assert sorted(r.vehicle for r in p.completed) == [1, 2, 3]

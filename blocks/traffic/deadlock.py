@@ -46,8 +46,7 @@ progress) is reported and left alone. Every detection is recorded.
 
 With ``pushes=False`` (time-window traffic: the plans fix who passes where first, and a
 vehicle moved off its plan would break that order) it only grants the starts the controls
-ask for, in priority order, and records any waits-for cycle without moving anyone (nor
-retrying it).
+ask for, in priority order, and records any waits-for cycle without moving anyone.
 """
 
 from __future__ import annotations
@@ -106,7 +105,7 @@ class DeadlockResolver(FunctionBlock):
         self.table = table
         self.events: list[DeadlockEvent] = []
         # unresolved cycles already reported, with their members' progress at the time: not
-        # reported again until one of them reaches a new recipe step or is moved
+        # reported again until one of them reaches a new recipe step or backs off
         self._stuck: dict[frozenset[int], tuple] = {}
         # back-offs per cycle of vehicles while none of them reaches a new recipe step: a
         # plant where giving way only moves the deadlock (a dead-end corridor) is reported
@@ -173,8 +172,9 @@ class DeadlockResolver(FunctionBlock):
         A cycle nobody could leave is reported once and tried again every ``RETRY_S``:
         nobody could step aside when it formed, but the vehicles around them move on (the
         one in front of a vehicle on a one-way lane drives away), and a blockade may clear.
-        So is a cycle whose back-off went to a vehicle queued behind it: that makes room,
-        but does not break the cycle by itself."""
+        So is a cycle whose back-off went to a vehicle queued behind it (that makes room,
+        but does not break the cycle by itself), and one a push was decided for (the node
+        may never come free)."""
         key = frozenset(ring)
         if key in self._livelocks:
             return
