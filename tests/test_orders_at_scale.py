@@ -14,6 +14,7 @@ forged with its id, a push by hand) and checks that the order is not lost.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -23,16 +24,18 @@ import pytest
 from hypothesis import HealthCheck, Phase, example, given, settings
 from hypothesis import strategies as st
 
+from blocks.dispatch.generator import generate_orders
 from blocks.dispatch.orders import SECTIONS, TRANSITIONS, OrderState, TransportOrder
 from blocks.traffic.vehicle_control import RECOVER_S
 from fleet.cli import main
-from fleet.config import FleetConfig, parse_config
+from fleet.config import FleetConfig, load_config, parse_config
 from fleet.program import FleetProgram
 from fleet.tags import ACK_DONE
 from io_drivers.protocol import NO_NODE, STATUS, Status
 from topology import Plant, load
 
-PLANTS = Path(__file__).resolve().parent.parent / "examples" / "plants"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+PLANTS = EXAMPLES / "plants"
 DC = PLANTS / "distribution-centre.toml"
 STRATEGIES = ["nearest_idle", "dhht", "two_stage"]
 CYCLE_S = 0.05
@@ -501,9 +504,27 @@ BACKED_INTO_AN_AREA = (
 )
 
 
+def full_fleet() -> tuple:
+    """The seed's fleet on its plant, where the random examples' 3-8 vehicles leave room:
+    17 shuttles on the parking places, part-charged, the first 40 orders of the seed's
+    generator (its relations at its rates) released over two minutes, and links that drop,
+    corrupt and spoof frames. Vehicles queue for stations and wait for each other on the
+    one-way lanes all the time here."""
+    cfg = load_config(EXAMPLES / "distribution-centre.toml")
+    g = cfg.orders.generator
+    units = {name: cfg.plant.stations_for(f) for name, f in g.units.items()}
+    control = cfg.plant.stations_for(g.control)[0]
+    orders = generate_orders(g.relations, units, 3600.0, 7, control, window_s=g.window_s)
+    rng = random.Random(7)
+    rows = [(o.get, o.put, rng.randint(0, 120), rng.randint(0, 2)) for o in orders[:40]]
+    vehicles = [(301 + k, float(rng.randint(40, 100))) for k in range(17)]
+    return rows, vehicles, "two_stage", (0.02, 0.02, 0.01), 7
+
+
 @SETTINGS
 @example(scenario=EARLY_PICKUP)
 @example(scenario=FIRST_INFO_LOST)
+@example(scenario=full_fleet())
 @given(scenario=scenarios(*DC_CHOICES))
 def test_every_order_finishes_once_safely_in_the_distribution_centre(
     scenario, sites, tmp_path_factory
