@@ -423,9 +423,8 @@ class Runtime:
                     return
                 if self.retain_interval and self.clock.now_ns() >= self._next_retain_save:
                     self._next_retain_save = self.clock.now_ns() + round(self.retain_interval * 1e9)
-                    self._retain.save_or_warn(
-                        self._collect_retain()
-                    )  # costs lateness, not scan time
+                    # (it costs lateness, not scan time)
+                    self._retain.save_or_warn(self._collect_retain())
                 self._scan_thread = threading.get_ident()
                 self.between_scans.clear()
                 try:
