@@ -193,6 +193,7 @@ def run_size(
     program.rt.start()
     setup_s = time.perf_counter() - begin
     recorder = ScanRecorder(program)
+    planner = time_planner(program)
     gc.collect()
     gc.freeze()  # plant, table and fleet are startup data: keep the collector off them
     begin = time.perf_counter()
@@ -224,6 +225,9 @@ def run_size(
         "rtf": simulated / wall_s if wall_s else math.nan,
         "whole_us": [np.percentile(whole, q) / 1e3 for q in (50, 99)] + [whole.max() / 1e3],
         "control_us": [np.percentile(control, q) / 1e3 for q in (50, 99)] + [control.max() / 1e3],
+        "planner_us": [np.percentile(planner, q) / 1e3 for q in (50, 99)] + [max(planner) / 1e3]
+        if planner
+        else None,
         "over_budget": int((control > cycle_time * 1e9).sum()),
         "over_watchdog": int((control > S7_WATCHDOG_S * 1e9).sum()),
         "replans_vh": replans / (vehicles * simulated / 3600) if simulated else math.nan,
@@ -240,6 +244,24 @@ def run_size(
     }
     program.close()
     return out
+
+
+def time_planner(program: FleetProgram) -> list[int]:
+    """The time-window planner block's own time per scan (ns, appended as the run goes; empty
+    in reactive mode): the planning cost a scan pays, apart from the rest of the fleet's."""
+    times: list[int] = []
+    traffic = program.traffic
+    if traffic is None:
+        return times
+    cycle = traffic.cycle
+
+    def timed(ctx) -> None:
+        begin = time.perf_counter_ns()
+        cycle(ctx)
+        times.append(time.perf_counter_ns() - begin)
+
+    traffic.cycle = timed
+    return times
 
 
 def main() -> None:
@@ -316,6 +338,7 @@ def main() -> None:
         "conflicts head-on/node",
         "deadlocks det/res/unres",
         "planning rounds",
+        "planner p50 / p99 / max us",
         "state",
     ):
         behaviour.add_column(name, justify="right")
@@ -345,6 +368,7 @@ def main() -> None:
             f"{r['head_on']}/{r['node']}",
             "/".join(str(x) for x in r["deadlocks"]),
             str(r["rounds"]) if r["rounds"] is not None else "-",
+            " / ".join(f"{x:,.0f}" for x in r["planner_us"]) if r["planner_us"] else "-",
             r["state"] if r["fault"] is None else f"{r['state']}: {r['fault']}",
         )
     console.print(cost)

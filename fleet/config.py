@@ -64,7 +64,7 @@ class TimeWindowsConfig:
     horizon_s: float = 20.0  # how far ahead a plan is booked and released
     window_s: float = 86400.0  # how far ahead conflicts are resolved (>= horizon_s; a day: all)
     replan_s: float = 2.0  # a planning round at least this often
-    plan_budget: int = 200  # search expansions per scan (about 5 ms)
+    plan_budget: int = 200  # search expansions, or vehicles read, per scan (about 5 ms)
     wait_free_s: float = 15.0  # T_w1: a wait for a vehicle still on its way, then replan
     wait_occupied_s: float = 30.0  # T_w2: a wait for a vehicle on the node, then replan
     path_heat: bool = False  # the seed's congestion-aware arc weights in the search

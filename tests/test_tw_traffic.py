@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from test_fleet_properties import grid_plants
 
 from blocks.traffic.time_windows import TimeWindowTable
+from blocks.traffic.tw_traffic import HELD, TimeWindowTraffic, _Entry
 from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, Blockade, load_config
 from fleet.program import FleetProgram
@@ -127,13 +128,13 @@ def test_a_plan_booked_far_enough_ahead_is_kept_and_not_searched_again(tmp_path)
     cfg.watchdog = 5.0
     p = FleetProgram(cfg)
     tw = p.traffic
-    begin = tw._begin
+    commit = tw._commit
     kept_rounds, searched = [], []
 
-    def recorded(ctx):
+    def recorded():
         before = {v: list(s[tw._front[v] :]) for v, s in tw._steps.items()}
         plans = tw.plans + tw.failed
-        begin(ctx)
+        commit()
         kept = [e for e in tw._entries.values() if e.kept]
         for e in kept:
             assert e.committed[e.held - 1 :] == before[e.vehicle][: len(e.committed) - e.held + 1]
@@ -143,7 +144,7 @@ def test_a_plan_booked_far_enough_ahead_is_kept_and_not_searched_again(tmp_path)
         kept_rounds.append(len(kept))
         searched.append((plans, len(queued)))
 
-    tw._begin = recorded
+    tw._commit = recorded
     try:
         run(p, 120)
     finally:
@@ -179,6 +180,146 @@ def test_the_planner_keeps_its_budget_per_scan_and_the_fleet_drives_on_meanwhile
     assert 0 < most <= 3
     assert p.traffic.rounds > 10 and len(p.completed) >= 1
     assert released_while_planning > 0
+
+
+def test_a_rounds_set_up_is_spread_over_scans_and_releases_nothing_new_meanwhile(tmp_path):
+    """What each vehicle is committed to is read ``plan_budget`` vehicles per scan, and laid
+    out in a scan of its own with no search in it: no scan does work in proportion to the
+    fleet. Until the layout is fixed no vehicle is released past where it was when the
+    round began, so the commitments read in different scans agree with each other."""
+    cfg = load_config(tw_config(tmp_path, TIME_WINDOWS.replace("800", "3")))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    tw = p.traffic
+    read = {"entries": 0, "commits": 0}
+    entry, commit = tw._entry, tw._commit
+
+    def counted_entry(v, control):
+        read["entries"] += 1
+        return entry(v, control)
+
+    def counted_commit():
+        read["commits"] += 1
+        commit()
+
+    tw._entry, tw._commit = counted_entry, counted_commit
+    setting_up_scans, frozen_checks = 0, 0
+    try:
+        p.rt.start()
+        frozen: dict[int, int] | None = None
+        for _ in range(6000):
+            read["entries"] = read["commits"] = 0
+            was_planning = tw.planning
+            p.rt.step()
+            assert read["entries"] <= 3
+            if read["commits"]:
+                assert read["entries"] == 0 and tw.expansions == 0
+            if tw._pending is not None:  # still setting up: nothing new released
+                setting_up_scans += 1
+                if frozen is None or not was_planning:
+                    frozen = dict(tw._front)
+                assert tw._front == frozen
+                frozen_checks += 1
+            else:
+                frozen = None
+    finally:
+        p.close()
+    vehicles = len(p.controls)
+    assert vehicles > 3  # so reading them takes more than one scan
+    assert tw.rounds > 10 and setting_up_scans >= tw.rounds * 2 and frozen_checks > 0
+    assert len(p.completed) >= 1
+
+
+def relaxed_layout(entries: list[_Entry], t0: float, gap: float, legs) -> bool:
+    """The committed windows' earliest times by plain relaxation, the rules applied over
+    and over until nothing moves: the reference for the planner's one-pass layout. False if
+    they still move after more passes than a layout without a circle can need."""
+    visits: dict[int, list[tuple[float, int, int]]] = {}
+    for i, e in enumerate(entries):
+        e.starts = [t0] * len(e.committed)
+        for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
+            visits.setdefault(node, []).append((label, i, k))
+    queues = [sorted(q) for q in visits.values()]
+    for _ in range(4 * sum(len(q) for q in queues) + 4):
+        moved = False
+        for queue in queues:
+            free = t0
+            for _label, i, k in queue:
+                e = entries[i]
+                start = max(free, e.starts[k - 1] if k else t0)
+                if start > e.starts[k]:
+                    e.starts[k], moved = start, True
+                end = max(e.ends[k], e.starts[k] + (legs(e, k) if k else 0.0))
+                if k + 1 < len(e.committed):
+                    end = max(end, e.starts[k + 1])
+                if end > e.ends[k]:
+                    e.ends[k], moved = end, True
+                free = e.ends[k] + gap
+        if not moved:
+            return True
+    return False
+
+
+@st.composite
+def commitments(draw):
+    """A few vehicles' committed steps over eight nodes, as a round reads them: the nodes
+    each holds (no node held twice, labelled first at their node), then steps of its old
+    plan with growing labels; a vehicle without steps may stay for good. The old plans'
+    labels are drawn freely, so their order at the nodes may have a circle."""
+    lengths = {(a, b): draw(st.sampled_from([0.0, 1.0, 2.5])) for a in range(8) for b in range(8)}
+    free = draw(st.permutations(range(8)))
+    entries = []
+    for v in range(draw(st.integers(1, 4))):
+        if not free:
+            break
+        held = [free.pop() for _ in range(draw(st.integers(1, min(2, len(free)))))]
+        steps = draw(
+            st.lists(
+                st.sampled_from([n for n in range(8) if n not in held]), max_size=3, unique=True
+            )
+        )
+        labels = [HELD + k for k in range(len(held))]
+        label = draw(st.floats(0.0, 5.0))
+        for _ in steps:
+            label += draw(st.floats(0.0, 3.0))
+            labels.append(label)
+        nodes = held + steps
+        if not steps and draw(st.booleans()):
+            ends = [math.inf] * len(nodes)  # it stays
+        else:
+            ends = [draw(st.floats(0.0, 20.0)) for _ in nodes]
+        entries.append(_Entry(v, nodes, labels, ends, -1, len(held)))
+    return entries, lengths, draw(st.sampled_from([0.4, 1.0]))
+
+
+@settings(max_examples=500, deadline=None)
+@given(commitments())
+def test_the_commitments_layout_gives_the_earliest_times_that_keep_the_rules(case):
+    """The planner lays a round's committed windows out in one pass in topological order;
+    plain relaxation of the same rules gives the same times. It finds no layout exactly
+    when the visits' order has a circle, which relaxation shows by never settling (with
+    every window finite: a window that lasts for good pushes all behind it to the end of
+    time, where relaxation settles even round a circle)."""
+    entries, lengths, gap = case
+    speed = 0.5
+    planner = TimeWindowTraffic.__new__(TimeWindowTraffic)
+    planner._entries = {e.vehicle: copy.deepcopy(e) for e in entries}
+    planner._t0, planner.gap_s, planner._lengths, planner.speed = 1.0, gap, lengths, speed
+    reference = copy.deepcopy(entries)
+    finite = copy.deepcopy(entries)
+    for e in finite:
+        e.ends = [min(end, 1e6) for end in e.ends]
+
+    def legs(e, k):
+        return lengths[(e.committed[k - 1], e.committed[k])] / speed
+
+    laid_out = TimeWindowTraffic._lay_out(planner)
+    assert laid_out is relaxed_layout(finite, 1.0, gap, legs)
+    if laid_out:
+        assert relaxed_layout(reference, 1.0, gap, legs)
+        for e in reference:
+            laid = planner._entries[e.vehicle]
+            assert laid.starts == pytest.approx(e.starts) and laid.ends == pytest.approx(e.ends)
 
 
 def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):

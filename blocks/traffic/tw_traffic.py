@@ -36,11 +36,14 @@ the vehicles that have somewhere to go one after another through the free window
    committed window there. Each vehicle's control gets its route from wherever it has been
    released to meanwhile.
 
-A round's search work is spread over scans by ``budget`` expansions per scan, like the A*
-block, and the vehicles drive on meanwhile (within their committed steps, by the old
-order). A new round starts every ``replan_s`` seconds, and sooner when a vehicle needs one:
-a new goal, a plan that ended at the horizon or did not match its route, a blockade closed
-or cleared.
+A round's work is spread over scans, like the A* block's, so no scan does work in
+proportion to the fleet: reading what the vehicles are committed to takes ``budget``
+vehicles per scan, laying it out a scan of its own (one pass in topological order), and
+the searches ``budget`` expansions per scan. Until the layout is fixed nobody is released
+a node it was not released before; then the vehicles drive on within their committed
+steps, by the old order, while the searches run. A new round starts every ``replan_s``
+seconds, and sooner when a vehicle needs one: a new goal, a plan that ended at the horizon
+or did not match its route, a blockade closed or cleared.
 
 Why no vehicle ever waits for one that waits for it: a vehicle waits only for a visit
 ordered before its own at that node, whose vehicle leaves that node (claims its next step)
@@ -215,6 +218,9 @@ class TimeWindowTraffic(FunctionBlock):
         self._next_table: TimeWindowTable | None = None
         self._queue: list[_Entry] = []
         self._entries: dict[int, _Entry] = {}
+        # the round's set-up: vehicles whose commitments are still to be read (None: read,
+        # and laid out)
+        self._pending: list[int] | None = None
         self._search: SafeIntervalSearch | None = None
         self._made: dict[int, TimedPlan | None] = {}
         self._gave_way: set[int] = set()  # this round: planned again after a vehicle they blocked
@@ -292,7 +298,13 @@ class TimeWindowTraffic(FunctionBlock):
         self.expansions = 0
         if not self.planning and self._round_due(ctx):
             self._begin(ctx)
-        if self.planning:
+        if not self.planning:
+            return
+        if self._pending:
+            self._take_entries(ctx)
+        elif self._pending is not None:
+            self._commit()
+        else:
             self._plan(ctx)
 
     def _round_due(self, ctx: CycleContext) -> bool:
@@ -333,6 +345,12 @@ class TimeWindowTraffic(FunctionBlock):
 
     # ----- a round -----------------------------------------------------------------------
     def _begin(self, ctx: CycleContext) -> None:
+        """Start a round. Its set-up is spread over scans like its searches: first what
+        each vehicle is committed to (:meth:`_take_entries`, ``budget`` vehicles per
+        scan), then, in a scan of its own, the layout and booking of those commitments
+        (:meth:`_commit`). Until that layout is fixed nobody is released a node it was not
+        released before, so every vehicle's commitments are read from one consistent state
+        of the pass order, whichever scan reads them."""
         self.planning = True
         self._wanted = False
         self._epoch = self.blockades.epoch
@@ -344,14 +362,26 @@ class TimeWindowTraffic(FunctionBlock):
         self._made, self._search = {}, None
         self._gave_way, self._took_way = set(), set()
         self._entries = {}
-        for v, c in self.controls.items():
-            if self._overdue(v, c, ctx.time_ns):
-                self._waits_handled[v] = c.wait_since_ns
+        self._queue = []
+        self._limit = dict(self._front)  # released so far, and nothing more for now
+        self._pending = list(reversed(self.controls))
+
+    def _take_entries(self, ctx: CycleContext) -> None:
+        """Read up to ``budget`` vehicles' commitments (:meth:`_entry`)."""
+        for _ in range(min(self.budget, len(self._pending))):
+            v = self._pending.pop()
+            control = self.controls[v]
+            if self._overdue(v, control, ctx.time_ns):
+                self._waits_handled[v] = control.wait_since_ns
                 self._late.add(v)  # planned first, from where it stands
                 self.wait_replans += 1
-            entry = self._entry(v, c)
+            entry = self._entry(v, control)
             if entry is not None:
                 self._entries[v] = entry
+
+    def _commit(self) -> None:
+        """Lay out and book what the vehicles are committed to, and queue the searches."""
+        self._pending = None
         self._chain()
         self._limit = {
             v: e.offset + len(e.committed) - 1 for v, e in self._entries.items() if e.offset >= 0
@@ -488,41 +518,65 @@ class TimeWindowTraffic(FunctionBlock):
             e.labels = list(e.starts)
 
     def _lay_out(self) -> bool:
-        """One pass per node after the other until nothing moves (starts and ends only
-        grow, so a fixpoint is reached unless the old order had a circle); False if not.
-        A window lasts at least until the vehicle arrives (it set off when the window
-        began), so a vehicle driving into a node is still on it, and on the segment to it,
-        when the next one there may set off."""
+        """Give every committed visit the earliest start and end that keep the rules:
+
+        * at each node the visits follow each other in their order, the next one starting
+          ``gap_s`` after the one before it ends;
+        * a vehicle's visits start in the order of its steps;
+        * a window lasts at least until the vehicle arrives (it set off when the window
+          began), so a vehicle driving into a node is still on it, and on the segment to
+          it, when the next one there may set off; and until its next window begins (it
+          leaves a node by setting off towards the next one).
+
+        These rules are a graph of earliest-time constraints (each start and each end a
+        vertex), so the earliest times are its longest paths, found in one pass in
+        topological order: the cost of a round's set-up grows with the committed visits,
+        never with how far the rules push them. False if the rules form a circle (the old
+        order had one; it never should)."""
         t0, gap = self._t0, self.gap_s
+        entries = list(self._entries.values())
+        base: dict[int, int] = {}  # vehicle -> index of its first visit
+        value: list[float] = []  # 2i: start of visit i, 2i + 1: its end
+        out: list[list[tuple[int, float]]] = []
         visits: dict[int, list[tuple[float, int, int]]] = {}
-        legs: dict[int, list[float]] = {}  # vehicle -> travel time into each committed node
-        for v, e in self._entries.items():
-            e.starts = [t0] * len(e.committed)
-            legs[v] = [0.0] + [
-                self._lengths.get(pair, 0.0) / self.speed
-                for pair in zip(e.committed, e.committed[1:], strict=False)
-            ]
+        for e in entries:
+            first = base[e.vehicle] = len(value) // 2
             for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
-                visits.setdefault(node, []).append((label, v, k))
-        queues = [sorted(q) for q in visits.values()]
-        for _ in range(4 * sum(len(q) for q in queues) + 4):
-            moved = False
-            for queue in queues:
-                free = t0
-                for _label, v, k in queue:
-                    e = self._entries[v]
-                    start = max(free, e.starts[k - 1] if k else t0)
-                    if start > e.starts[k]:
-                        e.starts[k], moved = start, True
-                    end = max(e.ends[k], e.starts[k] + legs[v][k])  # not before it arrives
-                    if k + 1 < len(e.committed):
-                        end = max(end, e.starts[k + 1])
-                    if end > e.ends[k]:
-                        e.ends[k], moved = end, True
-                    free = e.ends[k] + gap
-            if not moved:
-                return True
-        return False
+                i = first + k
+                value += [t0, e.ends[k]]
+                leg = self._lengths.get((e.committed[k - 1], node), 0.0) / self.speed if k else 0.0
+                out += [[(2 * i + 1, leg)], []]
+                if k:
+                    out[2 * i - 2].append((2 * i, 0.0))  # after its step before
+                    out[2 * i].append((2 * i - 1, 0.0))  # the step before lasts until this one
+                visits.setdefault(node, []).append((label, e.vehicle, i))
+        for queue in visits.values():
+            queue.sort()
+            for (_, _, a), (_, _, b) in zip(queue, queue[1:], strict=False):
+                out[2 * a + 1].append((2 * b, gap))
+        indegree = [0] * len(value)
+        for edges in out:
+            for w, _ in edges:
+                indegree[w] += 1
+        ready = [u for u, d in enumerate(indegree) if d == 0]
+        done = 0
+        while ready:
+            u = ready.pop()
+            done += 1
+            for w, weight in out[u]:
+                if value[u] + weight > value[w]:
+                    value[w] = value[u] + weight
+                indegree[w] -= 1
+                if indegree[w] == 0:
+                    ready.append(w)
+        if done < len(value):
+            return False
+        for e in entries:
+            first = base[e.vehicle]
+            n = len(e.committed)
+            e.starts = value[2 * first : 2 * (first + n) : 2]
+            e.ends = value[2 * first + 1 : 2 * (first + n) : 2]
+        return True
 
     def _cut(self, e: _Entry, k: int) -> None:
         """Commit ``e`` only to its steps before ``k`` (never fewer than it holds)."""
