@@ -184,9 +184,9 @@ def test_the_planner_keeps_its_budget_per_scan_and_the_fleet_drives_on_meanwhile
 
 def test_a_rounds_set_up_is_spread_over_scans_and_releases_nothing_new_meanwhile(tmp_path):
     """What each vehicle is committed to is read ``plan_budget`` vehicles per scan, and laid
-    out in a scan of its own with no search in it: no scan does work in proportion to the
-    fleet. Until the layout is fixed no vehicle is released past where it was when the
-    round began, so the commitments read in different scans agree with each other."""
+    out in a scan of its own with no search in it, so the scan that begins a round does not
+    read the whole fleet. Until the layout is fixed no vehicle is released past where it
+    was when the round began, so the commitments read in different scans agree."""
     cfg = load_config(tw_config(tmp_path, TIME_WINDOWS.replace("800", "3")))
     cfg.watchdog = 5.0
     p = FleetProgram(cfg)

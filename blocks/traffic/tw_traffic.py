@@ -36,10 +36,9 @@ the vehicles that have somewhere to go one after another through the free window
    committed window there. Each vehicle's control gets its route from wherever it has been
    released to meanwhile.
 
-A round's work is spread over scans, like the A* block's, so no scan does work in
-proportion to the fleet: reading what the vehicles are committed to takes ``budget``
-vehicles per scan, laying it out a scan of its own (one pass in topological order), and
-the searches ``budget`` expansions per scan. Until the layout is fixed nobody is released
+A round's work is spread over scans, like the A* block's: reading what the vehicles are
+committed to takes ``budget`` vehicles per scan, laying it out a scan of its own (one pass
+in topological order), and the searches ``budget`` expansions per scan. Until the layout is fixed nobody is released
 a node it was not released before; then the vehicles drive on within their committed
 steps, by the old order, while the searches run. A new round starts every ``replan_s``
 seconds, and sooner when a vehicle needs one: a new goal, a plan that ended at the horizon
