@@ -404,9 +404,10 @@ def delayed_crowd(wait_s: float) -> FleetProgram:
 def test_a_vehicle_that_waits_too_long_for_a_node_is_planned_afresh():
     """The seed's thresholds T_w1 / T_w2: past them a waiting vehicle is planned again from
     where it stands (first in the next round), without conflict or deadlock; with
-    thresholds longer than the run nobody is."""
+    thresholds longer than the run nobody is. A threshold longer than the time between
+    rounds (``replan_s``, 2 s) is reached too: a round does not restart the wait."""
     waits = {}
-    for wait_s in (1.0, 3600.0):
+    for wait_s in (1.0, 4.0, 3600.0):
         p = delayed_crowd(wait_s)
         overdue = p.traffic._overdue
         longest_short = []
@@ -426,7 +427,7 @@ def test_a_vehicle_that_waits_too_long_for_a_node_is_planned_afresh():
         assert sum(f.counters["delays"] for f in p.fleets) > 0
         waits[wait_s] = p.traffic.wait_replans
         assert all(d >= wait_s * 1e9 for d in longest_short)
-    assert waits[1.0] > 0 and waits[3600.0] == 0, waits
+    assert waits[1.0] > 0 and waits[4.0] > 0 and waits[3600.0] == 0, waits
 
 
 def test_vehicles_planned_across_one_that_they_box_in_give_way_to_it():

@@ -414,8 +414,12 @@ class VehicleControl(FunctionBlock):
             # for deadlock detection, giving way is waiting for the vehicle it gave way to
             self._blocked(ctx, giving_way_to, here, there)
             self._publish_state()
-        elif withheld and self.traffic is not None:
-            self._not_waiting()  # waiting for a plan, not for a vehicle
+        elif withheld and self.traffic is not None and not self.traffic.planning:
+            # waiting for a plan, not for a vehicle. While a round is being planned a
+            # vehicle that waited for one goes on waiting for it (the round withholds every
+            # step past its commitments): clearing the wait would restart its clock every
+            # round, and the planner's wait thresholds could never be reached
+            self._not_waiting()
         return None if withheld else there
 
     def _step_withheld(self, ctx: CycleContext, here: int, there: int) -> tuple[bool, int | None]:
