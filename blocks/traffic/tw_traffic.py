@@ -38,11 +38,11 @@ the vehicles that have somewhere to go one after another through the free window
 
 A round's work is spread over scans, like the A* block's: reading what the vehicles are
 committed to takes ``budget`` vehicles per scan, laying it out a scan of its own (one pass
-in topological order), and the searches ``budget`` expansions per scan. Until the layout is fixed nobody is released
-a node it was not released before; then the vehicles drive on within their committed
-steps, by the old order, while the searches run. A new round starts every ``replan_s``
-seconds, and sooner when a vehicle needs one: a new goal, a plan that ended at the horizon
-or did not match its route, a blockade closed or cleared.
+in topological order), and the searches ``budget`` expansions per scan. Until the layout
+is fixed nobody is released a node it was not released before; then the vehicles drive on
+within their committed steps, by the old order, while the searches run. A new round
+starts every ``replan_s`` seconds, and sooner when a vehicle needs one: a new goal, a plan
+that ended at the horizon or did not match its route, a blockade closed or cleared.
 
 Why no vehicle ever waits for one that waits for it: a vehicle waits only for a visit
 ordered before its own at that node, whose vehicle leaves that node (claims its next step)
