@@ -115,6 +115,7 @@ def make_program(
     delay_rate: float = 0.0,
     plan_budget: int | None = None,
     clock: WallClock | None = None,
+    highway_factor: float | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -136,6 +137,8 @@ def make_program(
     )
     if plan_budget is not None:
         cfg.time_windows.plan_budget = plan_budget
+    if highway_factor is not None:
+        cfg.highway_factor = highway_factor
     return FleetProgram(cfg, clock=clock)
 
 

@@ -189,6 +189,7 @@ class FleetProgram:
             vehicles,
             occupied_penalty=cfg.occupied_penalty,
             contraflow_penalty=cfg.contraflow_penalty,
+            highway_factor=cfg.highway_factor,
         )
         self.chooser = StationChooser(plant, cfg.clusters, cfg.strategy, self.table, cfg.seed)
         self.completed: list[RecipeRun] = []
@@ -218,6 +219,7 @@ class FleetProgram:
                 wait_free_s=tw.wait_free_s,
                 wait_occupied_s=tw.wait_occupied_s,
                 path_heat=tw.path_heat,
+                highway_factor=cfg.highway_factor,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}

@@ -161,3 +161,26 @@ start = 0
 def test_an_unknown_sample_names_kiva_among_the_known_ones():
     with pytest.raises(ConfigError, match="kiva"):
         parse_config('[plant]\nsample = "kiva2"\n', "x.toml")
+
+
+OPEN_COLUMNS = [0, 3, 6, 17, 28, 39, 42, 45]  # the columns without shelf or home cells
+
+
+def test_long_lanes_are_highways_alternating_like_one_way_streets(plant):
+    """Every row along the shelves (all but the shelves' own rows) prefers east, west,
+    east, ... from the top; the open columns south, north, ... from the left; the spurs
+    into shelf faces and home cells prefer nothing. Every lane stays two-way."""
+    lane_rows = [y for y in range(HEIGHT) if y % 4 != 2]
+    east = {y: k % 2 == 0 for k, y in enumerate(lane_rows)}
+    south = {x: k % 2 == 0 for k, x in enumerate(OPEN_COLUMNS)}
+    assert [east[y] for y in (0, 1, 3, 4, 5)] == [True, False, True, False, True]
+    for e in plant.edges:
+        assert e.bidirectional and e.routable
+        (xa, ya), (xb, yb) = cell(e.source), cell(e.target)
+        if ya == yb and ya in east:
+            assert e.highway and (xb > xa) == east[ya], e
+        elif xa == xb and xa in south:
+            assert e.highway and (yb > ya) == south[xa], e
+        else:
+            assert not e.highway, e
+    assert int(plant.against_highway.sum()) == sum(e.highway for e in plant.edges)

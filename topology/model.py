@@ -56,6 +56,10 @@ class Edge:
     port_source: str | None = None  # compass port at the source end
     port_target: str | None = None
     routable: bool = True
+    # a two-way edge whose 'from' -> 'to' direction is preferred (a highway lane): routing
+    # prices driving the other way higher (the fleet's ``highway_factor``), so the flows of
+    # a crowded plant keep apart without closing any lane
+    highway: bool = False
 
 
 @dataclass(frozen=True)
@@ -147,6 +151,17 @@ class Plant:
             limit = math.inf if e.max_speed is None else e.max_speed
             limits.extend((limit, limit) if e.bidirectional else (limit,))
         return np.array(limits, dtype=np.float64)
+
+    @cached_property
+    def against_highway(self) -> np.ndarray:
+        """For every arc, in the order of ``arcs``: does it drive against its edge's
+        preferred direction (the 'to' -> 'from' arc of a highway edge)?"""
+        against = []
+        for e in self.edges:
+            if not e.routable:
+                continue
+            against.extend((False, e.highway) if e.bidirectional else (False,))
+        return np.array(against, dtype=bool)
 
     @property
     def n_arcs(self) -> int:
@@ -277,9 +292,10 @@ class Plant:
             digest.update(f"{line}\n".encode())
         for e in self.edges:
             length = float(e.length).hex()
-            digest.update(
-                f"e{e.source}|{e.target}|{length}|{e.bidirectional}|{e.routable}\n".encode()
-            )
+            line = f"e{e.source}|{e.target}|{length}|{e.bidirectional}|{e.routable}"
+            if e.highway:
+                line += "|highway"  # only then: plants without highways keep their prints
+            digest.update(f"{line}\n".encode())
         return digest.hexdigest()[:16]
 
     def summary(self) -> dict[str, object]:

@@ -12,6 +12,8 @@ stations and the exit (10). Lengths in metres.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .grid import grid_plant
@@ -192,7 +194,10 @@ def kiva() -> Plant:
     (columns 7-16, 18-27, 29-38; blocked), the rows above and below them are the shelves'
     endpoints (stations, function 2 "pick"), and columns 1-2, 4-5, 40-41 and 43-44 of all three
     band rows are the robots' home cells (parking). Everything else is open floor. 8 bands:
-    480 endpoints, 240 shelf cells, 192 home cells, 1278 passable cells."""
+    480 endpoints, 240 shelf cells, 192 home cells, 1278 passable cells.
+
+    Its long lanes are highways (:func:`kiva_highways`): the cells are RHCR's, every lane
+    stays two-way, and routing only prices driving against a lane's direction higher."""
     passable = np.ones((KIVA_HEIGHT, KIVA_WIDTH), dtype=bool)
     roles: dict[int, tuple[str, tuple[int, ...]]] = {}
     for top in range(0, KIVA_HEIGHT - 1, 4):  # the open row above each band
@@ -205,13 +210,53 @@ def kiva() -> Plant:
                         roles[row * KIVA_WIDTH + x] = ("station", (2,))
             for x in KIVA_HOME_COLUMNS:
                 roles[row * KIVA_WIDTH + x] = ("parking", ())
-    return grid_plant(
+    grid = grid_plant(
         passable,
         1.0,
         roles,
         name=f"kiva-{KIVA_HEIGHT}x{KIVA_WIDTH}",
         functions={2: "pick"},
     )
+    return Plant.build(grid.nodes, kiva_highways(grid.edges), name=grid.name, functions={2: "pick"})
+
+
+KIVA_OPEN_COLUMNS = (0, 3, 6, 17, 28, 39, 42, 45)  # the columns open from top to bottom
+
+
+def kiva_highways(edges: tuple[Edge, ...]) -> list[Edge]:
+    """The kiva grid's edges with a preferred direction on every long lane, parallel lanes
+    alternating, like the one-way streets of a city grid (the "highways" of Cohen et al.,
+    2015): the rows along the shelves (every row but the shelves' own) east, west, east, ...
+    from the top, the open columns south, north, south, ... from the left. Crowded
+    vehicles then mostly follow each other instead of meeting head-on; the short spurs
+    into the shelf faces and home cells keep no direction."""
+    rows = [r for r in range(KIVA_HEIGHT) if r % 4 != 2]
+    east = {r: k % 2 == 0 for k, r in enumerate(rows)}
+    south = {c: k % 2 == 0 for k, c in enumerate(KIVA_OPEN_COLUMNS)}
+    out = []
+    for e in edges:
+        (ra, ca), (rb, cb) = divmod(e.source, KIVA_WIDTH), divmod(e.target, KIVA_WIDTH)
+        if ra == rb and ra in east:
+            forward = (cb > ca) == east[ra]
+        elif ca == cb and ca in south:
+            forward = (rb > ra) == south[ca]
+        else:
+            out.append(e)
+            continue
+        if forward:
+            out.append(replace(e, highway=True))
+        else:
+            out.append(
+                replace(
+                    e,
+                    source=e.target,
+                    target=e.source,
+                    port_source=e.port_target,
+                    port_target=e.port_source,
+                    highway=True,
+                )
+            )
+    return out
 
 
 SAMPLES = {"model-plant": model_plant, "warehouse": warehouse, "grid": grid, "kiva": kiva}

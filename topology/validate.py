@@ -282,6 +282,13 @@ def _check_edges(plant: Plant, source: str | None) -> None:
                 ),
                 lambda i: f"max_speed must be a finite number > 0, got {_short(speeds[i])}",
             ),
+            (
+                np.fromiter((e.bidirectional or not e.highway for e in edges), bool, n),
+                lambda i: (
+                    "highway on a directed edge: only a two-way edge has a direction "
+                    "to prefer (drop 'directed' or 'highway')"
+                ),
+            ),
             *port_rules,
         ],
         source,

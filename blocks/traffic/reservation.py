@@ -39,6 +39,7 @@ really are); both may then move on inside it, and nobody else enters until both 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import numpy as np
@@ -61,8 +62,11 @@ class ReservationMatrix(FunctionBlock):
         occupied_penalty: float = 0.0,
         oncoming_penalty: float | None = None,
         contraflow_penalty: float = 0.0,
+        highway_factor: float = 1.0,
     ) -> None:
         super().__init__()
+        if not (math.isfinite(highway_factor) and highway_factor >= 1):
+            raise ValueError(f"highway_factor must be a finite number >= 1, got {highway_factor!r}")
         self.plant = plant
         self.vehicles = sorted(vehicles)
         self.holder = np.full(plant.n, FREE, dtype=np.int64)
@@ -98,6 +102,9 @@ class ReservationMatrix(FunctionBlock):
         # the planned flow of others will meet them head-on in a single-lane aisle, so each
         # opposing route costs ``contraflow_penalty`` per arc (a route along the flow is free)
         self.contraflow_penalty = contraflow_penalty
+        # the plant's highways: an arc against its lane's preferred direction costs
+        # ``highway_factor`` times its length, i.e. this much more, whoever else is about
+        self.highway_penalty = np.where(plant.against_highway, (highway_factor - 1) * length, 0.0)
         self.flow = np.zeros(len(src) + 1, dtype=np.float64)  # last: no reverse arc
         arc_of = {(int(u), int(v)): arc for arc, (u, v) in enumerate(zip(src, dst, strict=True))}
         self._arc_of = arc_of
@@ -300,8 +307,9 @@ class ReservationMatrix(FunctionBlock):
         every arc against another vehicle's planned route costs ``contraflow_penalty`` more
         per such route, every arc into a node another vehicle holds ``occupied_penalty`` more,
         and the
-        segment ``oncoming`` (from, to indices) the thesis' very high extra weight."""
-        out[:] = 0.0
+        segment ``oncoming`` (from, to indices) the thesis' very high extra weight; and
+        every arc against a highway its ``highway_penalty``."""
+        out[:] = self.highway_penalty
         if self.contraflow_penalty > 0:
             out += self.contraflow_penalty * self.flow[self._reverse]
             own = self._reverse[self._planned[vehicle]]

@@ -137,6 +137,7 @@ class TimeWindowTraffic(FunctionBlock):
         wait_free_s: float = 15.0,
         wait_occupied_s: float = 30.0,
         path_heat: bool = False,
+        highway_factor: float = 1.0,
     ) -> None:
         super().__init__()
         if not (math.isfinite(horizon_s) and horizon_s > 0):
@@ -170,6 +171,13 @@ class TimeWindowTraffic(FunctionBlock):
         self.window_s = float(window_s)
         self.budget = int(budget)
         self.path_heat = bool(path_heat)
+        # the plant's highways: an arc against its lane's preferred direction costs this
+        # many times its travel time (None: no highways, or a factor of 1)
+        if not (math.isfinite(highway_factor) and highway_factor >= 1):
+            raise ValueError(f"highway_factor must be a finite number >= 1, got {highway_factor!r}")
+        self._highways: list[float] | None = None
+        if highway_factor != 1 and plant.against_highway.any():
+            self._highways = np.where(plant.against_highway, float(highway_factor), 1.0).tolist()
         self._weights: list[float] | None = None  # the round's path heat per arc (None: off)
         # the seed's wait thresholds: a vehicle that has waited this long for a node is
         # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
@@ -396,12 +404,24 @@ class TimeWindowTraffic(FunctionBlock):
             self._book_committed(entry)
             if entry.goal is not None and not entry.kept:
                 movers.append(entry)
-        self._weights = self._heat() if self.path_heat else None
+        self._weights = self._arc_weights()
         late = self._late
         self._queue = sorted(
             movers, key=lambda e: (e.vehicle not in late, self.priority(e.vehicle))
         )
         self._late = set()
+
+    def _arc_weights(self) -> list[float] | None:
+        """This round's cost factor per arc for the searches: path heat times the
+        highway factor (None: all 1, the search's fast path)."""
+        if not self.path_heat:
+            return self._highways
+        heat = self._heat()
+        return (
+            heat
+            if self._highways is None
+            else [h * w for h, w in zip(heat, self._highways, strict=True)]
+        )
 
     def _heat(self) -> list[float]:
         """The seed's path heat for this round's searches: ``h`` from the shortest route

@@ -38,7 +38,7 @@ from ..limits import MAX_FILE_BYTES
 from ..model import Edge, Node, Plant
 
 NODE_KEYS = {"id", "name", "x", "y", "role", "functions", "queue_for", "zone", "area"}
-EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable"}
+EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable", "highway"}
 TOP_KEYS = {"name", "functions", "nodes", "edges"}
 
 
@@ -190,6 +190,7 @@ def _edge(item: Any, i: int, source: str) -> Edge:
         port_source=ports[0] or None,  # "" and null both mean "no port"
         port_target=ports[1] or None,
         routable=_typed(item.get("routable", True), bool, "routable", source, where),
+        highway=_typed(item.get("highway", False), bool, "highway", source, where),
     )
 
 
@@ -217,6 +218,8 @@ def to_dict(plant: Plant) -> dict[str, Any]:
             edge["max_speed"] = e.max_speed
         if not e.routable:
             edge["routable"] = False
+        if e.highway:
+            edge["highway"] = True
         edges.append(edge)
     return {
         "name": plant.name,

@@ -1,0 +1,167 @@
+"""Highways: two-way lanes with a preferred direction, priced by both traffic modes.
+
+A highway edge stays drivable both ways; driving against it costs ``highway_factor`` times
+its length (reactive A*: that much extra per arc; time-window searches: that factor on the
+travel time). The plant format reads and writes the key, validation refuses it where it
+means nothing, and on a ring a vehicle takes the long way round with the lanes rather than
+the short way against them, in both modes, only while the factor makes that cheaper."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from fleet_scenarios import make_config, run
+
+from blocks.traffic.reservation import ReservationMatrix
+from blocks.traffic.tw_traffic import TimeWindowTraffic
+from fleet.config import DEFAULT_CONFIG, parse_config
+from fleet.program import FleetProgram
+from plc_runtime.errors import ConfigError
+from topology import Edge, Node, Plant
+from topology.errors import TopologyError
+from topology.formats.structured import from_dict, to_dict
+
+M = 12  # ring nodes
+
+
+def ring(highways: bool = True) -> Plant:
+    """A ring of 12 nodes 1 m apart, its lanes preferred k -> k + 1 (anticlockwise), the
+    only station at node 7: 7 steps with the lanes from node 0, 5 steps against them."""
+    nodes = [
+        Node(k, f"r{k}", 2 * math.cos(2 * math.pi * k / M), 2 * math.sin(2 * math.pi * k / M))
+        for k in range(M)
+    ]
+    nodes[7] = Node(7, "r7", nodes[7].x, nodes[7].y, "station", (2,))
+    edges = [Edge(k, (k + 1) % M, 1.0, highway=highways) for k in range(M)]
+    return Plant.build(nodes, edges, name="ring", functions={2: "a"})
+
+
+def test_against_highway_marks_the_reverse_arc_of_each_highway_edge():
+    plant = Plant.build(
+        [Node(0, "", 0, 0), Node(1, "", 1, 0), Node(2, "", 2, 0), Node(3, "", 3, 0)],
+        [
+            Edge(0, 1, 1.0, highway=True),
+            Edge(1, 2, 1.0),
+            Edge(3, 2, 1.0, highway=True),
+            Edge(2, 0, 2.0, bidirectional=False),
+        ],
+    )
+    src, dst, _ = plant.arcs
+    against = {
+        (int(plant.ids[u]), int(plant.ids[v]))
+        for u, v, a in zip(src, dst, plant.against_highway, strict=True)
+        if a
+    }
+    assert against == {(1, 0), (2, 3)}
+    assert (
+        plant.fingerprint
+        != Plant.build(
+            plant.nodes,
+            [
+                Edge(e.source, e.target, e.length, bidirectional=e.bidirectional)
+                for e in plant.edges
+            ],
+        ).fingerprint
+    )
+
+
+def test_the_plant_format_reads_and_writes_highways():
+    plant = ring()
+    document = json.loads(json.dumps(to_dict(plant)))
+    assert all(edge["highway"] is True for edge in document["edges"])
+    again = from_dict(document, "ring.json")
+    assert again.fingerprint == plant.fingerprint
+    assert "highway" not in to_dict(ring(highways=False))["edges"][0]
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"highway": "yes"}, "highway"),
+        ({"highway": True, "directed": True}, "highway on a directed edge"),
+    ],
+)
+def test_a_bad_highway_names_the_edge_and_what_is_wrong(change, message):
+    document = to_dict(ring(highways=False))
+    document["edges"][3].update(change)
+    with pytest.raises(TopologyError) as caught:
+        from_dict(document, "ring.json")
+    text = str(caught.value)
+    assert "ring.json" in text and "edges[3]" in text and message in text
+
+
+def test_reactive_routes_pay_the_factor_against_a_highway_only():
+    plant = ring()
+    reservation = ReservationMatrix(plant, [1], highway_factor=4.0)
+    out = reservation.penalties_for(1, np.zeros(plant.n_arcs))
+    _, _, length = plant.arcs
+    assert np.allclose(out, np.where(plant.against_highway, 3.0 * length, 0.0))
+    assert plant.against_highway.sum() == M
+    with pytest.raises(ValueError, match="highway_factor"):
+        ReservationMatrix(plant, [1], highway_factor=0.5)
+
+
+def test_the_factor_is_read_from_the_routing_table_and_checked():
+    text = DEFAULT_CONFIG.read_text()
+    assert parse_config(text, "fleet.toml").highway_factor == 3.0
+    changed = text.replace("[routing]\n", "[routing]\nhighway_factor = 1.5\n", 1)
+    assert parse_config(changed, "fleet.toml").highway_factor == 1.5
+    bad = text.replace("[routing]\n", "[routing]\nhighway_factor = 0.5\n", 1)
+    with pytest.raises(ConfigError) as caught:
+        parse_config(bad, "fleet.toml")
+    assert "fleet.toml" in str(caught.value) and "highway_factor" in str(caught.value)
+
+
+def drive_to_station(traffic: str, factor: float, highways: bool = True) -> list[int]:
+    cfg = make_config(
+        ring(highways),
+        {1: 0},
+        {"a": [2]},
+        {2: [7]},
+        processing_s=1.0,
+        cycle_time=0.05,
+        rounds=1,
+        traffic=traffic,
+        highway_factor=factor,
+    )
+    program = FleetProgram(cfg)
+    try:
+        run(program, 40)
+    finally:
+        program.close()
+    assert program.completed, "the vehicle never reached its station"
+    driven = program.recorder.driven[1]
+    return driven[: driven.index(7) + 1]
+
+
+@pytest.mark.parametrize("traffic", ["reactive", "time_windows"])
+def test_a_vehicle_goes_round_with_the_lanes_while_that_is_cheaper(traffic):
+    with_lanes = list(range(8))  # 7 m with the lanes
+    against = [0, 11, 10, 9, 8, 7]  # 5 m against them
+    assert drive_to_station(traffic, 3.0) == with_lanes  # 7 < 5 x 3
+    assert drive_to_station(traffic, 1.0) == against  # the factor 1 ignores highways
+    assert drive_to_station(traffic, 3.0, highways=False) == against
+    assert drive_to_station(traffic, 1.3) == against  # 7 > 5 x 1.3: the short way still
+
+
+def test_time_window_searches_get_the_factor_on_arcs_against_a_highway():
+    cfg = make_config(ring(), {1: 0}, {"a": [2]}, {2: [7]}, traffic="time_windows")
+    program = FleetProgram(cfg)
+    try:
+        traffic: TimeWindowTraffic = program.traffic
+        weights = traffic._arc_weights()
+        assert weights == [3.0 if a else 1.0 for a in program.cfg.plant.against_highway]
+        traffic.path_heat = True
+        heated = traffic._arc_weights()
+        assert all(h >= w for h, w in zip(heated, weights, strict=True))
+    finally:
+        program.close()
+    plain = make_config(ring(highways=False), {1: 0}, {"a": [2]}, {2: [7]}, traffic="time_windows")
+    program = FleetProgram(plain)
+    try:
+        assert program.traffic._arc_weights() is None
+    finally:
+        program.close()
