@@ -165,3 +165,15 @@ def test_time_window_searches_get_the_factor_on_arcs_against_a_highway():
         assert program.traffic._arc_weights() is None
     finally:
         program.close()
+
+
+def test_the_web_api_shows_which_edges_are_highways():
+    from fleet.web.models import PlantOut
+    from fleet.web.views import plant as plant_view
+
+    body = PlantOut.model_validate(plant_view(ring(), [])).model_dump()
+    assert [(e["a"], e["b"], e["highway"]) for e in body["edges"]] == [
+        (k, (k + 1) % M, True) for k in range(M)
+    ]
+    plain = PlantOut.model_validate(plant_view(ring(highways=False), [])).model_dump()
+    assert not any(e["highway"] for e in plain["edges"])

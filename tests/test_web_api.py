@@ -95,6 +95,9 @@ def test_plant_is_the_configured_one(ctl):
     assert set(body["stations"]) == set(plant.with_role("station"))
     assert set(body["chargers"]) == set(plant.with_role("charger"))
     assert body["queues"] == {str(s): list(q) for s, q in plant.queues.items()}
+    assert [(e["a"], e["b"], e["bidirectional"], e["highway"]) for e in body["edges"]] == [
+        (e.source, e.target, e.bidirectional, e.highway) for e in plant.edges
+    ]
 
 
 def test_vehicles_list_every_vehicle_with_what_the_controller_knows(ctl):

@@ -122,6 +122,7 @@ class EdgeOut(BaseModel):
     length: float = Field(description="metres")
     bidirectional: bool = Field(description="false: one-way from a to b")
     routable: bool
+    highway: bool = Field(description="two-way, but a -> b is the preferred direction")
 
 
 class PlantOut(BaseModel):

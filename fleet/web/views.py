@@ -56,6 +56,7 @@ def plant(p: Plant, blocked: list[list[int]]) -> dict[str, Any]:
             "length": e.length,
             "bidirectional": e.bidirectional,
             "routable": e.routable,
+            "highway": e.highway,
         }
         for e in p.edges
     ]
