@@ -54,6 +54,8 @@ class Blockade:
 
 
 TRAFFIC_MODES = ("reactive", "time_windows")
+# driving against a highway lane (docs/plant-format.md) costs this many times its length
+HIGHWAY_FACTOR = 3.0
 
 
 @dataclass
@@ -90,7 +92,7 @@ class FleetConfig:
     wait_replan_s: float = 5.0
     occupied_penalty: float = 0.0
     contraflow_penalty: float = 3.0
-    highway_factor: float = 3.0  # cost factor of driving against a highway lane's direction
+    highway_factor: float = HIGHWAY_FACTOR  # cost factor against a highway lane's direction
     traffic: str = "reactive"  # or "time_windows" (TRAFFIC_MODES)
     time_windows: TimeWindowsConfig = field(default_factory=TimeWindowsConfig)
     bus_interface: str = "virtual"
@@ -188,7 +190,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         wait_replan_s=routing.number("wait_replan_s", 5.0, 0.0, 3600.0),
         occupied_penalty=routing.number("occupied_penalty", 0.0, 0.0, 1e9),
         contraflow_penalty=routing.number("contraflow_penalty", 3.0, 0.0, 1e9),
-        highway_factor=routing.number("highway_factor", 3.0, 1.0, 1e6),
+        highway_factor=routing.number("highway_factor", HIGHWAY_FACTOR, 1.0, 1e6),
         traffic=routing.get("traffic", str, "reactive"),
         bus_interface=bus.get("interface", str, "virtual"),
         bus_channel=bus.get("channel", str, "agv"),

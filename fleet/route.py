@@ -10,10 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from blocks.routing.astar import IncrementalAStar
-from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.constraints import RoutingConstraints, highway_penalty
 from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import ConfigError, CycleContext, FunctionBlock, Runtime, VirtualClock
 from topology import SAMPLES, Plant, TopologyError, load
+
+from .config import HIGHWAY_FACTOR
 
 
 class RouteRequest(FunctionBlock):
@@ -55,13 +57,22 @@ def find_route(
     blocked: list[tuple[int, int]] = (),
     heuristic: str = "table",
     cycle_time: float = 0.010,
+    highway_factor: float = HIGHWAY_FACTOR,
 ) -> dict[str, object]:
+    """The route the fleet's A* block finds, at ``budget`` expansions per cycle: priced as
+    the fleet prices it, against highway lanes at ``highway_factor`` times their length."""
     for node, what in ((start, "--from"), (goal, "--to")):
         if node not in plant.index:
             raise ConfigError(f"{what} {node}: no such node in {plant.name}")
     if budget < 1:
         raise ConfigError(f"--budget must be >= 1, got {budget}")
     constraints = RoutingConstraints(plant)
+    try:
+        constraints.penalty[:] = highway_penalty(plant, highway_factor)
+    except ValueError:
+        raise ConfigError(
+            f"--highway-factor must be a number >= 1, got {highway_factor:g}"
+        ) from None
     for a, b in blocked:
         try:
             constraints.block(a, b)
@@ -95,6 +106,7 @@ def find_route(
         "budget": budget,
         "blocked": [list(s) for s in constraints.blocked_segments()],
         "heuristic": heuristic,
+        "highway_factor": highway_factor,
         "table_build_ms": round(table.build_time_s * 1e3, 3) if table else None,
         "sim_time_s": round(rt.clock_time, 6),
     }

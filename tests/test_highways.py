@@ -82,11 +82,14 @@ def test_the_plant_format_reads_and_writes_highways():
     [
         ({"highway": "yes"}, "highway"),
         ({"highway": True, "directed": True}, "highway on a directed edge"),
+        ({"highway": True, "routable": False}, "highway on an edge that is not routable"),
+        ({"highway": True, "from": 3, "to": 2}, "highway against another: edges[3]"),
     ],
 )
 def test_a_bad_highway_names_the_edge_and_what_is_wrong(change, message):
     document = to_dict(ring(highways=False))
-    document["edges"][3].update(change)
+    document["edges"][2]["highway"] = True  # 2 -> 3
+    document["edges"][3].update(change)  # 3 -> 4
     with pytest.raises(TopologyError) as caught:
         from_dict(document, "ring.json")
     text = str(caught.value)
@@ -177,3 +180,19 @@ def test_the_web_api_shows_which_edges_are_highways():
     ]
     plain = PlantOut.model_validate(plant_view(ring(highways=False), [])).model_dump()
     assert not any(e["highway"] for e in plain["edges"])
+
+
+def test_the_route_command_prices_highways_as_the_fleet_does(capsys):
+    from fleet.cli import main as cli
+    from fleet.route import find_route
+    from topology import kiva
+
+    plant = kiva()
+    west_on_row_0 = list(range(40, 29, -1))  # row 0 prefers east: 10 m against it
+    along_row_1 = find_route(plant, 40, 30)  # the fleet's default factor, 3
+    assert along_row_1["route"][1] == 86 and along_row_1["cost"] == 12.0
+    assert find_route(plant, 40, 30, highway_factor=1.0)["route"] == west_on_row_0
+    assert cli(["route", "kiva", "--from", "40", "--to", "30", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["highway_factor"] == 3.0
+    assert cli(["route", "kiva", "--from", "40", "--to", "30", "--highway-factor", "0.5"]) == 2
+    assert "--highway-factor must be a number >= 1" in capsys.readouterr().err

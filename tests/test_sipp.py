@@ -75,6 +75,37 @@ def brute_force(
     return None
 
 
+def brute_force_cost(plant, others: PlanMonitor, start, goal, t0, weights) -> float | None:
+    """The least cost of reaching ``goal`` to stay for good, cost being the time taken plus
+    ``weights[arc] - 1`` per second driven on each arc (every move here takes 1 s): a
+    dynamic programme over the seconds, keeping per (cell, heading, seconds waited) the
+    least extra paid so far, until no later arrival can be cheaper."""
+    layer = {(start, None, 0): 0.0} if others.node_free(start, t0, t0) else {}
+    best = None
+    t = t0
+    while layer and t <= t0 + HORIZON and (best is None or t - t0 < best):
+        nxt: dict = {}
+        for (node, head, waited), extra in layer.items():
+            if node == goal and all(e + GAP <= t for _, e, _ in others.nodes.get(goal, ())):
+                best = min(best, t - t0 + extra) if best is not None else t - t0 + extra
+            steps = []
+            if others.node_free(node, t, t + 1):
+                steps.append(((node, head, min(waited + 1, 2)), extra))
+            for v, arc, _ in plant.neighbors[plant.idx(node)]:
+                to = int(plant.ids[v])
+                d = direction(plant, node, to)
+                if waited < turn(head, d):
+                    continue
+                if others.segment_free(node, to, t, t + 1) and others.node_free(to, t, t + 1):
+                    steps.append(((to, d, 0), extra + weights[arc] - 1.0))
+            for key, cost in steps:
+                if cost < nxt.get(key, math.inf):
+                    nxt[key] = cost
+        layer = nxt
+        t += 1
+    return best
+
+
 def check_drivable(plant, plan: TimedPlan, start, goal, t0, heading=None):
     assert plan.nodes[0] == start and plan.nodes[-1] == goal
     assert plan.arrive[0] == t0
@@ -234,6 +265,68 @@ def test_sipp_finds_the_brute_force_earliest_arrival(
     check_drivable(plant, s.plan, start, goal, t0, heading)
     check_no_conflict(others, s.plan)
     s.plan.book(table)  # and the table takes it
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 10**6),
+    width=st.integers(2, 6),
+    height=st.integers(1, 5),
+    others_count=st.integers(0, 8),
+    blocked=st.floats(0.0, 0.3),
+    t0=st.sampled_from([0.0, 1.0, 3.0]),
+)
+def test_with_arc_weights_sipp_finds_the_brute_force_least_cost(
+    seed, width, height, others_count, blocked, t0
+):
+    """Weights make a later arrival the cheaper one (highways, path heat): the search must
+    still find the least cost, also where the cheap way misses a free interval the dear one
+    catches, and never give up while a path exists."""
+    rng = random.Random(seed)
+    passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
+    passable[0, 0] = True
+    if passable.sum() < 2:
+        passable[:] = True
+    plant = grid(passable)
+    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
+    random_others(plant, rng, others_count, table, others)
+    weights = [rng.choice((1.0, 1.0, 2.0, 3.0)) for _ in range(plant.n_arcs)]
+    ids = [int(i) for i in plant.ids]
+    start, goal = rng.choice(ids), rng.choice(ids)
+    expected = brute_force_cost(plant, others, start, goal, t0, weights)
+    s = SafeIntervalSearch(
+        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, weights=weights
+    )
+    s.step(None)
+    if expected is None:
+        assert s.plan is None or s.plan.arrival > t0 + HORIZON
+        return
+    assert s.plan is not None, s.reason
+    assert s.plan.cost == pytest.approx(expected)
+    check_drivable(plant, s.plan, start, goal, t0)
+    check_no_conflict(others, s.plan)
+
+
+def test_a_cheaper_later_way_does_not_hide_an_earlier_one_that_catches_an_interval():
+    """A highway 2 -> 0 makes the direct step 0 -> 2 cost 3; the detour 0 -> 1 -> 2 costs
+    2 but reaches 2 a second later, after its free interval has closed. The direct step is
+    the only way on (cost 6 in all), and the search must not lose it to the detour."""
+    from topology import Edge, Node, Plant
+
+    nodes = [Node(0, "S", 0, 0), Node(1, "Q", 0, 1), Node(2, "P", 1, 0)]
+    nodes += [Node(3, "M", 2, 0), Node(4, "X", 3, 0), Node(5, "G", 4, 0)]
+    edges = [Edge(2, 0, 1.0, highway=True), Edge(0, 1, 1.0), Edge(1, 2, 1.0)]
+    edges += [Edge(3, 4, 1.0), Edge(2, 3, 1.0), Edge(4, 5, 1.0)]
+    plant = Plant.build(nodes, edges)
+    table = TimeWindowTable(0.5)
+    for vehicle, node, start, end in [(9, 4, 3.6, 10), (8, 3, 4, 20), (7, 2, 5, 30)]:
+        table.book(vehicle, [(node, start, end)], [])
+    table.book(6, [(1, 2.5, 40.0)], [])
+    table.book(5, [(0, 3.0, 50.0)], [])
+    weights = np.where(plant.against_highway, 3.0, 1.0).tolist()
+    plan = plan_path(plant, table, 1, 0, 5, 0.0, speed=1.0, turns=TurnTimes(0, 0), weights=weights)
+    assert plan is not None and plan.nodes == (0, 2, 3, 4, 5)
+    assert plan.cost == pytest.approx(6.0) and plan.arrival == pytest.approx(4.0)
 
 
 def test_a_windowed_search_plans_past_a_vehicle_that_stays_on_its_goal():

@@ -289,10 +289,45 @@ def _check_edges(plant: Plant, source: str | None) -> None:
                     "to prefer (drop 'directed' or 'highway')"
                 ),
             ),
+            (
+                np.fromiter((e.routable or not e.highway for e in edges), bool, n),
+                lambda i: (
+                    "highway on an edge that is not routable: routing never uses it, "
+                    "so it has no direction to prefer (drop 'routable' or 'highway')"
+                ),
+            ),
+            (
+                _not_against_another_highway(edges),
+                lambda i: (
+                    f"highway against another: edges[{_opposite_highway(edges, i)}] "
+                    f"prefers {targets[i]} -> {sources[i]} on the same two nodes"
+                ),
+            ),
             *port_rules,
         ],
         source,
         lambda i: f"edges[{i}] ({_short(sources[i])} -> {_short(targets[i])})",
+    )
+
+
+def _not_against_another_highway(edges) -> np.ndarray:
+    """For each edge: False if it is a highway and another highway edge joins the same two
+    nodes preferring the other way (the two would cancel out)."""
+    ok = np.ones(len(edges), dtype=bool)
+    ways = {(e.source, e.target) for e in edges if e.highway}
+    if not ways:
+        return ok
+    for i, e in enumerate(edges):
+        if e.highway and (e.target, e.source) in ways:
+            ok[i] = False
+    return ok
+
+
+def _opposite_highway(edges, i: int) -> int:
+    """The index of the highway edge that prefers the way back of ``edges[i]``."""
+    e = edges[i]
+    return next(
+        k for k, o in enumerate(edges) if o.highway and (o.source, o.target) == (e.target, e.source)
     )
 
 

@@ -17,6 +17,17 @@ import numpy as np
 from topology import Plant
 
 
+def highway_penalty(plant: Plant, factor: float) -> np.ndarray:
+    """Per arc, the extra cost of driving it against its lane's preferred direction (a
+    highway edge's 'to' -> 'from' arc): ``factor`` times its length in all, so
+    ``factor - 1`` times its length on top; 0 elsewhere. ValueError unless ``factor`` is a
+    finite number >= 1."""
+    if not (math.isfinite(factor) and factor >= 1):
+        raise ValueError(f"highway_factor must be a finite number >= 1, got {factor!r}")
+    _, _, length = plant.arcs
+    return np.where(plant.against_highway, (factor - 1) * length, 0.0)
+
+
 class RoutingConstraints:
     def __init__(self, plant: Plant) -> None:
         self.plant = plant

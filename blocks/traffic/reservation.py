@@ -39,11 +39,11 @@ really are); both may then move on inside it, and nobody else enters until both 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 
 import numpy as np
 
+from blocks.routing.constraints import highway_penalty
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
@@ -65,8 +65,6 @@ class ReservationMatrix(FunctionBlock):
         highway_factor: float = 1.0,
     ) -> None:
         super().__init__()
-        if not (math.isfinite(highway_factor) and highway_factor >= 1):
-            raise ValueError(f"highway_factor must be a finite number >= 1, got {highway_factor!r}")
         self.plant = plant
         self.vehicles = sorted(vehicles)
         self.holder = np.full(plant.n, FREE, dtype=np.int64)
@@ -104,7 +102,7 @@ class ReservationMatrix(FunctionBlock):
         self.contraflow_penalty = contraflow_penalty
         # the plant's highways: an arc against its lane's preferred direction costs
         # ``highway_factor`` times its length, i.e. this much more, whoever else is about
-        self.highway_penalty = np.where(plant.against_highway, (highway_factor - 1) * length, 0.0)
+        self.highway_penalty = highway_penalty(plant, highway_factor)
         self.flow = np.zeros(len(src) + 1, dtype=np.float64)  # last: no reverse arc
         arc_of = {(int(u), int(v)): arc for arc, (u, v) in enumerate(zip(src, dst, strict=True))}
         self._arc_of = arc_of

@@ -7,6 +7,13 @@ never worse than arriving later, because a vehicle can always wait. So each stat
 once at its earliest time, and the search stays as small as a plain A* times the few
 intervals per node, however fine the clock.
 
+That holds while cost is time. With arc weights (below) a later arrival can have paid less
+weight, and the earlier one may still catch an interval the later one misses, so neither
+may replace the other: each state then keeps every label (arrival, weight paid on top of
+the time) that no other label beats on both, and the search is a multi-label A*. Without
+weights no label pays any, and one label per state survives, the earliest, as in plain
+SIPP.
+
 The state here also holds the arc the vehicle arrived by, because turning costs time (the
 vehicles turn on the spot: a turn of 45-135 degrees takes ``turn_90``, a sharper one
 ``turn_180``, as the simulated AGV does) and the time to turn depends on where it came from.
@@ -188,11 +195,12 @@ class SafeIntervalSearch:
         self._seconds: dict[int, float] = {}
         self._heading = heading
         self._goal = plant.idx(goal)
-        self._best: dict[tuple[int, int, int], float] = {}
-        self._parent: dict[tuple[int, int, int], tuple[tuple[int, int, int], float] | None] = {}
-        self._arrival: dict[tuple[int, int, int], float] = {}
-        self._open: list[tuple[float, float, int, tuple[int, int, int]]] = []
-        self._pushed = 0
+        # labels, by id: the state (node index, arc in, interval), cost, arrival, and the
+        # label it came from with the time it set off from there (None: the start)
+        self._labels: list[tuple[tuple[int, int, int], float, float, tuple[int, float] | None]] = []
+        self._alive: list[bool] = []
+        self._at: dict[tuple[int, int, int], list[int]] = {}  # state -> its labels alive
+        self._open: list[tuple[float, float, int]] = []  # (f, g, label)
         self.expansions = 0
         self.done = False
         self.plan: TimedPlan | None = None
@@ -204,10 +212,7 @@ class SafeIntervalSearch:
         s = self.plant.idx(self.start)
         for k, (lo, hi) in enumerate(self._intervals(s)):
             if lo - 1e-9 <= self.start_time <= hi + 1e-9:
-                state = (s, -1, k)
-                self._best[state], self._arrival[state] = 0.0, self.start_time
-                self._parent[state] = None
-                self._push(self._h(s), 0.0, state)
+                self._label((s, -1, k), 0.0, self.start_time, None, self._h(s))
                 return
         self._finish(
             None, f"node {self.start} is booked by another vehicle at {self.start_time:g} s"
@@ -217,23 +222,25 @@ class SafeIntervalSearch:
         """Expand up to ``budget`` states (None: until the search ends); True once done."""
         n = 0
         while self._open and not self.done and (budget is None or n < budget):
-            _, g, _, state = heapq.heappop(self._open)
-            if g > self._best.get(state, math.inf):
-                continue  # reached again more cheaply since this entry was pushed
+            _, g, label = heapq.heappop(self._open)
+            if not self._alive[label]:
+                continue  # beaten by a label found since it was pushed
             n += 1
             self.expansions += 1
+            state, _, t, _ = self._labels[label]
             node, arc, k = state
-            t = self._arrival[state]
             interval_end = self._intervals(node)[k][1]
             if node == self._goal and interval_end >= t + self.hold_s - 1e-9:
-                self._finish(state, None)
+                self._finish(label, None)
                 break
-            self._expand(state, node, arc, t, g, interval_end)
+            self._expand(label, node, arc, t, g, interval_end)
         if not self._open and not self.done:
             self._finish(None, f"no conflict-free path from {self.start} to {self.goal}")
         return self.done
 
-    def _expand(self, state, node: int, arc_in: int, t: float, g: float, leave_by: float) -> None:
+    def _expand(
+        self, label: int, node: int, arc_in: int, t: float, g: float, leave_by: float
+    ) -> None:
         geometry, ids, turns = self.geometry, self.geometry.ids, self.turns
         allowed, table, h = self.allowed, self.table, self._h
         for v, arc, length in self.plant.neighbors[node]:
@@ -267,15 +274,30 @@ class SafeIntervalSearch:
                 arrive = depart + travel
                 extra = (self.weights[arc] - 1.0) * travel if self.weights is not None else 0.0
                 cost = g + (arrive - t) + extra
-                nxt = (v, arc, j)
-                if cost < self._best.get(nxt, math.inf) - 1e-12:
-                    self._best[nxt], self._arrival[nxt] = cost, arrive
-                    self._parent[nxt] = (state, depart)
-                    self._push(cost + h(v), cost, nxt)
+                self._label((v, arc, j), cost, arrive, (label, depart), cost + h(v))
 
-    def _push(self, f: float, g: float, state: tuple[int, int, int]) -> None:
-        self._pushed += 1
-        heapq.heappush(self._open, (f, g, self._pushed, state))
+    def _label(self, state, cost: float, arrive: float, parent, f: float) -> None:
+        """Keep a label for ``state`` unless one there arrived as early and paid as little
+        weight on top of its time; drop the ones it beats on both. (Not cost against
+        arrival: the later of two labels of equal cost paid less weight, and where the
+        way on must wait anyway, its wait costs less.)"""
+        labels, alive = self._labels, self._alive
+        extra = cost - arrive
+        kept = []
+        for other in self._at.get(state, ()):
+            _, c, a, _ = labels[other]
+            if c - a <= extra + 1e-9 and a <= arrive + 1e-9:
+                return
+            if extra <= c - a and arrive <= a:
+                alive[other] = False
+            else:
+                kept.append(other)
+        label = len(labels)
+        labels.append((state, cost, arrive, parent))
+        alive.append(True)
+        kept.append(label)
+        self._at[state] = kept
+        heapq.heappush(self._open, (f, cost, label))
 
     def _intervals(self, node: int) -> list[tuple[float, float]]:
         out = self._safe.get(node)
@@ -292,20 +314,20 @@ class SafeIntervalSearch:
             out = self._seconds[node] = self._row[node].item() / self.speed
         return out
 
-    def _finish(self, state, reason: str | None) -> None:
+    def _finish(self, label: int | None, reason: str | None) -> None:
         self.done, self.reason = True, reason
         self._open = []
-        if state is None:
+        if label is None:
             return
-        cost = self._best[state]
+        _, cost, _, _ = self._labels[label]
         nodes, arrive, depart = [], [], []
-        leave = self._arrival[state] + self.hold_s
-        while state is not None:
+        leave = self._labels[label][2] + self.hold_s
+        while label is not None:
+            state, _, t, link = self._labels[label]
             nodes.append(int(self.plant.ids[state[0]]))
-            arrive.append(self._arrival[state])
+            arrive.append(t)
             depart.append(leave)
-            link = self._parent[state]
-            state, leave = (None, 0.0) if link is None else link
+            label, leave = (None, 0.0) if link is None else link
         arrive.reverse()
         depart.reverse()
         claim = None

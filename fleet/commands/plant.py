@@ -13,6 +13,7 @@ from rich.table import Table
 
 from topology import SAMPLES, Plant, load
 
+from ..config import HIGHWAY_FACTOR
 from ..route import find_route, load_plant, parse_segment
 
 EXIT_NO_ROUTE = 1
@@ -55,6 +56,13 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     )
     route.add_argument(
         "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
+    )
+    route.add_argument(
+        "--highway-factor",
+        type=positive(float),
+        default=HIGHWAY_FACTOR,
+        help=f"cost factor against a highway lane, as the fleet's [routing] highway_factor "
+        f"(default {HIGHWAY_FACTOR:g}; 1 ignores highways)",
     )
     route.add_argument("--png", metavar="OUT", help="draw the plant with the route into a PNG")
     route.add_argument("--json", action="store_true", help="print the result as one JSON object")
@@ -107,7 +115,13 @@ def route_command(args: argparse.Namespace) -> int:
     plant = _load(args)
     blocked = [parse_segment(text) for text in args.block]
     result = find_route(
-        plant, args.start, args.goal, budget=args.budget, blocked=blocked, heuristic=args.heuristic
+        plant,
+        args.start,
+        args.goal,
+        budget=args.budget,
+        blocked=blocked,
+        heuristic=args.heuristic,
+        highway_factor=args.highway_factor,
     )
     if args.png:
         from topology.draw import draw
