@@ -158,8 +158,9 @@ def test_time_window_searches_get_the_factor_on_arcs_against_a_highway():
         weights = traffic._arc_weights()
         assert weights == [3.0 if a else 1.0 for a in program.cfg.plant.against_highway]
         traffic.path_heat = True
-        heated = traffic._arc_weights()
-        assert all(h >= w for h, w in zip(heated, weights, strict=True))
+        heat = [1.0 + (arc % 3) / 2 for arc in range(len(weights))]
+        traffic._heat = lambda: heat
+        assert traffic._arc_weights() == [h * w for h, w in zip(heat, weights, strict=True)]
     finally:
         program.close()
     plain = make_config(ring(highways=False), {1: 0}, {"a": [2]}, {2: [7]}, traffic="time_windows")
