@@ -227,6 +227,24 @@ def test_path_heat_weights_steer_off_a_hot_row_at_a_time_cost():
     assert warm.arrival > cold.arrival and warm.cost < 5 * 5.0
 
 
+def random_case(seed, width, height, others_count, blocked, weighted=False):
+    """A random small grid with other vehicles' plans booked, arc weights of 1-3 (or None),
+    and a random start and goal: (plant, table, others, weights, start, goal)."""
+    rng = random.Random(seed)
+    passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
+    passable[0, 0] = True
+    if passable.sum() < 2:
+        passable[:] = True
+    plant = grid(passable)
+    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
+    random_others(plant, rng, others_count, table, others)
+    weights = None
+    if weighted:
+        weights = [rng.choice((1.0, 1.0, 2.0, 3.0)) for _ in range(plant.n_arcs)]
+    ids = [int(i) for i in plant.ids]
+    return plant, table, others, weights, rng.choice(ids), rng.choice(ids)
+
+
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     seed=st.integers(0, 10**6),
@@ -241,16 +259,7 @@ def test_path_heat_weights_steer_off_a_hot_row_at_a_time_cost():
 def test_sipp_finds_the_brute_force_earliest_arrival(
     seed, width, height, others_count, blocked, t0, heading, claim
 ):
-    rng = random.Random(seed)
-    passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
-    passable[0, 0] = True
-    if passable.sum() < 2:
-        passable[:] = True
-    plant = grid(passable)
-    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
-    random_others(plant, rng, others_count, table, others)
-    ids = [int(i) for i in plant.ids]
-    start, goal = rng.choice(ids), rng.choice(ids)
+    plant, table, others, _, start, goal = random_case(seed, width, height, others_count, blocked)
     expected = brute_force(plant, others, start, goal, t0, heading)
     s = SafeIntervalSearch(
         plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading
@@ -282,17 +291,9 @@ def test_with_arc_weights_sipp_finds_the_brute_force_least_cost(
     """Weights make a later arrival the cheaper one (highways, path heat): the search must
     still find the least cost, also where the cheap way misses a free interval the dear one
     catches, and never give up while a path exists."""
-    rng = random.Random(seed)
-    passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
-    passable[0, 0] = True
-    if passable.sum() < 2:
-        passable[:] = True
-    plant = grid(passable)
-    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
-    random_others(plant, rng, others_count, table, others)
-    weights = [rng.choice((1.0, 1.0, 2.0, 3.0)) for _ in range(plant.n_arcs)]
-    ids = [int(i) for i in plant.ids]
-    start, goal = rng.choice(ids), rng.choice(ids)
+    plant, table, others, weights, start, goal = random_case(
+        seed, width, height, others_count, blocked, weighted=True
+    )
     expected = brute_force_cost(plant, others, start, goal, t0, weights)
     s = SafeIntervalSearch(
         plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, weights=weights
