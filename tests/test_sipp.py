@@ -273,6 +273,11 @@ def test_sipp_finds_the_brute_force_earliest_arrival(
     assert s.plan.arrival == pytest.approx(expected)
     check_drivable(plant, s.plan, start, goal, t0, heading)
     check_no_conflict(others, s.plan)
+    # without weights the cheapest label is the earliest: the same search
+    one = plan_path(
+        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading, labels="cheapest"
+    )
+    assert one is not None and one.arrival == pytest.approx(expected)
     s.plan.book(table)  # and the table takes it
 
 
@@ -306,6 +311,24 @@ def test_with_arc_weights_sipp_finds_the_brute_force_least_cost(
     assert s.plan.cost == pytest.approx(expected)
     check_drivable(plant, s.plan, start, goal, t0)
     check_no_conflict(others, s.plan)
+    # the cheapest label alone: no cheaper than the least, and whatever it finds is valid
+    one = SafeIntervalSearch(
+        plant,
+        table,
+        1,
+        start,
+        goal,
+        t0,
+        speed=1.0,
+        turns=TURNS,
+        weights=weights,
+        labels="cheapest",
+    )
+    one.step(None)
+    if one.plan is not None:
+        assert one.plan.cost >= expected - 1e-9
+        check_drivable(plant, one.plan, start, goal, t0)
+        check_no_conflict(others, one.plan)
 
 
 def test_a_cheaper_later_way_does_not_hide_an_earlier_one_that_catches_an_interval():
@@ -325,9 +348,14 @@ def test_a_cheaper_later_way_does_not_hide_an_earlier_one_that_catches_an_interv
     table.book(6, [(1, 2.5, 40.0)], [])
     table.book(5, [(0, 3.0, 50.0)], [])
     weights = np.where(plant.against_highway, 3.0, 1.0).tolist()
-    plan = plan_path(plant, table, 1, 0, 5, 0.0, speed=1.0, turns=TurnTimes(0, 0), weights=weights)
+    kw = {"speed": 1.0, "turns": TurnTimes(0, 0), "weights": weights}
+    plan = plan_path(plant, table, 1, 0, 5, 0.0, **kw)
     assert plan is not None and plan.nodes == (0, 2, 3, 4, 5)
     assert plan.cost == pytest.approx(6.0) and plan.arrival == pytest.approx(4.0)
+    # one label per state, the cheapest, loses it: the bounded search the fleet uses
+    assert plan_path(plant, table, 1, 0, 5, 0.0, labels="cheapest", **kw) is None
+    with pytest.raises(ValueError, match="labels"):
+        plan_path(plant, table, 1, 0, 5, 0.0, labels="all", **kw)
 
 
 def test_a_windowed_search_plans_past_a_vehicle_that_stays_on_its_goal():

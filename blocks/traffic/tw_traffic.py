@@ -698,6 +698,7 @@ class TimeWindowTraffic(FunctionBlock):
             geometry=self.geometry,
             until=self._until,
             weights=self._weights,
+            labels="cheapest",  # searches as small as without weights (sipp.py)
         )
 
     def _time_fixed(self, entry: _Entry) -> TimedPlan | None:
