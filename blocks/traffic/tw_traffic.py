@@ -178,7 +178,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._highways: list[float] | None = None
         if highway_factor != 1 and plant.against_highway.any():
             self._highways = np.where(plant.against_highway, float(highway_factor), 1.0).tolist()
-        self._weights: list[float] | None = None  # the round's path heat per arc (None: off)
+        self._weights: list[float] | None = None  # the round's arc weights (None: all 1)
         # the seed's wait thresholds: a vehicle that has waited this long for a node is
         # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
         # on the node); one that then finds no path for T_w2 is reported stranded
