@@ -197,3 +197,21 @@ def test_the_route_command_prices_highways_as_the_fleet_does(capsys):
     assert json.loads(capsys.readouterr().out)["highway_factor"] == 3.0
     assert cli(["route", "kiva", "--from", "40", "--to", "30", "--highway-factor", "0.5"]) == 2
     assert "--highway-factor must be a number >= 1" in capsys.readouterr().err
+
+
+def test_a_drawing_shows_each_highway_direction_with_a_faint_arrow():
+    from matplotlib.colors import to_rgb
+
+    from topology.draw import HIGHWAY_ARROW, render
+
+    def heads(plant):
+        picture = render(plant)
+        faint = [p for p in picture.axes.patches if p.get_facecolor()[:3] == to_rgb(HIGHWAY_ARROW)]
+        return [p._posA_posB for p in faint]  # (tail, tip) of each arrow head
+
+    arrows = heads(ring())
+    assert len(arrows) == M
+    for (x0, y0), (x1, y1) in arrows:
+        # k -> k + 1 runs anticlockwise in the file, clockwise as drawn (y points down)
+        assert x0 * y1 - y0 * x1 < 0
+    assert heads(ring(highways=False)) == []

@@ -43,6 +43,7 @@ LABEL_LIMIT = 400  # more nodes than this: no node ids, no transit dots
 DPI = 110
 LANE = "#c4c4c4"
 LANE_ARROW = "#9a9a9a"
+HIGHWAY_ARROW = "#c9c9c9"  # a preferred direction: fainter than a one-way lane's arrow
 RETURN_LANE = "#7a7a7a"
 BLOCKADE = "black"
 LIFTED = "#a0a0a0"
@@ -313,6 +314,8 @@ def _draw_lanes(ax: Axes, geo: _Geometry) -> None:
         straight.append((a, b))
         if not e.bidirectional:
             ax.add_patch(_head(a, b, LANE_ARROW, size=9, zorder=1))
+        elif e.highway:
+            ax.add_patch(_head(a, b, HIGHWAY_ARROW, size=6, zorder=1))
     ax.add_collection(LineCollection(straight, colors=LANE, linewidths=1.2, zorder=1))
 
 
