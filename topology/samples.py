@@ -217,7 +217,9 @@ def kiva() -> Plant:
         name=f"kiva-{KIVA_HEIGHT}x{KIVA_WIDTH}",
         functions={2: "pick"},
     )
-    return Plant.build(grid.nodes, kiva_highways(grid.edges), name=grid.name, functions={2: "pick"})
+    return Plant.build(
+        grid.nodes, kiva_highways(grid.edges), name=grid.name, functions=grid.functions
+    )
 
 
 KIVA_OPEN_COLUMNS = (0, 3, 6, 17, 28, 39, 42, 45)  # the columns open from top to bottom

@@ -17,15 +17,19 @@ import numpy as np
 from topology import Plant
 
 
-def highway_penalty(plant: Plant, factor: float) -> np.ndarray:
-    """Per arc, the extra cost of driving it against its lane's preferred direction (a
-    highway edge's 'to' -> 'from' arc): ``factor`` times its length in all, so
-    ``factor - 1`` times its length on top; 0 elsewhere. ValueError unless ``factor`` is a
-    finite number >= 1."""
+def highway_weights(plant: Plant, factor: float) -> np.ndarray:
+    """Per arc, the factor its cost is multiplied by: ``factor`` against its lane's
+    preferred direction (a highway edge's 'to' -> 'from' arc), 1 elsewhere. ValueError
+    unless ``factor`` is a finite number >= 1."""
     if not (math.isfinite(factor) and factor >= 1):
         raise ValueError(f"highway_factor must be a finite number >= 1, got {factor!r}")
+    return np.where(plant.against_highway, float(factor), 1.0)
+
+
+def highway_penalty(plant: Plant, factor: float) -> np.ndarray:
+    """Per arc, the extra cost on top of its length that :func:`highway_weights` makes."""
     _, _, length = plant.arcs
-    return np.where(plant.against_highway, (factor - 1) * length, 0.0)
+    return (highway_weights(plant, factor) - 1.0) * length
 
 
 class RoutingConstraints:

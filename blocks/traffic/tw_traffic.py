@@ -70,7 +70,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from blocks.routing.constraints import RoutingConstraints
+from blocks.routing.constraints import RoutingConstraints, highway_weights
 from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
@@ -173,11 +173,8 @@ class TimeWindowTraffic(FunctionBlock):
         self.path_heat = bool(path_heat)
         # the plant's highways: an arc against its lane's preferred direction costs this
         # many times its travel time (None: no highways, or a factor of 1)
-        if not (math.isfinite(highway_factor) and highway_factor >= 1):
-            raise ValueError(f"highway_factor must be a finite number >= 1, got {highway_factor!r}")
-        self._highways: list[float] | None = None
-        if highway_factor != 1 and plant.against_highway.any():
-            self._highways = np.where(plant.against_highway, float(highway_factor), 1.0).tolist()
+        weights = highway_weights(plant, highway_factor)
+        self._highways: list[float] | None = weights.tolist() if (weights != 1).any() else None
         self._weights: list[float] | None = None  # the round's arc weights (None: all 1)
         # the seed's wait thresholds: a vehicle that has waited this long for a node is
         # planned afresh (T_w1: the vehicle before it there has not come yet; T_w2: it is
