@@ -90,6 +90,7 @@ class Case:
     load: float = 1.0  # arrival: a factor on the seed's rates
     max_s: float = 4000.0
     deadlines: bool = True  # pool runs: keep the generator's latest delivery times
+    traffic: str = "reactive"  # the fleet's traffic mode
 
 
 @dataclass
@@ -129,6 +130,7 @@ def run_case(case: Case) -> Result:
     cfg = load_config(CONFIG)
     first_vehicles(cfg, case.vehicles)
     cfg.dispatch.strategy = case.strategy
+    cfg.traffic = case.traffic
     if case.buffer_s is not None:
         cfg.dispatch.buffer_s = case.buffer_s
     cfg.watchdog = 5.0  # a busy machine slows the wall clock, never the virtual one
@@ -181,34 +183,37 @@ def _run(program: FleetProgram, case: Case, total: int) -> Result:
         charges=sum(r.charges for r in runners),
         charging_s=sum(r.charging_s for r in runners),
         min_battery=min(r.min_battery for r in runners),
-        conflicts=program.monitor.head_on + program.monitor.node,
+        conflicts=program.monitor.head_on + program.monitor.node + program.monitor.area,
     )
 
 
 def cases(args: argparse.Namespace) -> list[Case]:
     seeds = range(1, args.seeds + 1)
     out: list[Case] = []
-    m, d = args.max_s, not args.no_deadlines
+    m, d, tr = args.max_s, not args.no_deadlines, args.traffic
     if "buffer" in args.experiments:
         out += [
-            Case("buffer", "two_stage", 17, s, args.pool, b, max_s=m, deadlines=d)
+            Case("buffer", "two_stage", 17, s, args.pool, b, max_s=m, deadlines=d, traffic=tr)
             for b in args.buffers
             for s in seeds
         ]
     if "fleet" in args.experiments:
         out += [
-            Case("fleet", st, n, s, args.pool, max_s=m, deadlines=d)
+            Case("fleet", st, n, s, args.pool, max_s=m, deadlines=d, traffic=tr)
             for n in args.fleets
             for st in STRATEGIES
             for s in seeds
         ]
     if "fixed" in args.experiments:
         out += [
-            Case("fixed", st, 17, s, args.fixed, max_s=m, deadlines=d)
+            Case("fixed", st, 17, s, args.fixed, max_s=m, deadlines=d, traffic=tr)
             for st in STRATEGIES
             for s in seeds
         ]
-        out += [Case("fixed", "two_stage", 16, s, args.fixed, max_s=m, deadlines=d) for s in seeds]
+        out += [
+            Case("fixed", "two_stage", 16, s, args.fixed, max_s=m, deadlines=d, traffic=tr)
+            for s in seeds
+        ]
     if "battery" in args.experiments:
         out += [
             Case(
@@ -219,6 +224,7 @@ def cases(args: argparse.Namespace) -> list[Case]:
                 battery=on,
                 arrival_s=args.battery_s,
                 load=args.battery_load,
+                traffic=tr,
             )
             for on in (False, True)
             for s in seeds
@@ -270,6 +276,9 @@ class Console:
 
 def report(results: list[Result], args: argparse.Namespace, console: Console) -> None:
     pool = "without deadlines" if args.no_deadlines else "with the generator's deadlines"
+    modes = sorted({r.case.traffic for r in results})
+    if modes != ["reactive"]:
+        pool += f", {' / '.join(modes)} traffic"
     conflicts = sum(r.conflicts for r in results)
     if "buffer" in args.experiments:
         t = Table(title=f"1. Buffer sweep: two_stage, 17 vehicles, {args.pool} orders {pool}")
@@ -395,6 +404,12 @@ def main(argv: list[str] | None = None) -> int:
         "--no-deadlines",
         action="store_true",
         help="pool runs: orders without a latest delivery time (no order is ever late)",
+    )
+    parser.add_argument(
+        "--traffic",
+        choices=("reactive", "time_windows"),
+        default="reactive",
+        help="the fleet's traffic mode in every run (default: reactive)",
     )
     parser.add_argument("--json", type=Path, help="also write every run's result here")
     parser.add_argument(

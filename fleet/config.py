@@ -213,13 +213,6 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         raise routing.fail(
             "traffic", f"must be one of {', '.join(TRAFFIC_MODES)}, got {cfg.traffic!r}"
         )
-    if cfg.traffic == "time_windows" and plant.areas:
-        raise routing.fail(
-            "traffic",
-            "time_windows does not plan single-vehicle areas yet, and plant "
-            f"{plant.name!r} has {len(plant.areas)} ({', '.join(sorted(plant.areas))}): "
-            'use traffic = "reactive" with this plant',
-        )
     if cfg.strategy not in STRATEGIES:
         raise stations.fail(
             "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
@@ -374,6 +367,14 @@ def _vehicles(
         if start in starts.values():
             other = next(v for v, s in starts.items() if s == start)
             raise r.fail("start", f"node {start} is already vehicle {other}'s start")
+        area = plant.node(start).area
+        other = next((v for v, s in starts.items() if area and plant.node(s).area == area), None)
+        if other is not None:
+            raise r.fail(
+                "start",
+                f"node {start} is in single-vehicle area {area!r}, where vehicle {other} "
+                f"starts (node {starts[other]}): one vehicle per area",
+            )
         if charge != 100.0:
             charges[vid] = charge
         if own is None and orders:

@@ -7,8 +7,11 @@ from __future__ import annotations
 class PlanMonitor:
     """The windows of the plans added so far, and whether a new window keeps clear of them."""
 
-    def __init__(self, gap: float):
+    def __init__(self, gap: float, areas: dict[int, str] | None = None):
         self.gap = gap
+        # single-vehicle areas, node -> area name: a node's window meets the windows on
+        # every node of its area
+        self.areas = areas or {}
         self.nodes: dict[int, list[tuple[float, float, int]]] = {}
         self.segments: dict[tuple[int, int], list[tuple[float, float, int]]] = {}
 
@@ -19,11 +22,14 @@ class PlanMonitor:
             self.segments.setdefault((u, v), []).append((s, e, plan.vehicle))
 
     def node_free(self, n, start, end, vehicle=None) -> bool:
-        """Nobody else on node n closer than the gap to [start, end]."""
+        """Nobody else on node n, or anywhere in its area, closer than the gap to [start, end]."""
         gap = self.gap
+        area = self.areas.get(n)
+        near = [n] if area is None else [m for m, a in self.areas.items() if a == area]
         return all(
             v == vehicle or not (start < e + gap and s < end + gap)
-            for s, e, v in self.nodes.get(n, ())
+            for m in near
+            for s, e, v in self.nodes.get(m, ())
         )
 
     def segment_free(self, u, v, start, end, vehicle=None) -> bool:

@@ -92,6 +92,21 @@ def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):
     assert message in str(exc.value) and str(path) in str(exc.value)
 
 
+def test_two_vehicles_starting_in_one_single_vehicle_area_are_refused(tmp_path):
+    examples = DEFAULT_CONFIG.parent.parent / "examples"
+    plant = (examples / "plants" / "distribution-centre.toml").resolve()
+    text = (examples / "distribution-centre.toml").read_text()
+    text = text.replace('file = "plants/distribution-centre.toml"', f'file = "{plant}"')
+    path = tmp_path / "fleet.toml"
+    path.write_text(text.replace("start = 301", "start = 21").replace("start = 302", "start = 221"))
+    with pytest.raises(ConfigError) as exc:
+        load_config(path)
+    assert (
+        f"{path}: vehicles[1].start: node 221 is in single-vehicle area 'receiving-1', "
+        "where vehicle 1 starts (node 21): one vehicle per area"
+    ) in str(exc.value)
+
+
 def test_bad_configuration_is_one_line_on_the_cli(tmp_path, capsys):
     path = tmp_path / "fleet.toml"
     path.write_text('[plant]\nsample = "nowhere"\n')

@@ -262,6 +262,7 @@ def config(
     strategy: str,
     faults: tuple[float, float, float] = (0.0, 0.0, 0.0),
     seed: int = 0,
+    traffic: str = "reactive",
 ) -> tuple[FleetConfig, str]:
     """The configuration, and its text with the order file (to reproduce a failure)."""
     rows = "".join(f"{o.id},{o.get},{o.put},{o.start_s},,{o.priority}\n" for o in orders)
@@ -274,6 +275,8 @@ def config(
     drop, corrupt, spoof = faults
     text = f"""[plant]
 file = "{s.path}"
+[routing]
+traffic = "{traffic}"
 [runtime]
 cycle_time_ms = {CYCLE_S * 1000:g}
 watchdog_ms = 6000
@@ -456,14 +459,14 @@ def scenarios(draw, stations: list[int], starts: list[int]):
     return orders, vehicles, strategy, faults, draw(st.integers(0, 10_000))
 
 
-def run_scenario(s: Site, scenario, tmp: Path) -> None:
+def run_scenario(s: Site, scenario, tmp: Path, traffic: str = "reactive") -> None:
     """Run until every order is finished, checking every cycle, then check the book."""
     rows, vehicles, strategy, faults, seed = scenario
     orders = [
         TransportOrder(f"o{k}", get, put, float(start), priority=priority)
         for k, (get, put, start, priority) in enumerate(rows)
     ]
-    cfg, text = config(s, tmp, orders, vehicles, strategy, faults, seed)
+    cfg, text = config(s, tmp, orders, vehicles, strategy, faults, seed, traffic)
     p = FleetProgram(cfg)
     try:
         small_batteries(p)
@@ -537,6 +540,28 @@ def test_every_order_finishes_once_safely_in_the_distribution_centre(
 @given(scenario=scenarios(*GRID_CHOICES))
 def test_every_order_finishes_once_safely_on_a_342_node_grid(scenario, sites, tmp_path_factory):
     run_scenario(sites["grid"], scenario, tmp_path_factory.mktemp("run"))
+
+
+# The same claims with time-window traffic, which plans every single-vehicle area as one
+# resource: a vehicle's plan enters an area only when nobody else's is in any of its nodes.
+@SETTINGS
+@example(scenario=full_fleet())
+@given(scenario=scenarios(*DC_CHOICES))
+def test_time_windows_finish_every_order_once_safely_in_the_distribution_centre(
+    scenario, sites, tmp_path_factory
+):
+    run_scenario(
+        sites["distribution-centre"], scenario, tmp_path_factory.mktemp("run"), "time_windows"
+    )
+
+
+@SETTINGS
+@example(scenario=BACKED_INTO_AN_AREA)
+@given(scenario=scenarios(*GRID_CHOICES))
+def test_time_windows_finish_every_order_once_safely_on_a_342_node_grid(
+    scenario, sites, tmp_path_factory
+):
+    run_scenario(sites["grid"], scenario, tmp_path_factory.mktemp("run"), "time_windows")
 
 
 # ----- a vehicle suspect in the middle of an order -----------------------------------------------

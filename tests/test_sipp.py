@@ -19,6 +19,7 @@ from plan_monitor import PlanMonitor
 
 from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes, plan_path
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict
+from topology import Edge, Node, Plant
 from topology.grid import grid_plant
 
 GAP = 1.0
@@ -55,7 +56,7 @@ def brute_force(
     while frontier and t <= t0 + HORIZON:
         nxt = set()
         for node, head, waited in frontier:
-            if node == goal and all(e + GAP <= t for _, e, _ in others.nodes.get(goal, ())):
+            if node == goal and others.node_free(goal, t, math.inf):
                 return t
             if (node, head, waited, t) in seen:
                 continue
@@ -227,16 +228,40 @@ def test_path_heat_weights_steer_off_a_hot_row_at_a_time_cost():
     assert warm.arrival > cold.arrival and warm.cost < 5 * 5.0
 
 
-def random_case(seed, width, height, others_count, blocked, weighted=False):
-    """A random small grid with other vehicles' plans booked, arc weights of 1-3 (or None),
-    and a random start and goal: (plant, table, others, weights, start, goal)."""
+def random_areas(plant, rng: random.Random, count: int) -> dict[int, str]:
+    """Up to ``count`` single-vehicle areas of two or three neighbouring cells each."""
+    areas: dict[int, str] = {}
+    ids = [int(i) for i in plant.ids]
+    for k in range(count):
+        node = rng.choice(ids)
+        if node in areas:
+            continue
+        area = [node]
+        for _ in range(rng.randrange(1, 3)):
+            out = [
+                int(plant.ids[v])
+                for v, _, _ in plant.neighbors[plant.idx(area[-1])]
+                if int(plant.ids[v]) not in areas and int(plant.ids[v]) not in area
+            ]
+            if out:
+                area.append(rng.choice(out))
+        if len(area) > 1:
+            areas.update({n: f"area{k}" for n in area})
+    return areas
+
+
+def random_case(seed, width, height, others_count, blocked, weighted=False, areas=0):
+    """A random small grid with up to ``areas`` single-vehicle areas, other vehicles' plans
+    booked, arc weights of 1-3 (or None), and a random start and goal: (plant, table,
+    others, weights, start, goal)."""
     rng = random.Random(seed)
     passable = np.array([[rng.random() >= blocked for _ in range(width)] for _ in range(height)])
     passable[0, 0] = True
     if passable.sum() < 2:
         passable[:] = True
     plant = grid(passable)
-    table, others = TimeWindowTable(GAP), PlanMonitor(GAP)
+    shared = random_areas(plant, rng, areas)
+    table, others = TimeWindowTable(GAP, shared), PlanMonitor(GAP, shared)
     random_others(plant, rng, others_count, table, others)
     weights = None
     if weighted:
@@ -255,14 +280,19 @@ def random_case(seed, width, height, others_count, blocked, weighted=False):
     t0=st.sampled_from([0.0, 1.0, 3.0]),
     heading=st.sampled_from([None, (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0)]),
     claim=st.sampled_from(["departure", "arrival"]),
+    areas=st.sampled_from([0, 0, 2, 4]),
 )
 def test_sipp_finds_the_brute_force_earliest_arrival(
-    seed, width, height, others_count, blocked, t0, heading, claim
+    seed, width, height, others_count, blocked, t0, heading, claim, areas
 ):
-    plant, table, others, _, start, goal = random_case(seed, width, height, others_count, blocked)
-    expected = brute_force(plant, others, start, goal, t0, heading)
+    """Also with single-vehicle areas, which the brute force keeps by the rule's definition:
+    in every second a vehicle is on a node of an area, nobody else is on any of them."""
+    plant, table, others, _, start, goal = random_case(
+        seed, width, height, others_count, blocked, areas=areas
+    )
+    expected = brute_force(plant, others, start, goal, t0, heading, claim)
     s = SafeIntervalSearch(
-        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading
+        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading, claim=claim
     )
     s.step(None)
     if expected is None:
@@ -275,7 +305,17 @@ def test_sipp_finds_the_brute_force_earliest_arrival(
     check_no_conflict(others, s.plan)
     # without weights the cheapest label is the earliest: the same search
     one = plan_path(
-        plant, table, 1, start, goal, t0, speed=1.0, turns=TURNS, heading=heading, labels="cheapest"
+        plant,
+        table,
+        1,
+        start,
+        goal,
+        t0,
+        speed=1.0,
+        turns=TURNS,
+        heading=heading,
+        claim=claim,
+        labels="cheapest",
     )
     assert one is not None and one.arrival == pytest.approx(expected)
     s.plan.book(table)  # and the table takes it
@@ -372,6 +412,33 @@ def test_a_windowed_search_plans_past_a_vehicle_that_stays_on_its_goal():
     windowed.step(None)
     assert windowed.plan is not None and windowed.plan.nodes == (0, 1, 2, 3)
     assert windowed.plan.claims[-1] >= 10.0  # it claims the cell only after the cut-off
+
+
+@pytest.mark.parametrize(("claim", "arrival"), [("departure", 11.5), ("arrival", 10.5)])
+def test_a_single_vehicle_area_is_entered_only_when_all_of_it_is_free(claim, arrival):
+    """Nodes 1 and 2 of the line 0 - 1 - 2 (1 m, then 4 m) form one area, and another
+    vehicle is on node 2 from 5 to 6 s. Node 1 is free all the while, but the vehicle may
+    not be in the area while the other one is: it waits on node 0 until that one has left
+    (6 s and the gap), although driving straight on would reach node 2 before 5 s.
+    When a node's window begins on arrival, a move inside the area must not wait for a
+    later free interval on the 4 m segment between its nodes either (it would arrive at
+    6.5 s, on the segment inside the area while the other vehicle is on node 2)."""
+    line = Plant.build(
+        [
+            Node(0, "a", 0.0, 0.0),
+            Node(1, "b", 1.0, 0.0, area="s"),
+            Node(2, "c", 5.0, 0.0, area="s"),
+        ],
+        [Edge(0, 1, 1.0), Edge(1, 2, 4.0)],
+        name="line",
+    )
+    table = TimeWindowTable(0.5, {1: "s", 2: "s"})
+    table.book(9, [(2, 5.0, 6.0)], [])
+    plan = plan_path(line, table, 1, 0, 2, 0.0, speed=1.0, turns=TURNS, claim=claim)
+    assert plan is not None and plan.nodes == (0, 1, 2)
+    assert plan.arrival == pytest.approx(arrival)
+    assert plan.claims[1] >= 6.5 - 1e-9  # nobody else in the area from its claim on
+    plan.book(table)  # the table takes it
 
 
 def windows_before(plan: TimedPlan, until: float):

@@ -180,3 +180,20 @@ def test_a_malformed_window_is_refused(nodes, segments, match):
     with pytest.raises(ValueError, match=match):
         t.book(1, nodes, segments)
     assert len(t) == 0
+
+
+def test_the_nodes_of_a_single_vehicle_area_share_their_windows():
+    """Nodes 3 and 4 form area "dock": a vehicle on either keeps every other vehicle off
+    both, with the gap; a vehicle's own windows inside the area follow each other; node 5,
+    outside, is not affected; releasing the vehicle frees the whole area."""
+    t = TimeWindowTable(1.0, {3: "dock", 4: "dock"})
+    t.book(1, [(3, 0.0, 2.0), (4, 2.0, 6.0)], [(3, 4, 2.0, 3.0)])
+    assert t.node_windows(3) == t.node_windows(4) == (Window(0.0, 2.0, 1), Window(2.0, 6.0, 1))
+    assert t.safe_intervals(4, vehicle=2) == [(-math.inf, -1.0), (7.0, math.inf)]
+    with pytest.raises(WindowConflict, match=r"node 3 \(area dock\)"):
+        t.book(2, [(3, 6.5, 8.0)], [])  # node 3 itself is free from 2 s, the area is not
+    t.book(2, [(3, 7.0, 8.0), (5, 0.0, 6.5)], [])
+    assert t.node_windows(5) == (Window(0.0, 6.5, 2),)
+    t.release(1)
+    t.book(3, [(4, 0.0, 5.0)], [])
+    assert t.vehicles == {2, 3} and len(t) == 3

@@ -46,6 +46,13 @@ The heuristic is the exact distance to the goal over the top speed: a lower boun
 ``allowed[arc]`` False keeps the search off an arc: a vehicle held to a given route (it may
 only wait), or to a corridor round it.
 
+A single-vehicle area's nodes share their safe intervals (the table keeps their windows
+under the area's key), and a move from one of its nodes to another stays in the interval
+the vehicle is in: it is in the area all the while, so it may not wait on the segment for a
+later interval, between which and its own another vehicle has the area. With departure
+claims that follows from the shared intervals alone (the move must set off inside both);
+with arrival claims the search checks it.
+
 ``until`` makes the plan *windowed*, as rolling-horizon planners do: conflicts are resolved
 only before that time, and from then on the vehicle meets nobody (the table's windows are cut
 there). Only the part of such a plan that starts before ``until`` may be booked; the rest is
@@ -246,16 +253,22 @@ class SafeIntervalSearch:
             if node == self._goal and interval_end >= t + self.hold_s - 1e-9:
                 self._finish(label, None)
                 break
-            self._expand(label, node, arc, t, g, interval_end)
+            self._expand(label, node, arc, t, g, k, interval_end)
         if not self._open and not self.done:
             self._finish(None, f"no conflict-free path from {self.start} to {self.goal}")
         return self.done
 
     def _expand(
-        self, label: int, node: int, arc_in: int, t: float, g: float, leave_by: float
+        self, label: int, node: int, arc_in: int, t: float, g: float, k: int, leave_by: float
     ) -> None:
         geometry, ids, turns = self.geometry, self.geometry.ids, self.turns
         allowed, table, h = self.allowed, self.table, self._h
+        # inside a single-vehicle area the vehicle stays in it from node to node: it may
+        # only go on within the area's safe interval it is in (k), never into a later one,
+        # which would put it in the area while another vehicle is there (with departure
+        # claims the shared intervals already ensure it: see the module's notes)
+        areas = table.resources
+        area = areas.get(ids[node]) if areas else None
         for v, arc, length in self.plant.neighbors[node]:
             if allowed is not None and not allowed[arc]:
                 continue
@@ -268,10 +281,11 @@ class SafeIntervalSearch:
                 continue
             # the window at v opens when it sets off towards v (or when it arrives)
             claim_delay = 0.0 if self.claim == "departure" else travel
+            within = area is not None and areas.get(ids[v]) == area
             for j, (lo, hi) in enumerate(self._intervals(v)):
                 if lo > leave_by + claim_delay + 1e-9:
                     break
-                if hi < set_off + travel - 1e-9:
+                if hi < set_off + travel - 1e-9 or (within and j != k):
                     continue
                 depart = table.earliest_entry(
                     ids[node],

@@ -22,6 +22,12 @@ A vehicle's own windows never conflict with each other: consecutive windows of o
 touch. Memory stays bounded by the plans: :meth:`book` replaces a vehicle's windows,
 :meth:`release` drops them, :meth:`expire` drops every window that ended before a time.
 
+**Single-vehicle areas** (a transfer station and the node in front of it) hold one vehicle
+in all of their nodes at once. The table keeps the windows of an area's nodes under one key,
+the area (``resources``: node id -> area key), so the node rule holds for the area as a
+whole: another vehicle's window anywhere in it keeps a vehicle out of all of it. One
+vehicle's windows on the area's nodes touch one after the other while it drives inside.
+
 A window that never ends (``end = inf``) is a vehicle staying at its goal; nobody can be
 planned through that node after its arrival until the vehicle is given a new plan.
 
@@ -38,7 +44,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Iterable
+from collections.abc import Hashable, Iterable, Mapping
 from typing import NamedTuple
 
 EPS = 1e-9
@@ -60,20 +66,28 @@ class WindowConflict(ValueError):
 class TimeWindowTable:
     """Node and directed-segment windows of every vehicle's plan, sorted by start."""
 
-    def __init__(self, gap_s: float = 0.5) -> None:
+    def __init__(self, gap_s: float = 0.5, resources: Mapping[int, Hashable] | None = None) -> None:
         if not (math.isfinite(gap_s) and gap_s >= MIN_GAP_S):
             raise ValueError(
                 f"gap_s must be a finite number of seconds >= {MIN_GAP_S:g}, got {gap_s!r}"
             )
         self.gap = float(gap_s)
-        self._nodes: dict[int, list[Window]] = {}
+        # node id -> the key its windows are kept under (its area's); a node not in it keeps
+        # its own
+        self.resources: Mapping[int, Hashable] = resources or {}
+        self._nodes: dict[Hashable, list[Window]] = {}
         self._segments: dict[tuple[int, int], list[Window]] = {}
         # what each vehicle booked: the keys, so release never scans the whole table
-        self._booked: dict[int, tuple[list[int], list[tuple[int, int]]]] = {}
+        self._booked: dict[int, tuple[list[Hashable], list[tuple[int, int]]]] = {}
 
     # ----- reading -------------------------------------------------------------------------
+    def resource(self, node: int) -> Hashable:
+        """The key ``node``'s windows are kept under: its single-vehicle area, or itself."""
+        return self.resources.get(node, node)
+
     def node_windows(self, node: int) -> tuple[Window, ...]:
-        return tuple(self._nodes.get(node, ()))
+        """The windows on ``node``: on every node of its area, if it is in one."""
+        return tuple(self._nodes.get(self.resources.get(node, node), ()))
 
     def segment_windows(self, a: int, b: int) -> tuple[Window, ...]:
         """Windows on the directed segment a -> b."""
@@ -102,7 +116,7 @@ class TimeWindowTable:
         node is free from ``until`` on."""
         out: list[tuple[float, float]] = []
         free_from = -math.inf
-        for w in self._nodes.get(node, ()):
+        for w in self._nodes.get(self.resources.get(node, node), ()):
             if w.vehicle == vehicle:
                 continue
             if w.start >= until:
@@ -183,10 +197,12 @@ class TimeWindowTable:
         nodes, segments = list(nodes), list(segments)
         for node, start, end in nodes if check else ():
             _check_interval(start, end, f"node {node}")
-            for w in self._nodes.get(node, ()):
+            key = self.resources.get(node, node)
+            for w in self._nodes.get(key, ()):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
+                    where = f"node {node}" if key == node else f"node {node} (area {key})"
                     raise WindowConflict(
-                        f"vehicle {vehicle} on node {node} during [{start:g}, {end:g}] meets "
+                        f"vehicle {vehicle} on {where} during [{start:g}, {end:g}] meets "
                         f"vehicle {w.vehicle}'s window [{w.start:g}, {w.end:g}] (gap {self.gap:g} s)"
                     )
         for a, b, start, end in segments if check else ():
@@ -206,6 +222,7 @@ class TimeWindowTable:
                         f"or crowd vehicle {w.vehicle} ([{w.start:g}, {w.end:g}], gap {self.gap:g} s)"
                     )
         self.release(vehicle)
+        nodes = [(self.resources.get(n, n), start, end) for n, start, end in nodes]
         for node, start, end in nodes:
             bisect.insort(self._nodes.setdefault(node, []), Window(start, end, vehicle))
         for a, b, start, end in segments:

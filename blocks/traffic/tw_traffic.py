@@ -65,7 +65,7 @@ says; execution by order adds that no vehicle waits for one that waits for it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,11 +149,6 @@ class TimeWindowTraffic(FunctionBlock):
             )
         if not (math.isfinite(replan_s) and replan_s > 0):
             raise ValueError(f"replan_s must be a positive number of seconds, got {replan_s!r}")
-        if plant.areas:
-            raise ValueError(
-                f"plant {plant.name!r} has single-vehicle areas, which time-window traffic "
-                "does not plan yet"
-            )
         if budget < 1:
             raise ValueError(f"budget must be at least 1 expansion per scan, got {budget!r}")
         for name, value in (("wait_free_s", wait_free_s), ("wait_occupied_s", wait_occupied_s)):
@@ -198,7 +193,12 @@ class TimeWindowTraffic(FunctionBlock):
         self.keep_s = 0.75 * horizon_s
         self.controls: Mapping = {}  # vehicle -> VehicleControl, set by the program
         self.geometry = ArcGeometry(plant)
-        self.table = TimeWindowTable(gap_s)  # the current plans' windows
+        # a single-vehicle area is one resource in the plans: node id -> its area's name
+        # (node ids are numbers, so a name never stands for a node)
+        self.resources: dict[int, str] = {
+            n: name for name, nodes in plant.areas.items() for n in nodes
+        }
+        self.table = TimeWindowTable(gap_s, self.resources)  # the current plans' windows
         self.order = PassOrder()
         self._lengths = _segment_lengths(plant)
         # the current plans: vehicle -> booked step nodes, the step of its frontier (the
@@ -264,6 +264,8 @@ class TimeWindowTraffic(FunctionBlock):
             return False
         if steps[after] == steps[step] or self.order.blocker(vehicle, after) is not None:
             return False
+        if steps[step] in self.resources or steps[after] in self.resources:
+            return False  # an area is not left at once, and others may be near its other nodes
         own = self.order.label(vehicle, step)
         for _label, other, other_step in self.order.pending(steps[step]):
             if (other, other_step) == (vehicle, step) or _label > own:
@@ -362,7 +364,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._began_ns = ctx.time_ns
         self._allowed = (~self.blockades.blocked).tolist()
         self._t0 = ctx.time
-        self._next_table = TimeWindowTable(self.gap_s)
+        self._next_table = TimeWindowTable(self.gap_s, self.resources)
         self._made, self._search = {}, None
         self._gave_way, self._took_way = set(), set()
         self._entries = {}
@@ -509,17 +511,19 @@ class TimeWindowTraffic(FunctionBlock):
         cut = True
         while cut:
             cut = False
-            stays: dict[int, float] = {}  # node -> the earliest label of a visit ending there
+            # node (its area, if in one) -> the earliest label of a visit ending there
+            stays: dict[Hashable, float] = {}
+            key = self.resources.get
             for e in self._entries.values():
                 k = 0 if e.goal is None else len(e.committed) - 1
                 for node, label in zip(e.committed[k:], e.labels[k:], strict=True):
-                    stays[node] = min(stays.get(node, math.inf), label)
+                    stays[key(node, node)] = min(stays.get(key(node, node), math.inf), label)
             for e in self._entries.values():
                 k = next(
                     (
                         k
                         for k in range(e.held, len(e.committed))
-                        if stays.get(e.committed[k], math.inf) < e.labels[k]
+                        if stays.get(key(e.committed[k], e.committed[k]), math.inf) < e.labels[k]
                     ),
                     None,
                 )
@@ -537,7 +541,9 @@ class TimeWindowTraffic(FunctionBlock):
         """Give every committed visit the earliest start and end that keep the rules:
 
         * at each node the visits follow each other in their order, the next one starting
-          ``gap_s`` after the one before it ends;
+          ``gap_s`` after the one before it ends (in a single-vehicle area: after the
+          vehicle before has left the area, i.e. after the end of its last step there,
+          which ends no earlier than its steps before in the area);
         * a vehicle's visits start in the order of its steps;
         * a window lasts at least until the vehicle arrives (it set off when the window
           began), so a vehicle driving into a node is still on it, and on the segment to
@@ -554,7 +560,8 @@ class TimeWindowTraffic(FunctionBlock):
         base: dict[int, int] = {}  # vehicle -> index of its first visit
         value: list[float] = []  # 2i: start of visit i, 2i + 1: its end
         out: list[list[tuple[int, float]]] = []
-        visits: dict[int, list[tuple[float, int, int]]] = {}
+        visits: dict[Hashable, list[tuple[float, int, int]]] = {}  # by node, or by area
+        key = self.resources.get
         for e in entries:
             first = base[e.vehicle] = len(value) // 2
             for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
@@ -565,11 +572,14 @@ class TimeWindowTraffic(FunctionBlock):
                 if k:
                     out[2 * i - 2].append((2 * i, 0.0))  # after its step before
                     out[2 * i].append((2 * i - 1, 0.0))  # the step before lasts until this one
-                visits.setdefault(node, []).append((label, e.vehicle, i))
+                visits.setdefault(key(node, node), []).append((label, e.vehicle, i))
         for queue in visits.values():
             queue.sort()
-            for (_, _, a), (_, _, b) in zip(queue, queue[1:], strict=False):
-                out[2 * a + 1].append((2 * b, gap))
+            for (_, va, a), (_, vb, b) in zip(queue, queue[1:], strict=False):
+                if va != vb or b != a + 1:
+                    out[2 * a + 1].append((2 * b, gap))
+                else:  # one vehicle's next step in the same area: it leaves the area last
+                    out[2 * a + 1].append((2 * b + 1, 0.0))
         indegree = [0] * len(value)
         for edges in out:
             for w, _ in edges:
@@ -832,7 +842,7 @@ class TimeWindowTraffic(FunctionBlock):
                 steps += plan.nodes[1 : last + 1]
                 labels += plan.claims[1 : last + 1]
                 beyond = list(plan.nodes[last + 1 :])
-            order.set_plan(v, steps, labels)
+            order.set_plan(v, [self.resources.get(n, n) for n in steps], labels)
             # released since the round began: along its committed steps (the old plan)
             front = len(entry.committed) - 1
             if entry.offset >= 0:
