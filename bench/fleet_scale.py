@@ -116,6 +116,7 @@ def make_program(
     plan_budget: int | None = None,
     clock: WallClock | None = None,
     highway_factor: float | None = None,
+    window_s: float | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -137,6 +138,8 @@ def make_program(
     )
     if plan_budget is not None:
         cfg.time_windows.plan_budget = plan_budget
+    if window_s is not None:
+        cfg.time_windows.window_s = window_s
     if highway_factor is not None:
         cfg.highway_factor = highway_factor
     return FleetProgram(cfg, clock=clock)
@@ -187,11 +190,19 @@ def run_size(
     watchdog: float,
     traffic: str = "reactive",
     plan_budget: int | None = None,
+    window_s: float | None = None,
 ) -> dict:
     plant, width, height = plant_for(vehicles)
     begin = time.perf_counter()
     program = make_program(
-        plant, width, vehicles, cycle_time, watchdog, traffic=traffic, plan_budget=plan_budget
+        plant,
+        width,
+        vehicles,
+        cycle_time,
+        watchdog,
+        traffic=traffic,
+        plan_budget=plan_budget,
+        window_s=window_s,
     )
     program.rt.start()
     setup_s = time.perf_counter() - begin
@@ -286,6 +297,12 @@ def main() -> None:
         help="time_windows: search expansions per scan (default: the configuration's)",
     )
     parser.add_argument(
+        "--window-s",
+        type=float,
+        default=None,
+        help="time_windows: conflict window in seconds (default: the configuration's, none)",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="reduced run: --sim-seconds 10 --sizes 4 16 64"
     )
     args = parser.parse_args()
@@ -303,7 +320,9 @@ def main() -> None:
     )
     rows = []
     for n in args.sizes:
-        r = run_size(n, sim_s, cycle, args.watchdog_ms / 1e3, args.traffic, args.plan_budget)
+        r = run_size(
+            n, sim_s, cycle, args.watchdog_ms / 1e3, args.traffic, args.plan_budget, args.window_s
+        )
         rows.append(r)
         console.print(
             f"  {n} vehicles on {r['plant']} ({r['nodes']} nodes): setup {r['setup_s']:.1f} s, "
