@@ -37,6 +37,21 @@ def test_a_vehicle_waits_for_every_visit_planned_before_its_own():
     assert order.progress(1) == 2
 
 
+def test_back_into_an_area_a_vehicle_waits_for_visits_ordered_between_its_own():
+    """ "A" is the key of a single-vehicle area. Vehicle 1 is in it (step 0), steps out to
+    N to let vehicle 2 through, and comes back in at another of its nodes (step 2), all
+    before its first visit there has passed. Vehicle 2's visit, planned between vehicle
+    1's two, comes first; vehicle 1's own earlier visit does not count against it."""
+    order = PassOrder()
+    order.set_plan(1, ["A", "N", "A", "Q"], [0.0, 1.0, 5.0, 7.0])
+    order.set_plan(2, ["Q", "A", "P"], [-1.0, 3.0, 4.5])
+    assert order.blocker(1, 1) is None
+    assert order.blocker(1, 2) == 2
+    assert order.blocker(2, 1) == 1  # its turn once vehicle 1 has left the area
+    order.passed(1, 1)
+    assert order.blocker(2, 1) is None and order.blocker(1, 2) == 2
+
+
 def test_a_late_vehicle_keeps_its_place_and_an_early_one_waits():
     """Vehicle 1 is planned through node 5 first; however late it is, 2 waits for it."""
     order = PassOrder()

@@ -14,7 +14,7 @@ import pytest
 from fleet_scenarios import make_config, run
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
-from test_fleet_properties import grid_plants, one_per_area, with_areas
+from test_fleet_properties import grid_plants, one_per_area, ring_plants, with_areas
 
 from blocks.traffic.time_windows import TimeWindowTable
 from blocks.traffic.tw_traffic import HELD, TimeWindowTraffic, _Entry
@@ -242,21 +242,22 @@ def relaxed_layout(entries: list[_Entry], t0: float, gap: float, legs, areas) ->
     """The committed windows' earliest times by plain relaxation, the rules applied over
     and over until nothing moves: the reference for the planner's one-pass layout. False if
     they still move after more passes than a layout without a circle can need. ``areas``:
-    node -> area; an area's visits queue as one node's, and a vehicle's next step in the
-    same area follows its step before (it is inside), ending no earlier than it."""
-    visits: dict[object, list[tuple[float, int, int]]] = {}
+    node -> area; an area's visits queue as one node's, and where a vehicle's visit follows
+    its own (inside the area, or back) it needs no gap, only ends no earlier."""
+    visits: dict[object, list[tuple[float, bool, int, int]]] = {}
     for i, e in enumerate(entries):
         e.starts = [t0] * len(e.committed)
+        stays = e.ends[-1] == math.inf  # of one label (held), a vehicle that stays goes last
         for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
-            visits.setdefault(areas.get(node, node), []).append((label, i, k))
+            visits.setdefault(areas.get(node, node), []).append((label, stays, i, k))
     queues = [sorted(q) for q in visits.values()]
     for _ in range(4 * sum(len(q) for q in queues) + 4):
         moved = False
         for queue in queues:
             free, before = t0, None
-            for _label, i, k in queue:
+            for _label, _stays, i, k in queue:
                 e = entries[i]
-                inside = before == (i, k - 1)
+                inside = before is not None and before[0] == i
                 start = max(t0 if inside else free, e.starts[k - 1] if k else t0)
                 if start > e.starts[k]:
                     e.starts[k], moved = start, True
@@ -264,7 +265,7 @@ def relaxed_layout(entries: list[_Entry], t0: float, gap: float, legs, areas) ->
                 if k + 1 < len(e.committed):
                     end = max(end, e.starts[k + 1])
                 if inside:
-                    end = max(end, e.ends[k - 1])
+                    end = max(end, e.ends[before[1]])
                 if end > e.ends[k]:
                     e.ends[k], moved = end, True
                 free, before = e.ends[k] + gap, (i, k)
@@ -317,7 +318,7 @@ def test_the_commitments_layout_gives_the_earliest_times_that_keep_the_rules(cas
     entries, lengths, gap, areas = case
     speed = 0.5
     planner = TimeWindowTraffic.__new__(TimeWindowTraffic)
-    planner.resources = areas
+    planner.resources, planner._exit_hops = areas, {}
     planner._entries = {e.vehicle: copy.deepcopy(e) for e in entries}
     planner._t0, planner.gap_s, planner._lengths, planner.speed = 1.0, gap, lengths, speed
     reference = copy.deepcopy(entries)
@@ -563,6 +564,99 @@ def test_vehicles_take_turns_in_a_single_vehicle_area_by_their_plans():
     assert seen["swaps"] > 20
 
 
+def test_of_two_vehicles_in_one_area_the_one_nearer_the_way_out_leaves_first():
+    """An operator put two vehicles into the dock's area (built in code here: a
+    configuration file refuses two starts in one area): vehicle 1 on the dock, a dead end,
+    vehicle 2 on the node in front of it, through which vehicle 1 must leave. The round's
+    layout lets vehicle 2 out of the area first, whatever their ids, and neither waits for
+    the other."""
+    cfg = make_config(
+        ring_with_a_dock(),
+        {1: 12, 2: 13},
+        {"ab": [2, 3]},
+        {2: [5, 8], 3: [12]},
+        processing_s=2.0,
+        cycle_time=0.05,
+        traffic="time_windows",
+    )
+    p = FleetProgram(cfg)
+    left: dict[int, float] = {}
+    try:
+        p.rt.start()
+        for k in range(round(120 / cfg.cycle_time)):
+            p.rt.step()
+            for v, agv in p.fleet.vehicles.items():
+                if agv.node != cfg.starts[v] and v not in left:
+                    left[v] = k * cfg.cycle_time
+        assert p.monitor.head_on == 0 and p.monitor.node == 0
+    finally:
+        p.close()
+    assert left[2] < left[1] < 10.0, left
+    assert p.resolver.detected == 0, p.resolver.events
+    assert {r.vehicle for r in p.completed} == {1, 2}
+
+
+def test_a_vehicle_back_in_its_area_by_a_passing_loop_waits_for_the_one_planned_between():
+    """A ring of six with a passing loop 4 -> 6 -> 5 beside the area {4, 5}, whose two
+    stations offer different functions. A vehicle in the area steps out onto the loop to
+    let the other through and comes back in at the area's other node, released both
+    steps at once: it must still wait for the visit planned between its two. If it went
+    first, the other would wait behind it round after round and finish nothing."""
+    r = 3.0
+    xy = [(r * math.cos(math.pi * k / 3), r * math.sin(math.pi * k / 3)) for k in range(6)]
+    roles = {0: (2,), 2: (2,), 3: (3,), 4: (3,), 5: (2,)}
+    nodes = [
+        Node(
+            k,
+            f"r{k}",
+            x,
+            y,
+            "station" if k in roles else "transit",
+            roles.get(k, ()),
+            area="at4" if k in (4, 5) else None,
+        )
+        for k, (x, y) in enumerate(xy)
+    ]
+    nodes.append(Node(6, "p4", 1.3 * xy[4][0], 1.3 * xy[4][1]))
+    edges = [Edge(k, (k + 1) % 6, 1.0) for k in range(6)] + [Edge(4, 6, 0.8), Edge(6, 5, 0.8)]
+    plant = Plant.build(nodes, edges, name="ring", functions={2: "a", 3: "b"})
+    cfg = make_config(
+        plant,
+        {1: 1, 2: 0},
+        {"ab": [2, 3], "ba": [3, 2]},
+        {2: [0, 2, 5], 3: [3, 4]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        seed=734,
+        traffic="time_windows",
+    )
+    p = FleetProgram(cfg)
+    seen = check_every_swap(p)
+    try:
+        run(p, 120)
+    finally:
+        p.close()
+    done = {v: sum(r.vehicle == v for r in p.completed) for v in (1, 2)}
+    assert min(done.values()) >= 3, done
+    assert seen["swaps"] > 20
+
+
+def test_a_vehicle_that_stays_with_holds_out_of_its_area_and_back_is_laid_out_now():
+    """A vehicle reached its goal by a passing loop: it holds 0, 8 and 1, where 0 and 1 are
+    one area and it stays. Its own two visits of the area need no gap between them: all
+    three windows start now (the area's second visit does not wait for the first, which
+    never ends)."""
+    planner = TimeWindowTraffic.__new__(TimeWindowTraffic)
+    planner.resources, planner._exit_hops = {0: "a", 1: "a"}, {0: 1, 1: 1}
+    planner._t0, planner.gap_s, planner.speed = 10.0, 0.5, 1.0
+    planner._lengths = {(0, 8): 0.8, (8, 1): 0.8}
+    entry = _Entry(1, [0, 8, 1], [HELD] * 3, [math.inf] * 3, -1, 3)
+    planner._entries = {1: entry}
+    assert TimeWindowTraffic._lay_out(planner)
+    assert entry.starts == [10.0, 10.0, 10.0] and entry.ends == [math.inf] * 3
+
+
 def stuck_by_order(traffic) -> list[int]:
     """Execute the current plans by the pass order alone, whatever the delays: every
     vehicle that may enter its next step does, until nobody can. A vehicle at the end of
@@ -631,6 +725,12 @@ def check_every_swap(program: FleetProgram) -> dict[str, int]:
     def released_checked(vehicle, node):
         before = tw.overtakes
         released(vehicle, node)
+        if vehicle in tw._steps:
+            # the order's promise: nobody else's visit there (in its area) comes first
+            step = tw._front[vehicle]
+            mine = (tw.order.label(vehicle, step), vehicle, step)
+            ahead = [p for p in tw.order.pending(tw.resources.get(node, node)) if p < mine]
+            assert all(v == vehicle for _, v, _ in ahead), (vehicle, node, mine, ahead)
         if tw.overtakes > before:
             seen["overtakes"] += 1
             assert stuck_by_order(tw) == [], (vehicle, node)
@@ -689,10 +789,11 @@ def dense_fleets(draw, plants=None):
     phases=[Phase.explicit, Phase.generate],
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
-@given(dense_fleets(st.one_of(grid_plants(), with_areas(grid_plants()))))
+@given(dense_fleets(st.one_of(grid_plants(), with_areas(grid_plants()), with_areas(ring_plants()))))
 def test_every_order_can_be_executed_to_the_end_on_crowded_plants(cfg):
     """Also where stations are single-vehicle areas: every round's windows then keep the
-    node rule for each area as a whole."""
+    node rule for each area as a whole, and nobody is released into an area before a
+    vehicle planned there earlier (also one that comes back in by a passing loop)."""
     p = FleetProgram(cfg)
     seen = check_every_swap(p)
     try:

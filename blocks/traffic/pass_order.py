@@ -22,6 +22,9 @@ the node). Then:
 for any delays. Delays are absorbed, not repaired: a late vehicle makes the ones after it
 at shared nodes late, never unsafe. Its own visits are passed in plan order.
 
+A "node" here may also be a single-vehicle area: all its nodes share one queue, so a
+vehicle enters the area only after every visit planned there before its own has left it.
+
 A vehicle's plan starts with the node it stands on (step 0), and is replaced whole when it
 is replanned (:meth:`set_plan`); the replacement must come from the same consistent set of
 windows (the time-window table) for the order to stay acyclic.
@@ -79,15 +82,18 @@ class PassOrder:
         return self.blocker(vehicle, step) is None
 
     def blocker(self, vehicle: int, step: int) -> int | None:
-        """The vehicle whose earlier visit to that node has not passed yet (None: nobody)."""
-        nodes, arrive = self._plans[vehicle]
-        queue = self._queues.get(nodes[step], ())
-        if not queue:
-            return None
-        first = queue[0]
-        if first[1] == vehicle and first[2] <= step:
-            return None
-        return first[1]
+        """The vehicle whose earlier visit to that node has not passed yet (None: nobody).
+        The vehicle's own earlier visits there do not count: it is there, or leaving. (Of
+        one node, a vehicle is never released a node it holds; of a single-vehicle area,
+        it may come back in at another node before its earlier visit has passed, and then
+        waits for the other vehicles' visits ordered between its two.)"""
+        nodes, _ = self._plans[vehicle]
+        for _, other, other_step in self._queues.get(nodes[step], ()):
+            if other != vehicle:
+                return other
+            if other_step >= step:
+                return None
+        return None
 
     def take_turn(self, vehicle: int, step: int) -> None:
         """Move ``vehicle``'s visit of ``step`` before every pending visit at that node (it

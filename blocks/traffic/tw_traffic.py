@@ -198,6 +198,9 @@ class TimeWindowTraffic(FunctionBlock):
         self.resources: dict[int, str] = {
             n: name for name, nodes in plant.areas.items() for n in nodes
         }
+        # steps from each area node out of its area: of two vehicles in one area (put
+        # there by an operator), the one nearer the way out leaves first
+        self._exit_hops = _exit_hops(plant, self.resources)
         self.table = TimeWindowTable(gap_s, self.resources)  # the current plans' windows
         self.order = PassOrder()
         self._lengths = _segment_lengths(plant)
@@ -542,8 +545,9 @@ class TimeWindowTraffic(FunctionBlock):
 
         * at each node the visits follow each other in their order, the next one starting
           ``gap_s`` after the one before it ends (in a single-vehicle area: after the
-          vehicle before has left the area, i.e. after the end of its last step there,
-          which ends no earlier than its steps before in the area);
+          vehicle before has left the area, i.e. after the end of its last step there);
+          one vehicle's visits that follow each other there (its steps inside an area, or
+          a node it comes back to) need no gap, the later one only ends no earlier;
         * a vehicle's visits start in the order of its steps;
         * a window lasts at least until the vehicle arrives (it set off when the window
           began), so a vehicle driving into a node is still on it, and on the segment to
@@ -560,10 +564,18 @@ class TimeWindowTraffic(FunctionBlock):
         base: dict[int, int] = {}  # vehicle -> index of its first visit
         value: list[float] = []  # 2i: start of visit i, 2i + 1: its end
         out: list[list[tuple[int, float]]] = []
-        visits: dict[Hashable, list[tuple[float, int, int]]] = {}  # by node, or by area
-        key = self.resources.get
+        # by node, or by area: (label, then for visits of one label, i.e. vehicles holding
+        # nodes of one area: movers before vehicles that stay, nearest the way out first,
+        # vehicle, visit)
+        visits: dict[Hashable, list[tuple[float, bool, int, int, int]]] = {}
+        key, hops = self.resources.get, self._exit_hops
         for e in entries:
             first = base[e.vehicle] = len(value) // 2
+            stays = e.ends[-1] == math.inf
+            near: dict[Hashable, int] = {}  # area -> the vehicle's held node nearest its exit
+            for node in e.committed[: e.held]:
+                if node in hops:
+                    near[key(node)] = min(near.get(key(node), hops[node]), hops[node])
             for k, (node, label) in enumerate(zip(e.committed, e.labels, strict=True)):
                 i = first + k
                 value += [t0, e.ends[k]]
@@ -572,13 +584,15 @@ class TimeWindowTraffic(FunctionBlock):
                 if k:
                     out[2 * i - 2].append((2 * i, 0.0))  # after its step before
                     out[2 * i].append((2 * i - 1, 0.0))  # the step before lasts until this one
-                visits.setdefault(key(node, node), []).append((label, e.vehicle, i))
+                where = key(node, node)
+                rank = (label, stays, near.get(where, 0), e.vehicle, i)
+                visits.setdefault(where, []).append(rank)
         for queue in visits.values():
             queue.sort()
-            for (_, va, a), (_, vb, b) in zip(queue, queue[1:], strict=False):
-                if va != vb or b != a + 1:
+            for (*_, va, a), (*_, vb, b) in zip(queue, queue[1:], strict=False):
+                if va != vb:
                     out[2 * a + 1].append((2 * b, gap))
-                else:  # one vehicle's next step in the same area: it leaves the area last
+                else:  # one vehicle again (inside an area, or back): it leaves last
                     out[2 * a + 1].append((2 * b + 1, 0.0))
         indegree = [0] * len(value)
         for edges in out:
@@ -874,6 +888,35 @@ class TimeWindowTraffic(FunctionBlock):
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1
+
+
+def _exit_hops(plant: Plant, areas: Mapping[int, str]) -> dict[int, int]:
+    """For each node of a single-vehicle area, the fewest steps to a node outside it (a
+    node with no way out gets the area's size)."""
+    ids, index = plant.ids, plant.index
+    inside: dict[str, list[int]] = {}
+    for node, name in areas.items():
+        inside.setdefault(name, []).append(node)
+    out: dict[int, int] = {}
+    for name, nodes in inside.items():
+        frontier = [
+            n
+            for n in nodes
+            if any(areas.get(int(ids[v])) != name for v, _, _ in plant.neighbors[index[n]])
+        ]
+        hops = dict.fromkeys(frontier, 1)
+        while frontier:
+            nxt = []
+            for n in frontier:
+                for m in nodes:
+                    if m not in hops and any(
+                        int(ids[v]) == n for v, _, _ in plant.neighbors[index[m]]
+                    ):
+                        hops[m] = hops[n] + 1
+                        nxt.append(m)
+            frontier = nxt
+        out.update({n: hops.get(n, len(nodes)) for n in nodes})
+    return out
 
 
 def _segment_lengths(plant: Plant) -> dict[tuple[int, int], float]:
