@@ -348,9 +348,8 @@ def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):
     assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
 
 
-def ring_with_spur() -> Plant:
-    """A ring of 12 with stations 5 and 8 (function 2), and a spur 0 -> 12 to the only
-    station of function 3."""
+def ring_of_twelve() -> list[Node]:
+    """Twelve nodes on a circle of 3 m (a ring once joined), stations 5 and 8 (function 2)."""
     m = 12
     nodes = [
         Node(k, f"r{k}", 3 * math.cos(2 * math.pi * k / m), 3 * math.sin(2 * math.pi * k / m))
@@ -358,8 +357,14 @@ def ring_with_spur() -> Plant:
     ]
     for k in (5, 8):
         nodes[k] = Node(k, f"r{k}", nodes[k].x, nodes[k].y, "station", (2,))
-    nodes.append(Node(12, "G", 4.0, 0.0, "station", (3,)))
-    edges = [Edge(k, (k + 1) % m, 1.0) for k in range(m)] + [Edge(0, 12, 1.0)]
+    return nodes
+
+
+def ring_with_spur() -> Plant:
+    """A ring of 12 with stations 5 and 8 (function 2), and a spur 0 -> 12 to the only
+    station of function 3."""
+    nodes = [*ring_of_twelve(), Node(12, "G", 4.0, 0.0, "station", (3,))]
+    edges = [Edge(k, (k + 1) % 12, 1.0) for k in range(12)] + [Edge(0, 12, 1.0)]
     return Plant.build(nodes, edges, name="ring", functions={2: "a", 3: "b"})
 
 
@@ -525,16 +530,13 @@ def ring_with_a_dock() -> Plant:
     """A ring of 12 with stations 5 and 8 (function 2), and a spur 0 -> 13 -> 12 to the
     only station of function 3: the dock 12 and the node 13 in front of it are one
     single-vehicle area."""
-    m = 12
     nodes = [
-        Node(k, f"r{k}", 3 * math.cos(2 * math.pi * k / m), 3 * math.sin(2 * math.pi * k / m))
-        for k in range(m)
+        *ring_of_twelve(),
+        Node(12, "dock", 5.0, 0.0, "station", (3,), area="dock"),
+        Node(13, "front", 4.0, 0.0, area="dock"),
     ]
-    for k in (5, 8):
-        nodes[k] = Node(k, f"r{k}", nodes[k].x, nodes[k].y, "station", (2,))
-    nodes.append(Node(12, "dock", 5.0, 0.0, "station", (3,), area="dock"))
-    nodes.append(Node(13, "front", 4.0, 0.0, area="dock"))
-    edges = [Edge(k, (k + 1) % m, 1.0) for k in range(m)] + [Edge(0, 13, 1.0), Edge(13, 12, 1.0)]
+    edges = [Edge(k, (k + 1) % 12, 1.0) for k in range(12)]
+    edges += [Edge(0, 13, 1.0), Edge(13, 12, 1.0)]
     return Plant.build(nodes, edges, name="ring", functions={2: "a", 3: "b"})
 
 
@@ -554,12 +556,7 @@ def test_vehicles_take_turns_in_a_single_vehicle_area_by_their_plans():
         cycle_time=0.05,
         traffic="time_windows",
     )
-    p = FleetProgram(cfg)
-    seen = check_every_swap(p)
-    try:
-        run(p, 150)
-    finally:
-        p.close()
+    p, seen = run_checked(cfg, 150)
     assert {r.vehicle for r in p.completed} == {1, 2, 3}
     assert seen["swaps"] > 20
 
@@ -631,12 +628,7 @@ def test_a_vehicle_back_in_its_area_by_a_passing_loop_waits_for_the_one_planned_
         seed=734,
         traffic="time_windows",
     )
-    p = FleetProgram(cfg)
-    seen = check_every_swap(p)
-    try:
-        run(p, 120)
-    finally:
-        p.close()
+    p, seen = run_checked(cfg, 120)
     done = {v: sum(r.vehicle == v for r in p.completed) for v in (1, 2)}
     assert min(done.values()) >= 3, done
     assert seen["swaps"] > 20
@@ -740,15 +732,22 @@ def check_every_swap(program: FleetProgram) -> dict[str, int]:
     return seen
 
 
-def test_every_order_of_the_default_job_can_be_executed_to_the_end(tmp_path):
-    cfg = load_config(tw_config(tmp_path))
-    cfg.watchdog = 5.0
+def run_checked(cfg, seconds: float) -> tuple[FleetProgram, dict[str, int]]:
+    """Run ``cfg`` for ``seconds`` with every round and release checked
+    (:func:`check_every_swap`, and :func:`run`'s monitor after every cycle)."""
     p = FleetProgram(cfg)
     seen = check_every_swap(p)
     try:
-        run(p, 150)
+        run(p, seconds)
     finally:
         p.close()
+    return p, seen
+
+
+def test_every_order_of_the_default_job_can_be_executed_to_the_end(tmp_path):
+    cfg = load_config(tw_config(tmp_path))
+    cfg.watchdog = 5.0
+    p, seen = run_checked(cfg, 150)
     assert seen["swaps"] > 100
 
 
@@ -794,12 +793,7 @@ def test_every_order_can_be_executed_to_the_end_on_crowded_plants(cfg):
     """Also where stations are single-vehicle areas: every round's windows then keep the
     node rule for each area as a whole, and nobody is released into an area before a
     vehicle planned there earlier (also one that comes back in by a passing loop)."""
-    p = FleetProgram(cfg)
-    seen = check_every_swap(p)
-    try:
-        run(p, 90)
-    finally:
-        p.close()
+    p, seen = run_checked(cfg, 90)
     assert seen["swaps"] > 0
 
 
@@ -826,12 +820,7 @@ def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():
         seed=395,
         traffic="time_windows",
     )
-    p = FleetProgram(cfg)
-    seen = check_every_swap(p)
-    try:
-        run(p, 200)
-    finally:
-        p.close()
+    p, seen = run_checked(cfg, 200)
     assert seen["swaps"] > 100
 
 
