@@ -84,7 +84,10 @@ from .time_windows import TimeWindowTable
 WALLS = ("offline", "stale", "fault", "suspect")
 
 
-HELD = -1e18  # sorts a held node first at its node (the vehicle is there)
+# the label of every held node: first at its node (the vehicle is there). Held visits of one
+# node or area are ordered by what follows the label in the layout's sort (only in an area
+# can two vehicles hold nodes: an operator put one there)
+HELD = -1e18
 EXTEND = 2  # steps of its old plan a vehicle may still be released while a round is planned
 
 
@@ -459,7 +462,7 @@ class TimeWindowTraffic(FunctionBlock):
             if steps[front + 1 - len(held) : front + 1] == held:
                 offset = front + 1 - len(held)
         committed = list(held)
-        labels = [HELD + k for k in range(len(held))]
+        labels = [HELD] * len(held)
         kept = False
         if offset >= 0 and goal is not None and front + 1 < len(steps):
             # a plan that still leads to the same goal for a while is kept whole; otherwise
@@ -509,14 +512,23 @@ class TimeWindowTraffic(FunctionBlock):
         table. A committed step must not depend on a plan not made yet, so an old plan's
         step is dropped (with all after it) where a vehicle ordered before it at that node
         stays there for good or only reaches it as its frontier (from there it leaves by its
-        new plan, which may not be found). If the old order cannot be laid out (it never
-        should), only the held nodes stay."""
+        new plan, which may not be found), and where it goes on inside an area another
+        vehicle holds a node of too. If the old order cannot be laid out (it never should),
+        only the held nodes stay, and if even they cannot, nobody moves this round."""
+        key = self.resources.get
+        # areas two vehicles hold nodes of (an operator put one there): neither is committed
+        # further into it, whose visits there the layout could not keep apart
+        holders: dict[Hashable, set[int]] = {}
+        for e in self._entries.values():
+            for node in e.committed[: e.held]:
+                if node in self.resources:
+                    holders.setdefault(key(node), set()).add(e.vehicle)
+        shared = {area for area, vehicles in holders.items() if len(vehicles) > 1}
         cut = True
         while cut:
             cut = False
             # node (its area, if in one) -> the earliest label of a visit ending there
             stays: dict[Hashable, float] = {}
-            key = self.resources.get
             for e in self._entries.values():
                 k = 0 if e.goal is None else len(e.committed) - 1
                 for node, label in zip(e.committed[k:], e.labels[k:], strict=True):
@@ -527,6 +539,7 @@ class TimeWindowTraffic(FunctionBlock):
                         k
                         for k in range(e.held, len(e.committed))
                         if stays.get(key(e.committed[k], e.committed[k]), math.inf) < e.labels[k]
+                        or key(e.committed[k], None) in shared
                     ),
                     None,
                 )
@@ -536,7 +549,11 @@ class TimeWindowTraffic(FunctionBlock):
         if not self._lay_out():
             for e in self._entries.values():
                 self._cut(e, e.held)
-            self._lay_out()
+            if not self._lay_out():
+                for e in self._entries.values():  # nobody moves this round
+                    e.goal, e.kept, e.fixed = None, False, None
+                    e.starts = [self._t0] * len(e.committed)
+                    e.ends = [math.inf] * len(e.committed)
         for e in self._entries.values():
             e.labels = list(e.starts)
 
