@@ -81,10 +81,6 @@ class TimeWindowTable:
         self._booked: dict[int, tuple[list[Hashable], list[tuple[int, int]]]] = {}
 
     # ----- reading -------------------------------------------------------------------------
-    def resource(self, node: int) -> Hashable:
-        """The key ``node``'s windows are kept under: its single-vehicle area, or itself."""
-        return self.resources.get(node, node)
-
     def node_windows(self, node: int) -> tuple[Window, ...]:
         """The windows on ``node``: on every node of its area, if it is in one."""
         return tuple(self._nodes.get(self.resources.get(node, node), ()))
