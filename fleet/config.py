@@ -64,7 +64,8 @@ class TimeWindowsConfig:
 
     gap_s: float = 0.5  # safety gap between two vehicles' windows on a node or segment
     horizon_s: float = 20.0  # how far ahead a plan is booked and released
-    window_s: float = 86400.0  # how far ahead conflicts are resolved (>= horizon_s; a day: all)
+    # how far ahead conflicts are resolved (>= horizon_s, which it then follows; a day: all)
+    window_s: float = 30.0
     replan_s: float = 2.0  # a planning round at least this often
     plan_budget: int = 200  # search expansions, or vehicles read, per scan (about 5 ms)
     wait_free_s: float = 15.0  # T_w1: a wait for a vehicle still on its way, then replan
@@ -235,7 +236,7 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
     cfg = TimeWindowsConfig(
         gap_s=r.number("gap_s", 0.5, 0.001, 60.0),
         horizon_s=horizon_s,
-        window_s=r.number("window_s", 86400.0, horizon_s, 86400.0),
+        window_s=r.number("window_s", max(30.0, horizon_s), horizon_s, 86400.0),
         replan_s=r.number("replan_s", 2.0, 0.01, 3600.0),
         plan_budget=r.integer("plan_budget", 200, 1, 10**8),
         wait_free_s=r.number("wait_free_s", 15.0, 0.01, 3600.0),
