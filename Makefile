@@ -24,7 +24,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	@echo "make bench: about 216 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 60, time_windows 0.1, lorr 20, web_load 5). make bench-quick runs them all reduced in about 6 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 60, time_windows 0.1, windowed_search 0.1, lorr 20, web_load 5). make bench-quick runs them all reduced in about 6 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --plant kiva --sizes 60 --timesteps 300 --traffic reactive time_windows --delay-rate 0 0.001 0.01
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/time_windows.py
+	$(BIN)/python bench/windowed_search.py
 	$(BIN)/python bench/lorr.py
 	$(BIN)/python bench/web_load.py
 
@@ -51,6 +52,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --quick
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/time_windows.py --quick
+	$(BIN)/python bench/windowed_search.py --quick
 	$(BIN)/python bench/lorr.py --quick
 	$(BIN)/python bench/web_load.py --quick
 
