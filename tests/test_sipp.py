@@ -555,3 +555,56 @@ def test_past_its_cut_off_a_search_keeps_off_arcs_the_distances_do_not_know_are_
     search.step(None)
     assert search.plan is not None and search.plan.nodes == (0, 4, 5, 6, 7, 3)
     check_drivable(plant, search.plan, 0, 3, 0.0)
+
+
+def test_a_way_down_the_distances_that_is_closed_is_walked_once_not_from_every_state():
+    """The goal of a 10 x 10 hall is joined to its corner node 0 only, and that arc is
+    closed by a blockade the distances do not know, so every way down them ends at node
+    0. A search past its cut-off from the far corner pops every state of the hall, and
+    each would walk down to node 0 again; the nodes of a walk that ended nowhere are
+    remembered, so all walks together take at most one step per node. From a node with
+    no way to the goal at all (a one-way arc into a pocket) no walk starts."""
+    hall = grid(np.ones((10, 10)))
+    goal = 1000
+    plant = Plant.build(
+        [*hall.nodes, Node(goal, "", -1.0, 0.0)],
+        [*hall.edges, Edge(0, goal, 1.0)],
+        name="hall",
+    )
+    allowed = [True] * plant.n_arcs
+    for key in ((0, goal), (goal, 0)):
+        for arc in plant.arc_index[key]:
+            allowed[arc] = False
+    search = SafeIntervalSearch(
+        plant,
+        TimeWindowTable(GAP),
+        1,
+        99,
+        goal,
+        0.0,
+        speed=1.0,
+        turns=TURNS,
+        until=0.0,
+        allowed=allowed,
+    )
+    search.step(None)
+    assert search.plan is None and search.expansions >= 100
+    assert 0 < search.descended <= plant.n
+    pocket = Plant.build(
+        [
+            Node(0, "", 0.0, 0.0),
+            Node(1, "", 1.0, 0.0),
+            Node(2, "", 2.0, 0.0),
+            Node(9, "", -1.0, 0.0),
+        ],
+        [
+            Edge(9, 0, 1.0, bidirectional=False),
+            Edge(0, 1, 1.0, bidirectional=False),
+            Edge(1, 2, 1.0),
+        ],
+        name="pocket",
+    )
+    trapped = SafeIntervalSearch(
+        pocket, TimeWindowTable(GAP), 1, 0, 9, 0.0, speed=1.0, turns=TURNS, until=0.0
+    )
+    assert trapped.descent(pocket.idx(1), -1, 0.0) is None and trapped.descended == 0

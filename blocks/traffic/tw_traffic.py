@@ -83,11 +83,6 @@ from .time_windows import TimeWindowTable
 
 WALLS = ("offline", "stale", "fault", "suspect")
 
-# A windowed search's steps down the distances past its cut-off are charged to the scan's
-# budget this many to an expansion: one costs about a sixth of an expansion (3 against
-# 16 us on the 1000-vehicle warehouse), which has the time-window table to ask
-DESCENT_STEPS_PER_EXPANSION = 4
-
 
 # the label of every held node: first at its node (the vehicle is there). Held visits of one
 # node or area are ordered by what follows the label in the layout's sort (only in an area
@@ -708,12 +703,10 @@ class TimeWindowTraffic(FunctionBlock):
                     continue
                 self._search = self._start_search(entry)
             search = self._search
-            before, descended = search.expansions, search.descended
+            before, work = search.expansions, search.work
             search.step(budget)
-            used = search.expansions - before
-            descents = search.descended - descended
-            budget -= max(used + -(-descents // DESCENT_STEPS_PER_EXPANSION), 1)
-            self.expansions += used
+            budget -= max(search.work - work, 1)
+            self.expansions += search.expansions - before
             if search.done:
                 self._search = None
                 plan = search.plan
