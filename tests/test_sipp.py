@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from plan_monitor import PlanMonitor
 
+from blocks.routing.heuristic import distances_to
 from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes, plan_path
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict
 from topology import Edge, Node, Plant
@@ -608,3 +609,39 @@ def test_a_way_down_the_distances_that_is_closed_is_walked_once_not_from_every_s
         pocket, TimeWindowTable(GAP), 1, 0, 9, 0.0, speed=1.0, turns=TURNS, until=0.0
     )
     assert trapped.descent(pocket.idx(1), -1, 0.0) is None and trapped.descended == 0
+
+
+def test_the_way_down_the_distances_is_a_shortest_way_far_from_the_goal_and_across_one_spot():
+    """From every node of a 10 x 10 hall whose corner leads by a 2.5 km corridor to the
+    goal, the way down the distances is a shortest way (its length is the node's
+    distance): no step leads away from the goal however far it is. Two nodes at one spot
+    (a zero-length arc, a shortest way in both directions) are crossed once, not back and
+    forth."""
+    hall = grid(np.ones((10, 10)))
+    far = Plant.build(
+        [*hall.nodes, Node(1000, "", 2509.0, 9.0)],
+        [*hall.edges, Edge(99, 1000, 2500.0)],
+        name="far",
+    )
+    row = distances_to(far, [1000])[0]
+    no_turns = TurnTimes(0.0, 0.0)  # so that arriving takes as many seconds as metres
+    search = SafeIntervalSearch(
+        far, TimeWindowTable(GAP), 1, 0, 1000, 0.0, speed=1.0, turns=no_turns, until=0.0
+    )
+    for n in range(100):
+        tail = search.descent(n, -1, 0.0)
+        assert tail is not None and tail.nodes[-1] == far.idx(1000)
+        assert tail.arrive[-1] == pytest.approx(row[n], rel=1e-6)
+    spot = Plant.build(
+        [
+            Node(0, "", 0.0, 0.0),
+            Node(1, "", 1.0, 0.0),
+            Node(2, "", 1.0, 0.0),
+            Node(3, "", 2.0, 0.0),
+        ],
+        [Edge(1, 2, 0.0), Edge(0, 1, 1.0), Edge(2, 3, 1.0)],
+        name="spot",
+    )
+    across = SafeIntervalSearch(spot, TimeWindowTable(GAP), 1, 0, 3, 0.0, speed=1.0, until=0.0)
+    tail = across.descent(spot.idx(0), -1, 0.0)
+    assert tail is not None and [spot.ids[n] for n in tail.nodes] == [1, 2, 3]

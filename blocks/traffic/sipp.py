@@ -393,7 +393,8 @@ class SafeIntervalSearch:
         geometry, row, allowed, stuck = self.geometry, self._row, self.allowed, self._stuck
         first = node
         nodes, arrive, depart, extra = [], [], [], 0.0
-        for _ in range(self.plant.n):  # zero-length arcs could lead round in a circle
+        seen = {node}  # a zero-length arc is a shortest way both ways: never back
+        for _ in range(self.plant.n):
             if node == self._goal:
                 # none if it starts there: it could not stay, so it searches on
                 return Tail(nodes, arrive, depart, extra) if nodes else None
@@ -403,10 +404,12 @@ class SafeIntervalSearch:
             self.descended += 1
             best = None
             for v, arc, length in self.plant.neighbors[node]:
-                if allowed is not None and not allowed[arc]:
+                if v in seen or (allowed is not None and not allowed[arc]):
                     continue
-                if abs(here - length - row[v].item()) > 1e-3 * max(1.0, here):
-                    continue  # not on a shortest way
+                # on a shortest way, but for the rounding of the distances to float32
+                # (a relative 1.2e-7 each)
+                if abs(here - length - row[v].item()) > 1e-6 * max(1.0, here):
+                    continue
                 if arc_in < 0:
                     turn = self.turns.between(self._heading, geometry.direction[arc])
                 else:
@@ -416,6 +419,7 @@ class SafeIntervalSearch:
             if best is None:
                 break
             turn, node, arc_in, length = best
+            seen.add(node)
             travel = length / min(self.speed, geometry.max_speed[arc_in])
             depart.append(t + turn)
             t += turn + travel
