@@ -13,7 +13,7 @@ import random
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from plan_monitor import PlanMonitor
 
@@ -457,6 +457,8 @@ def windows_before(plan: TimedPlan, until: float):
     others_count=st.integers(0, 8),
     until=st.sampled_from([0.0, 2.0, 5.0, 9.0, math.inf]),
 )
+# a plan first costed past the cut-off with a turn on its way on loses to one without
+@example(seed=0, width=2, height=3, others_count=2, until=5.0)
 def test_a_windowed_plan_keeps_every_rule_before_its_cut_off(
     seed, width, height, others_count, until
 ):
@@ -645,3 +647,62 @@ def test_the_way_down_the_distances_is_a_shortest_way_far_from_the_goal_and_acro
     across = SafeIntervalSearch(spot, TimeWindowTable(GAP), 1, 0, 3, 0.0, speed=1.0, until=0.0)
     tail = across.descent(spot.idx(0), -1, 0.0)
     assert tail is not None and [spot.ids[n] for n in tail.nodes] == [1, 2, 3]
+
+
+def test_a_plan_past_its_cut_off_pays_its_speed_limits_and_weights():
+    """On the line 0 - 1 - 2 - 3 - 4 (1 m apart) the segment 2 - 3 is limited to 0.5 m/s
+    and the arc 3 -> 4 weighs 3. Past a cut-off of 0.5 s (from node 1 on) the plan goes on
+    down the distances: it arrives at 5 s (1 + 1 + 2 + 1) and costs 7 (2 s of weight on top
+    of the 1 s on 3 -> 4), as the search without a cut-off plans it."""
+    line = Plant.build(
+        [Node(i, "", float(i), 0.0) for i in range(5)],
+        [Edge(0, 1, 1.0), Edge(1, 2, 1.0), Edge(2, 3, 1.0, max_speed=0.5), Edge(3, 4, 1.0)],
+        name="line",
+    )
+    weights = [3.0 if key == (3, 4) else 1.0 for key in arc_keys(line)]
+    kw = {"speed": 1.0, "turns": TURNS, "heading": (1.0, 0.0), "weights": weights}
+    for until in (0.5, 0.0, math.inf):
+        plan = plan_path(line, TimeWindowTable(GAP), 1, 0, 4, 0.0, until=until, **kw)
+        assert plan is not None and plan.nodes == (0, 1, 2, 3, 4), until
+        assert plan.arrive == (0.0, 1.0, 2.0, 4.0, 5.0) and plan.cost == 7.0, until
+        assert plan.depart[:-1] == (0.0, 1.0, 2.0, 4.0) and plan.depart[-1] == math.inf
+
+
+def arc_keys(plant: Plant) -> list[tuple[int, int]]:
+    """(from, to) node ids of each arc, in arc order."""
+    keys = [(0, 0)] * plant.n_arcs
+    for key, arcs in plant.arc_index.items():
+        for arc in arcs:
+            keys[arc] = key
+    return keys
+
+
+def test_a_budget_counts_the_walks_down_the_distances():
+    """Across a 40 x 40 grid, corner to corner, with a cut-off at 10 s: many states past
+    the cut-off tie on their lower bound, and each is costed by a walk down the distances
+    (up to 78 steps) before the cheapest wins. A step of 20 works to 20 and stops: its
+    expansions and walks (four steps to an expansion) overrun that by at most one walk
+    and one expansion, not a walk for each of 20 states."""
+    plant = grid(np.ones((40, 40)))
+    search = SafeIntervalSearch(
+        plant,
+        TimeWindowTable(GAP),
+        1,
+        0,
+        1599,
+        0.0,
+        speed=1.0,
+        turns=TURNS,
+        heading=(1.0, 0.0),
+        until=10.0,
+    )
+    steps = 0
+    while True:
+        work = search.work
+        done = search.step(20)
+        assert search.work - work <= 20 + 78 // 4 + 2
+        steps += 1
+        if done:
+            break
+    assert search.plan is not None and search.plan.nodes[-1] == 1599
+    assert search.descended > 5 * 78 and steps > 5  # several walks, over several steps

@@ -469,9 +469,10 @@ def test_vehicles_planned_across_one_that_they_box_in_give_way_to_it(window_s):
     before it in a round: they cross its node before it can get away. Those plans are
     then dropped and made after its own. Without that, its plan fails and it stands
     until the next round; with it no fewer recipes complete, with no conflict and every
-    order executable to its end. Without a conflict window fewer plans fail too; with
-    one, the plans of those that gave way may then only wait until the cut-off, which
-    counts as no plan."""
+    order executable to its end. Without a conflict window fewer plans fail too (72
+    against 130 here). With one, more fail (137 against 94: the plans of those that gave
+    way may then only wait until the cut-off, which counts as no plan), but more recipes
+    complete (12 against 9)."""
     results = {}
     for give_way in (True, False):
         p = delayed_crowd(3600.0, window_s)
