@@ -336,7 +336,7 @@ class TimeWindowTraffic(FunctionBlock):
     def _overdue(self, v: int, control, now_ns: int) -> bool:
         """Has ``v`` waited longer than the seed's threshold for the node it wants, and
         not been planned afresh for this wait yet?"""
-        blocker = control.waiting_for
+        blocker = control.wait_blocker
         if blocker is None or self._waits_handled.get(v) == control.wait_since_ns:
             return False
         node = control.wait_node
@@ -474,7 +474,7 @@ class TimeWindowTraffic(FunctionBlock):
                 and self._goal.get(v) == goal
                 and (steps[-1] == goal or old[-1] >= self._t0 + self.keep_s)
             )
-            waits_long = v in self._late and control.waiting_for is not None
+            waits_long = v in self._late and control.wait_blocker is not None
             if kept or (self.order.blocker(v, front + 1) is None and not waits_long):
                 last = len(steps) if kept else min(front + 1 + EXTEND, len(steps))
                 for k in range(front + 1, last):

@@ -101,6 +101,9 @@ class VehicleControl(FunctionBlock):
     blockade_epoch = Static(0)
     retry_ns = Static(0)
     wait_node = Static(None)
+    # the vehicle last waited for at wait_node: kept while the vehicle waits for a planning
+    # round instead (time-window traffic), so that the planner's wait thresholds count on
+    wait_blocker = Static(None)
     wait_replanned = Static(False)
     consistent_since_ns = Static(None)  # suspect: reporting a held node since then
     link_jumps = Static(0)  # the link's count of this vehicle's counter jumps, last seen
@@ -383,6 +386,7 @@ class VehicleControl(FunctionBlock):
                 self.wait_since_ns = ctx.time_ns
                 self.wait_replanned = False
             self.wait_node, self.waiting_for = there, blocker
+        self.wait_blocker = blocker
         if self.traffic is not None:
             return  # the plans' order decides, and the planner replans
         oncoming = (
@@ -400,7 +404,7 @@ class VehicleControl(FunctionBlock):
 
     def _not_waiting(self) -> None:
         self.reservation.wants[self.vehicle] = None
-        self.wait_node = self.waiting_for = None
+        self.wait_node = self.waiting_for = self.wait_blocker = None
 
     # ----- starts, granted by the resolver -----------------------------------------------------
     def request(self, ctx: CycleContext) -> int | None:
@@ -414,12 +418,18 @@ class VehicleControl(FunctionBlock):
             # for deadlock detection, giving way is waiting for the vehicle it gave way to
             self._blocked(ctx, giving_way_to, here, there)
             self._publish_state()
-        elif withheld and self.traffic is not None and not self.traffic.planning:
-            # waiting for a plan, not for a vehicle. While a round is being planned a
-            # vehicle that waited for one goes on waiting for it (the round withholds every
-            # step past its commitments): clearing the wait would restart its clock every
-            # round, and the planner's wait thresholds could never be reached
-            self._not_waiting()
+        elif withheld and self.traffic is not None:
+            # waiting for a plan, not for a vehicle (a vehicle named here would make a
+            # waits-for circle the resolver reports, where none is). While a round is being
+            # planned a vehicle that waited for one goes on waiting at that node (the round
+            # withholds every step past its commitments): clearing the wait would restart
+            # its clock every round, and the planner's wait thresholds could never be reached
+            if self.traffic.planning:
+                if self.waiting_for is not None:
+                    self.waiting_for = None
+                    self._publish_state()
+            else:
+                self._not_waiting()
         return None if withheld else there
 
     def _step_withheld(self, ctx: CycleContext, here: int, there: int) -> tuple[bool, int | None]:
