@@ -163,7 +163,13 @@ VEHICLE_FIELDS = tuple(
             ("waits", "UINT", "times it stopped for a node held by another", False),
             ("replans", "UINT", "routes recomputed because the next segment was taken", False),
             ("rounds", "UINT", "recipes it completed in this run", False),
-            ("waiting_for", "UINT", "the vehicle it waits for (0: none)", False),
+            (
+                "waiting_for",
+                "UINT",
+                "the vehicle it waits for (0: none, also while it waits for a time-window "
+                "planning round; its state is then 2 planning)",
+                False,
+            ),
             (
                 "reported",
                 "UINT",

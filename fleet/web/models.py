@@ -157,7 +157,10 @@ class VehicleOut(BaseModel):
     order: str | None = Field(description="its active transport order")
     next_order: str | None = Field(description="its next transport order")
     recipe: str | None = Field(description="its recipe (vehicles that run recipes)")
-    waiting_for: int | None = Field(description="the vehicle holding the node it waits for")
+    waiting_for: int | None = Field(
+        description="the vehicle holding the node it waits for (null while it waits for a "
+        "time-window planning round; its state is then planning)"
+    )
     online: bool
     stale: bool = Field(description="silent for longer than stale_after: nothing released")
     fault: bool
