@@ -159,6 +159,7 @@ def _traffic(program) -> dict:
         "failed_plans": tw.failed,
         "windows_booked": tw.booked,
         "give_ways": tw.give_ways,
+        "kept_whole": tw.kept_whole,
         "overtakes": tw.overtakes,
         "wait_replans": tw.wait_replans,
         "stranded": sorted(tw.stranded_at),

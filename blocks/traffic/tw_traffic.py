@@ -36,6 +36,11 @@ the vehicles that have somewhere to go one after another through the free window
    committed window there. Each vehicle's control gets its route from wherever it has been
    released to meanwhile.
 
+A round takes on about as many searches as its budget gets through in ``replan_s``, so
+that it ends before the plans it replaces run out: where more vehicles want a search,
+plans that still lead to their goal are kept whole instead
+(:meth:`_keep_beyond`).
+
 A round's work is spread over scans, like the A* block's: reading what the vehicles are
 committed to takes ``budget`` vehicles per scan, laying it out a scan of its own (one pass
 in topological order), and the searches ``budget`` expansions per scan. Until the layout
@@ -89,6 +94,10 @@ WALLS = ("offline", "stale", "fault", "suspect")
 # can two vehicles hold nodes: an operator put one there)
 HELD = -1e18
 EXTEND = 2  # steps of its old plan a vehicle may still be released while a round is planned
+# a round takes on at least this many searches, however dear the searches have been
+MIN_SEARCHES = 8
+# the estimate of a search's work before any search ended (expansions, walks counted)
+FIRST_WORK_ESTIMATE = 100.0
 
 
 @dataclass
@@ -105,6 +114,8 @@ class _Entry:
     heading: tuple[float, float] | None = None
     goal: int | None = None  # None: it stays
     kept: bool = False  # its old plan stays, no search this round
+    # how far ahead its old plan is booked, if it could be kept (same goal, not late)
+    booked_ahead: float | None = None
     hold_end: float = math.inf  # the end of its frontier window before it was planned
     fixed: list[int] | None = None  # a given route after the frontier (a return lane)
     starts: list[float] = field(default_factory=list)  # the windows' starts in this round
@@ -121,6 +132,9 @@ class TimeWindowTraffic(FunctionBlock):
     wait_replans = Output(0, doc="vehicles planned afresh after waiting too long for a node")
     stranded = Output(0, doc="vehicles without a path for longer than wait_occupied_s (FAULT)")
     give_ways = Output(0, doc="plans dropped to let a vehicle they boxed in get away first")
+    kept_whole = Output(
+        0, doc="plans kept whole, not searched again: more wanted a search than fit"
+    )
 
     def __init__(
         self,
@@ -215,6 +229,8 @@ class TimeWindowTraffic(FunctionBlock):
         self._labels: dict[int, list[float]] = {}
         self._limit: dict[int, int] = {}  # while planning: the last step it may be released
         self._late: set[int] = set()  # vehicles whose plan failed: planned first next round
+        # a search's mean work (expansions, walks counted), for how many fit in a round
+        self._work_per_search = FIRST_WORK_ESTIMATE
         self._due_ns = 0
         self._began_ns = 0
         self._min_gap_ns = round(replan_s * 1e9 / 4)
@@ -315,7 +331,7 @@ class TimeWindowTraffic(FunctionBlock):
         if self._pending:
             self._take_entries(ctx)
         elif self._pending is not None:
-            self._commit()
+            self._commit(ctx)
         else:
             self._plan(ctx)
 
@@ -391,9 +407,11 @@ class TimeWindowTraffic(FunctionBlock):
             if entry is not None:
                 self._entries[v] = entry
 
-    def _commit(self) -> None:
+    def _commit(self, ctx: CycleContext) -> None:
         """Lay out and book what the vehicles are committed to, and queue the searches."""
         self._pending = None
+        fit = self._fit(ctx)
+        kept = self._keep_beyond(fit)
         self._chain()
         self._limit = {
             v: e.offset + len(e.committed) - 1 for v, e in self._entries.items() if e.offset >= 0
@@ -404,6 +422,7 @@ class TimeWindowTraffic(FunctionBlock):
             [self._t0 + self.window_s, *(e.starts[-1] + 1.0 for e in self._entries.values())]
         )
         self._book_until = self._t0 + self.horizon_s
+        self.kept_whole += sum(e.kept for e in kept)  # (the layout may cut a kept plan short)
         movers = []
         for entry in self._entries.values():
             self._book_committed(entry)
@@ -415,6 +434,40 @@ class TimeWindowTraffic(FunctionBlock):
             movers, key=lambda e: (e.vehicle not in late, self.priority(e.vehicle))
         )
         self._late = set()
+
+    def _keep_beyond(self, fit: int) -> list[_Entry]:
+        """A round searches about as many vehicles as the budget gets through in
+        ``replan_s`` at the searches' mean cost (``fit``): a round that searched a thousand
+        vehicles would outlast the plans it replaces, and the vehicles would stand at
+        their ends. So where more vehicles want a search, those that still have a plan to
+        their goal keep it whole, however soon it runs out, the plans that run out latest
+        first, until the others fit (returned: those kept). A vehicle whose plan failed or
+        that waited too long, or that has no plan to keep (a new goal, or its plan ran
+        out), is searched all the same, so a round can take on more than ``fit`` (a fleet
+        starting, or one whose plans run out faster than the budget replaces them):
+        putting those off too made them stand in the others' way, and cost more tasks at
+        1000 vehicles than it saved."""
+        wanting = [
+            e for e in self._entries.values() if e.goal is not None and not e.kept and not e.fixed
+        ]
+        spare = len(wanting) - fit
+        keepable = sorted(
+            (e for e in wanting if e.booked_ahead is not None),
+            key=lambda e: (-e.booked_ahead, self.priority(e.vehicle)),
+        )
+        kept = []
+        for entry in keepable:
+            if len(kept) >= spare:
+                break
+            if self._keep_whole(entry):
+                kept.append(entry)
+        return kept
+
+    def _fit(self, ctx: CycleContext) -> int:
+        """How many searches a round takes on: as many as ``budget`` expansions per scan
+        get through in ``replan_s`` at the mean work of a search so far."""
+        scans = self.replan_s * 1e9 / ctx.interval_ns
+        return max(MIN_SEARCHES, math.ceil(self.budget * scans / self._work_per_search))
 
     def _arc_weights(self) -> list[float] | None:
         """This round's cost factor per arc for the searches: path heat times the
@@ -464,16 +517,15 @@ class TimeWindowTraffic(FunctionBlock):
         committed = list(held)
         labels = [HELD] * len(held)
         kept = False
+        booked_ahead = None
         if offset >= 0 and goal is not None and front + 1 < len(steps):
             # a plan that still leads to the same goal for a while is kept whole; otherwise
             # a vehicle on its way (its next step free to take) drives on meanwhile, and
             # one that waits is planned afresh from where it is
             old = self._labels[v]
-            kept = (
-                v not in self._late
-                and self._goal.get(v) == goal
-                and (steps[-1] == goal or old[-1] >= self._t0 + self.keep_s)
-            )
+            if v not in self._late and self._goal.get(v) == goal:
+                booked_ahead = old[-1] - self._t0
+                kept = steps[-1] == goal or booked_ahead >= self.keep_s
             waits_long = v in self._late and control.wait_blocker is not None
             if kept or (self.order.blocker(v, front + 1) is None and not waits_long):
                 last = len(steps) if kept else min(front + 1 + EXTEND, len(steps))
@@ -483,17 +535,9 @@ class TimeWindowTraffic(FunctionBlock):
                         break
                     committed.append(steps[k])
                     labels.append(old[k])
-        t0 = self._t0
-        reach, heading = self._drive(committed, t0)
-        if goal is None:
-            ends = [math.inf] * len(committed)
-        else:
-            # it leaves a node when it sets off towards the next one: not before it
-            # arrives there (estimated), nor before that step's place in the order
-            arrive = self._arrivals(committed, t0)
-            ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
-            ends.append(reach + self.frontier_hold_s)
-        entry = _Entry(v, committed, labels, ends, offset, len(held), reach, heading, goal, kept)
+        entry = _Entry(v, committed, labels, [], offset, len(held), goal=goal, kept=kept)
+        entry.booked_ahead = booked_ahead
+        self._time_committed(entry)
         if goal is not None and control.fixed_route is not None:
             fixed = list(control.fixed_route)
             front_node = committed[-1]
@@ -502,6 +546,37 @@ class TimeWindowTraffic(FunctionBlock):
                 entry.goal = None
                 entry.ends = [math.inf] * len(committed)
         return entry
+
+    def _time_committed(self, entry: _Entry) -> None:
+        """When the vehicle is estimated to reach its frontier, its heading there, and when
+        it leaves each committed node."""
+        committed, labels = entry.committed, entry.labels
+        entry.reach_s, entry.heading = self._drive(committed, self._t0)
+        if entry.goal is None:
+            entry.ends = [math.inf] * len(committed)
+        else:
+            # it leaves a node when it sets off towards the next one: not before it
+            # arrives there (estimated), nor before that step's place in the order
+            arrive = self._arrivals(committed, self._t0)
+            entry.ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
+            entry.ends.append(entry.reach_s + self.frontier_hold_s)
+
+    def _keep_whole(self, entry: _Entry) -> bool:
+        """Commit ``entry``'s vehicle to the rest of its old plan too, however soon that
+        runs out (its committed steps are that plan's, from ``offset`` on). False, and the
+        entry unchanged, where the plan comes back to a node committed before it."""
+        v = entry.vehicle
+        steps, old = self._steps[v], self._labels[v]
+        rest = range(entry.offset + len(entry.committed), len(steps))
+        if len(set(entry.committed).union(steps[k] for k in rest)) < len(entry.committed) + len(
+            rest
+        ):
+            return False
+        entry.committed += [steps[k] for k in rest]
+        entry.labels += [old[k] for k in rest]
+        entry.kept = True
+        self._time_committed(entry)
+        return True
 
     def _chain(self) -> None:
         """Lay out the committed windows: at each node one after the other in the order the
@@ -709,6 +784,7 @@ class TimeWindowTraffic(FunctionBlock):
             self.expansions += search.expansions - before
             if search.done:
                 self._search = None
+                self._work_per_search += 0.1 * (search.work - self._work_per_search)
                 plan = search.plan
                 if plan is not None and len(plan.nodes) > 1 and plan.claims[1] >= self._until:
                     # it only waits where it is until the cut-off: no plan. Taken as one,
