@@ -872,13 +872,27 @@ def test_every_order_can_be_executed_to_the_end_when_rounds_keep_plans_whole(cfg
     """The same with rounds that take on one search each: every other vehicle with a plan
     keeps it whole."""
     p = FleetProgram(cfg)
-    p.traffic._fit = lambda ctx: 1
+    tw = p.traffic
+    tw._fit = lambda ctx: 1
+    keep_beyond = tw._keep_beyond
+    offered = []
+
+    def counted(fit):
+        wanting = [
+            e for e in tw._entries.values() if e.goal is not None and not e.kept and not e.fixed
+        ]
+        if len(wanting) > fit and any(e.booked_ahead is not None for e in wanting):
+            offered.append(len(wanting))
+        return keep_beyond(fit)
+
+    tw._keep_beyond = counted
     seen = check_every_swap(p)
     try:
         run(p, 90)
     finally:
         p.close()
     assert seen["swaps"] > 0
+    assert tw.kept_whole > 0 or len(offered) < 3, offered
 
 
 def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():
@@ -1038,17 +1052,18 @@ def test_a_round_takes_on_as_many_searches_as_fit_and_the_other_plans_are_kept_w
         left = [
             e for e in tw._entries.values() if e.goal is not None and not e.kept and not e.fixed
         ]
-        for e in kept:
-            assert e.kept and e.committed[-1] == before[e.vehicle][-1]  # the whole old plan
+        for e in kept:  # the whole old plan, from where it stands
+            assert e.kept and e.committed[e.held :] == before[e.vehicle][e.offset + e.held :]
         if kept:
             counts["capped"] += 1
             counts["kept_whole"] += len(kept)
             # only as many kept as needed for the rest to fit, the latest to run out first
             assert len(left) >= fit
-            # (or its old plan comes back to a node it is committed to: not kept whole)
+            # (or its old plan comes back to a node it is committed to: not kept whole),
+            # and none kept fewer than that
             earliest = min(e.booked_ahead for e in kept)
             for e in left:
-                if e.booked_ahead is not None and e.booked_ahead > earliest:
+                if e.booked_ahead is not None and (len(left) > fit or e.booked_ahead > earliest):
                     rest = before[e.vehicle][e.offset :]
                     assert len(set(rest)) < len(rest), (e.vehicle, e.booked_ahead, earliest)
         return kept

@@ -37,8 +37,8 @@ the vehicles that have somewhere to go one after another through the free window
    released to meanwhile.
 
 A round takes on about as many searches as its budget gets through in ``replan_s``, so
-that it ends before the plans it replaces run out: where more vehicles want a search,
-plans that still lead to their goal are kept whole instead
+that it lasts about that long, not as long as it takes to search the whole fleet: where
+more vehicles want a search, plans that still lead to their goal are kept whole instead
 (:meth:`_keep_beyond`).
 
 A round's work is spread over scans, like the A* block's: reading what the vehicles are
@@ -441,7 +441,8 @@ class TimeWindowTraffic(FunctionBlock):
         vehicles would outlast the plans it replaces, and the vehicles would stand at
         their ends. So where more vehicles want a search, those that still have a plan to
         their goal keep it whole, however soon it runs out, the plans that run out latest
-        first, until the others fit (returned: those kept). A vehicle whose plan failed or
+        first, until the others fit (returned: those kept; the layout may still cut one
+        short, and that vehicle is searched after all). A vehicle whose plan failed or
         that waited too long, or that has no plan to keep (a new goal, or its plan ran
         out), is searched all the same, so a round can take on more than ``fit`` (a fleet
         starting, or one whose plans run out faster than the budget replaces them):
@@ -465,7 +466,8 @@ class TimeWindowTraffic(FunctionBlock):
 
     def _fit(self, ctx: CycleContext) -> int:
         """How many searches a round takes on: as many as ``budget`` expansions per scan
-        get through in ``replan_s`` at the mean work of a search so far."""
+        get through in ``replan_s`` at the work of a search, a moving average weighted
+        towards the latest searches (about the last ten)."""
         scans = self.replan_s * 1e9 / ctx.interval_ns
         return max(MIN_SEARCHES, math.ceil(self.budget * scans / self._work_per_search))
 
