@@ -842,15 +842,24 @@ def dense_fleets(draw, plants=None):
     )
 
 
-@settings(
-    max_examples=20,
-    deadline=None,
-    derandomize=True,
-    database=None,
-    phases=[Phase.explicit, Phase.generate],
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
-@given(dense_fleets(st.one_of(grid_plants(), with_areas(grid_plants()), with_areas(ring_plants()))))
+# grids, and grids and rings whose stations are single-vehicle areas
+CROWDED_PLANTS = st.one_of(grid_plants(), with_areas(grid_plants()), with_areas(ring_plants()))
+
+
+def crowded(examples: int):
+    """Hypothesis settings for the crowded-plant properties: reproducible, no deadline."""
+    return settings(
+        max_examples=examples,
+        deadline=None,
+        derandomize=True,
+        database=None,
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
+
+
+@crowded(20)
+@given(dense_fleets(CROWDED_PLANTS))
 def test_every_order_can_be_executed_to_the_end_on_crowded_plants(cfg):
     """Also where stations are single-vehicle areas: every round's windows then keep the
     node rule for each area as a whole, and nobody is released into an area before a
@@ -859,15 +868,8 @@ def test_every_order_can_be_executed_to_the_end_on_crowded_plants(cfg):
     assert seen["swaps"] > 0
 
 
-@settings(
-    max_examples=12,
-    deadline=None,
-    derandomize=True,
-    database=None,
-    phases=[Phase.explicit, Phase.generate],
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
-@given(dense_fleets(st.one_of(grid_plants(), with_areas(grid_plants()), with_areas(ring_plants()))))
+@crowded(12)
+@given(dense_fleets(CROWDED_PLANTS))
 def test_every_order_can_be_executed_to_the_end_when_rounds_keep_plans_whole(cfg):
     """The same with rounds that take on one search each: every other vehicle with a plan
     keeps it whole."""
