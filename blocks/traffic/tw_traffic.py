@@ -229,7 +229,8 @@ class TimeWindowTraffic(FunctionBlock):
         self._labels: dict[int, list[float]] = {}
         self._limit: dict[int, int] = {}  # while planning: the last step it may be released
         self._late: set[int] = set()  # vehicles whose plan failed: planned first next round
-        # a search's mean work (expansions, walks counted), for how many fit in a round
+        # a search's work (expansions, walks counted), a moving average over the latest
+        # searches: how many fit in a round
         self._work_per_search = FIRST_WORK_ESTIMATE
         self._due_ns = 0
         self._began_ns = 0
@@ -437,7 +438,7 @@ class TimeWindowTraffic(FunctionBlock):
 
     def _keep_beyond(self, fit: int) -> list[_Entry]:
         """A round searches about as many vehicles as the budget gets through in
-        ``replan_s`` at the searches' mean cost (``fit``): a round that searched a thousand
+        ``replan_s`` at the latest searches' cost (``fit``): a round that searched a thousand
         vehicles would outlast the plans it replaces, and the vehicles would stand at
         their ends. So where more vehicles want a search, those that still have a plan to
         their goal keep it whole, however soon it runs out, the plans that run out latest
@@ -568,14 +569,12 @@ class TimeWindowTraffic(FunctionBlock):
         runs out (its committed steps are that plan's, from ``offset`` on). False, and the
         entry unchanged, where the plan comes back to a node committed before it."""
         v = entry.vehicle
-        steps, old = self._steps[v], self._labels[v]
-        rest = range(entry.offset + len(entry.committed), len(steps))
-        if len(set(entry.committed).union(steps[k] for k in rest)) < len(entry.committed) + len(
-            rest
-        ):
+        first = entry.offset + len(entry.committed)
+        rest = self._steps[v][first:]
+        if len(set(entry.committed).union(rest)) < len(entry.committed) + len(rest):
             return False
-        entry.committed += [steps[k] for k in rest]
-        entry.labels += [old[k] for k in rest]
+        entry.committed += rest
+        entry.labels += self._labels[v][first:]
         entry.kept = True
         self._time_committed(entry)
         return True
