@@ -73,6 +73,44 @@ def test_without_a_way_out_the_deadlock_is_reported_not_hidden(head_on):
     assert result["head_on_conflicts"] == 0 and result["node_conflicts"] == 0
 
 
+def test_a_scan_asks_each_vehicle_for_its_priority_at_most_once(head_on):
+    """At scale the resolver sorts hundreds of standing vehicles and checks every remembered
+    cycle for progress each scan: one priority look-up per vehicle is enough, as priorities
+    do not change within its scan."""
+    p = head_on(siding=True)
+    asked: list[int] = []
+    priority = p.resolver.priority
+
+    def counted(vehicle: int) -> tuple[int, int]:
+        asked.append(vehicle)
+        return priority(vehicle)
+
+    p.resolver.priority = counted
+    scans_asking = 0
+    for _ in range(round(90 / p.cfg.cycle_time)):
+        asked.clear()
+        run(p, p.cfg.cycle_time)
+        assert len(asked) == len(set(asked))
+        scans_asking += bool(asked)
+    assert scans_asking > 0
+    assert p.resolver.detected >= 1 and p.resolver.pushes >= 1
+
+
+def test_a_push_avoids_the_route_the_asking_vehicle_plans_now(head_on):
+    """The nodes of a vehicle's route are kept between scans (routes are long, and only
+    pushes need them): after every scan they are those of its current plan."""
+    p = head_on(siding=True)
+    index = p.cfg.plant.index
+    plans = {v: set() for v in p.controls}
+    for _ in range(round(90 / p.cfg.cycle_time)):
+        run(p, p.cfg.cycle_time)
+        for v, control in p.controls.items():
+            assert p.resolver._route_nodes(v) == {index[n] for n in control.planned}
+            plans[v].add(control.planned)
+    assert all(len(seen) > 2 for seen in plans.values())  # routes changed on the way
+    assert p.resolver.pushes >= 1
+
+
 def test_a_queue_of_standing_vehicles_is_pushed_aside_by_priority_inheritance():
     """Vehicle 1's shortest route runs through two standing vehicles, one behind the other:
     the first can only move onto the second's node, so the second must make room first (a

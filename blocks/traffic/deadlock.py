@@ -66,7 +66,22 @@ MAX_BACK_OFFS = 8  # back-offs for one cycle without progress: then it is a live
 RETRY_S = 1.0  # a cycle nobody could leave is tried again this often
 RETRY_NS = round(RETRY_S * 1e9)
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
-WALLS = ("offline", "stale", "fault", "suspect")
+WALLS = frozenset(("offline", "stale", "fault", "suspect"))
+
+
+class _Ranks(dict[int, tuple]):
+    """One scan's priorities, each vehicle's asked for once. Sorting the standing vehicles,
+    their requests, and checking every remembered cycle for progress would otherwise ask
+    for the same few hundred priorities several times a scan; they do not change within
+    the resolver's scan (it moves no recipe step on)."""
+
+    def __init__(self, priority: Callable[[int], tuple]) -> None:
+        super().__init__()
+        self._priority = priority
+
+    def __missing__(self, vehicle: int) -> tuple:
+        rank = self[vehicle] = self._priority(vehicle)
+        return rank
 
 
 @dataclass(frozen=True)
@@ -103,6 +118,7 @@ class DeadlockResolver(FunctionBlock):
         self.blockades = blockades
         self.priority = priority  # smaller is more urgent
         self.table = table
+        self._ids: list[int] = plant.ids.tolist()  # node id of each index, read per vehicle
         self.events: list[DeadlockEvent] = []
         # unresolved cycles already reported, with their members' progress at the time: not
         # reported again until one of them reaches a new recipe step or backs off
@@ -125,21 +141,26 @@ class DeadlockResolver(FunctionBlock):
         self._requests: Mapping[int, int] = {}
         self._area_given: dict[int, int] = {}  # area index -> the vehicle given a node of it
         self._area_waits: dict[int, int] = {}  # stays for an area: vehicle -> its occupant
+        self._rank = _Ranks(priority)  # this scan's priorities
+        # per vehicle, its planned route (the tuple) and the node indices on it
+        self._routes: dict[int, tuple[tuple, set[int]]] = {}
 
     def cycle(self, ctx: CycleContext) -> None:
+        self._rank = rank = _Ranks(self.priority)
         standing, pushable = self._standing()
+        controls, index = self.controls, self.plant.index
         requests = {}
-        for v in sorted(standing, key=self.priority):
-            node = self.controls[v].request(ctx)
+        for v in sorted(standing, key=rank.__getitem__):
+            node = controls[v].request(ctx)
             if node is not None:
-                requests[v] = self.plant.index[node]
+                requests[v] = index[node]
         waits = self._waits(standing, requests)
         self._arbitrate(standing, pushable, requests)
         self._execute(ctx, standing, requests)
         still = {
             key: (seen, tries)
             for key, (seen, tries) in self._attempts.items()
-            if seen == tuple(self.priority(v) for v in sorted(key))
+            if seen == self._progress(key)
         }
         self._attempts = still  # (a vehicle that reached a new step starts afresh)
         self._stuck = {key: p for key, p in self._stuck.items() if key in still}
@@ -178,7 +199,7 @@ class DeadlockResolver(FunctionBlock):
         key = frozenset(ring)
         if key in self._livelocks:
             return
-        progress = tuple(self.priority(v) for v in sorted(ring))
+        progress = self._progress(key)
         seen, tries = self._attempts.get(key, (None, 0))
         if seen != progress:
             self.detected += 1
@@ -192,7 +213,7 @@ class DeadlockResolver(FunctionBlock):
         if tries < MAX_BACK_OFFS:
             if moved:
                 victim = next((m for m in moved if m in self._pushed), moved[0])
-                node = int(self.plant.ids[self._next[victim]])
+                node = self._ids[self._next[victim]]
             elif self.pushes_allowed:
                 victim, node = self._back_off_candidate(ring, waits)
                 if victim is not None:
@@ -221,32 +242,39 @@ class DeadlockResolver(FunctionBlock):
             # to it may stop there), or the one behind made room: watch it
             self._retry_at[key] = ctx.time_ns + RETRY_NS
 
+    def _progress(self, vehicles: frozenset[int]) -> tuple:
+        """The priorities of ``vehicles`` (in id order): they change when one of them
+        reaches a new recipe step."""
+        return tuple(map(self._rank.__getitem__, sorted(vehicles)))
+
     # ----- the starts ---------------------------------------------------------------------------
     def _standing(self) -> tuple[dict[int, int], set[int]]:
         """Vehicles standing at a node (nothing released beyond it) -> that node's index;
         and those of them that may be pushed (not arrived or processing, not on a fixed
         route)."""
-        index = self.plant.index
+        index, pushes = self.plant.index, self.pushes_allowed
         standing, pushable = {}, set()
         for v, c in self.controls.items():
-            if c.current is None or c.released or c.state in WALLS:
+            if c.released or c.current is None or c.state in WALLS:
                 continue
             standing[v] = index[c.current]
-            if not (c.hold or c.arrived) and c.fixed_route is None and self.pushes_allowed:
+            if pushes and not (c.hold or c.arrived) and c.fixed_route is None:
                 pushable.add(v)  # (arrived: its sequencer sees that next scan, then holds)
         return standing, pushable
 
     def _waits(self, standing: Mapping[int, int], requests: Mapping[int, int]) -> dict[int, int]:
         """The waits-for graph of the standing vehicles, before this scan's decisions."""
-        res = self.reservation
+        res, controls = self.reservation, self.controls
         waits = {}
         for v in standing:
             if v in requests:
                 blocker = res.blocker(v, requests[v])  # the holder, or the area's occupant
                 if blocker is not None:
                     waits[v] = blocker
-            elif self.controls[v].state == "waiting" and self.controls[v].waiting_for is not None:
-                waits[v] = self.controls[v].waiting_for  # giving way to it
+            else:
+                c = controls[v]
+                if c.state == "waiting" and c.waiting_for is not None:
+                    waits[v] = c.waiting_for  # giving way to it
         return waits
 
     def _arbitrate(
@@ -255,15 +283,25 @@ class DeadlockResolver(FunctionBlock):
         self._next, self._reserved, self._pushed = {}, {}, set()
         self._area_given, self._area_waits = {}, {}
         self._standing_now, self._pushable, self._requests = standing, pushable, requests
-        index = self.plant.index
-        for v in sorted(requests, key=self.priority):
+        for v in sorted(requests, key=self._rank.__getitem__):
             if v not in self._next:
-                route = {index[n] for n in self.controls[v].planned}
-                self._start(v, [requests[v]], route, (v,))
+                self._start(v, [requests[v]], (v,))
 
-    def _start(self, v: int, candidates: list[int], route: set[int], chain: tuple) -> bool:
+    def _route_nodes(self, v: int) -> set[int]:
+        """The node indices on ``v``'s planned route. Routes are long and only pushes look
+        at them, so the set is made when first needed and kept while the route (a tuple,
+        replaced whenever it changes) is the same."""
+        planned = self.controls[v].planned
+        kept = self._routes.get(v)
+        if kept is None or kept[0] is not planned:
+            index = self.plant.index
+            kept = self._routes[v] = (planned, {index[n] for n in planned})
+        return kept[1]
+
+    def _start(self, v: int, candidates: list[int], chain: tuple) -> bool:
         """Give ``v`` the first of ``candidates`` it can have, pushing standing holders aside
-        (``chain``: the vehicles waiting on this decision, ``v`` last). False: it stays."""
+        (``chain``: the vehicles waiting on this decision, the one that asked for its start
+        first, ``v`` last). False: it stays."""
         res, standing = self.reservation, self._standing_now
         for node in candidates:
             if node == self._requests.get(v):
@@ -274,7 +312,7 @@ class DeadlockResolver(FunctionBlock):
                 continue  # given to another vehicle this scan (or it stays there)
             holder = res.holder_of(node)
             if holder is not None and holder != v:
-                if not self._may_follow(holder, route, chain):
+                if not self._may_follow(holder, chain):
                     continue
             elif self._area_taken(v, node) is not None:
                 continue  # an area another vehicle occupies: waited for, not pushed for
@@ -297,9 +335,10 @@ class DeadlockResolver(FunctionBlock):
         given = self._area_given.get(area) if area >= 0 else None
         return None if given == v else given
 
-    def _may_follow(self, holder: int, route: set[int], chain: tuple) -> bool:
+    def _may_follow(self, holder: int, chain: tuple) -> bool:
         """May the last vehicle of ``chain`` go to the node ``holder`` holds, waiting for it
-        to leave? Decides (pushes) a standing holder first."""
+        to leave? Decides (pushes) a standing holder first, off the route of the vehicle
+        that asked for the chain's start."""
         if holder in chain:
             return False  # it waits on this decision: waiting for it would be a circle
         standing = self._standing_now
@@ -319,12 +358,13 @@ class DeadlockResolver(FunctionBlock):
         node = standing[holder]
         if holder in self._pushable:
             self._reserved[node], self._next[chain[-1]] = chain[-1], node
-            if self._start(holder, self._aside(holder, route), route, (*chain, holder)):
+            aside = self._aside(holder, self._route_nodes(chain[0]))
+            if self._start(holder, aside, (*chain, holder)):
                 self._pushed.add(holder)
                 return True
             return False  # it could not make room, and stays
         if holder in self._requests:  # on a fixed route: it may move on along it
-            return self._start(holder, [self._requests[holder]], route, (*chain, holder))
+            return self._start(holder, [self._requests[holder]], (*chain, holder))
         # processing at a station: it leaves by itself; only a vehicle on its own route waits
         return len(chain) == 1
 
@@ -335,7 +375,7 @@ class DeadlockResolver(FunctionBlock):
         here = self.plant.index[c.current]
         goal = c.goal if c.goal is not None and self.table.has_row(c.goal) else None
         row = self.table.row(goal) if goal is not None else None
-        res, ids = self.reservation, self.plant.ids
+        res, ids = self.reservation, self._ids
         options = []
         for there, arc, _length in self.plant.neighbors[here]:
             if self.blockades.blocked[arc] or not self._may_step_aside(there):
@@ -344,7 +384,7 @@ class DeadlockResolver(FunctionBlock):
                 there in route,
                 res.holder_of(there) is not None,
                 float(row[there]) if row is not None else 0.0,
-                int(ids[there]),
+                ids[there],
             )
             options.append((key, there))
         return [there for _key, there in sorted(options)]
@@ -364,7 +404,7 @@ class DeadlockResolver(FunctionBlock):
     ) -> None:
         """Grant the starts whose node is free, and its area too; the rest wait (and are
         asked again)."""
-        res, ids = self.reservation, self.plant.ids
+        res, ids, controls = self.reservation, self._ids, self.controls
         res.set_awaited(
             {
                 node: v
@@ -373,7 +413,7 @@ class DeadlockResolver(FunctionBlock):
             }
         )
         for v, node in self._next.items():
-            control = self.controls[v]
+            control = controls[v]
             if node == standing[v]:
                 if v in requests:  # it stays: its node was given away or could not be freed
                     wanted = requests[v]
@@ -382,15 +422,15 @@ class DeadlockResolver(FunctionBlock):
                         blocker = self._reserved.get(wanted)
                     if blocker is None:
                         blocker = self._area_taken(v, wanted)
-                    control.wait_for(ctx, blocker, int(ids[wanted]))
+                    control.wait_for(ctx, blocker, ids[wanted])
                 continue
             blocker = res.blocker(v, node)  # checked at the grant: earlier grants count
             if blocker is None:
-                control.grant(ctx, int(ids[node]))
+                control.grant(ctx, ids[node])
                 if v in self._pushed:
                     self.pushes += 1
             elif v in requests:
-                control.wait_for(ctx, blocker, int(ids[node]))
+                control.wait_for(ctx, blocker, ids[node])
 
     def stranded(self) -> list[int]:
         """Vehicles standing in a waits-for cycle nobody could break (for the summary)."""
@@ -420,7 +460,7 @@ class DeadlockResolver(FunctionBlock):
         (a siding) over one that would only retreat along them (and meet them again)."""
         members = set(ring)
         behind = {v for v, blocker in waits.items() if blocker in members and v not in members}
-        order = sorted(members | behind, key=self.priority, reverse=True)
+        order = sorted(members | behind, key=self._rank.__getitem__, reverse=True)
         fallback = None
         for v in order:
             others = self._planned_nodes(members - {v})
@@ -463,5 +503,5 @@ class DeadlockResolver(FunctionBlock):
             if res.holder_of(there) is None and self._may_step_aside(there):
                 # prefer a node nobody waits for, then the lowest id: deterministic
                 waited = any(w == there for w in res.wants.values())
-                options.append((waited, int(self.plant.ids[there])))
+                options.append((waited, self._ids[there]))
         return min(options)[1] if options else None
