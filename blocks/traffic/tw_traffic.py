@@ -41,11 +41,13 @@ that it lasts about that long, not as long as it takes to search the whole fleet
 more vehicles want a search, plans that still lead to their goal are kept whole instead
 (:meth:`_keep_beyond`).
 
-A round's work is spread over scans, like the A* block's: reading what the vehicles are
-committed to takes ``budget`` vehicles per scan, laying it out a scan of its own (one pass
-in topological order), and the searches ``budget`` expansions per scan. Until the layout
-is fixed nobody is released a node it was not released before; then the vehicles drive on
-within their committed steps, by the old order, while the searches run. A new round
+A round's work is spread over scans, like the A* block's, ``budget`` units per scan:
+reading what the vehicles are committed to (a vehicle a unit), laying it out (one pass in
+topological order) and booking it, the searches (an expansion a unit), and putting the new
+plans in a fresh pass order (:data:`VISITS_PER_UNIT` visits a unit for both), which then
+replaces the old one in one step. Until the layout is fixed nobody is released a node it
+was not released before; then the vehicles drive on within their committed steps, by the
+old order, while the searches run. A new round
 starts every ``replan_s`` seconds, and sooner when a vehicle needs one: a new goal, a plan
 that ended at the horizon or did not match its route, a blockade closed or cleared.
 
@@ -70,7 +72,7 @@ says; execution by order adds that no vehicle waits for one that waits for it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Callable, Hashable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -98,6 +100,10 @@ EXTEND = 2  # steps of its old plan a vehicle may still be released while a roun
 MIN_SEARCHES = 8
 # the estimate of a search's work before any search ended (expansions, walks counted)
 FIRST_WORK_ESTIMATE = 100.0
+# a round's set-up and swap, per unit of the budget: committed or planned visits read, laid
+# out, booked or put in the pass order (about 2.5 us each in CPython, a search expansion
+# about 25), so that a scan of set-up costs about as much as one of searches
+VISITS_PER_UNIT = 10
 
 
 @dataclass
@@ -221,6 +227,8 @@ class TimeWindowTraffic(FunctionBlock):
         self.table = TimeWindowTable(gap_s, self.resources)  # the current plans' windows
         self.order = PassOrder()
         self._lengths = _segment_lengths(plant)
+        self._ids: list[int] = plant.ids.tolist()
+        self._directions: dict[tuple[int, int], tuple[float, float] | None] = {}
         # the current plans: vehicle -> booked step nodes, the step of its frontier (the
         # last one released), the goal the plan leads to, and its whole route
         self._steps: dict[int, list[int]] = {}
@@ -248,6 +256,10 @@ class TimeWindowTraffic(FunctionBlock):
         # the round's set-up: vehicles whose commitments are still to be read (None: read,
         # and laid out)
         self._pending: list[int] | None = None
+        # the set-up and the swap under way, resumed scan by scan (generators of the work)
+        self._committing: Iterator[int] | None = None
+        self._staging: Iterator[int] | None = None
+        self._staged: tuple[PassOrder, dict] | None = None
         self._search: SafeIntervalSearch | None = None
         self._made: dict[int, TimedPlan | None] = {}
         self._gave_way: set[int] = set()  # this round: planned again after a vehicle they blocked
@@ -336,6 +348,16 @@ class TimeWindowTraffic(FunctionBlock):
         else:
             self._plan(ctx)
 
+    def _resume(self, steps: Iterator[int], budget: int) -> bool:
+        """Run ``steps`` (a generator that yields the visits it has just handled) until
+        ``budget`` units' worth of visits are done this scan: True once it has finished."""
+        allowance = budget * VISITS_PER_UNIT
+        for visits in steps:
+            allowance -= visits
+            if allowance <= 0:
+                return False
+        return True
+
     def _round_due(self, ctx: CycleContext) -> bool:
         if ctx.time_ns >= self._due_ns:
             return True
@@ -376,7 +398,7 @@ class TimeWindowTraffic(FunctionBlock):
     def _begin(self, ctx: CycleContext) -> None:
         """Start a round. Its set-up is spread over scans like its searches: first what
         each vehicle is committed to (:meth:`_take_entries`, ``budget`` vehicles per
-        scan), then, in a scan of its own, the layout and booking of those commitments
+        scan), then, in scans of their own, the layout and booking of those commitments
         (:meth:`_commit`). Until that layout is fixed nobody is released a node it was not
         released before, so every vehicle's commitments are read from one consistent state
         of the pass order, whichever scan reads them."""
@@ -394,10 +416,13 @@ class TimeWindowTraffic(FunctionBlock):
         self._queue = []
         self._limit = dict(self._front)  # released so far, and nothing more for now
         self._pending = list(reversed(self.controls))
+        self._committing = self._staging = None
 
     def _take_entries(self, ctx: CycleContext) -> None:
-        """Read up to ``budget`` vehicles' commitments (:meth:`_entry`)."""
-        for _ in range(min(self.budget, len(self._pending))):
+        """Read vehicles' commitments (:meth:`_entry`), ``budget`` units' worth of their
+        visits (:data:`VISITS_PER_UNIT`) per scan, and at least one vehicle."""
+        allowance = self.budget * VISITS_PER_UNIT
+        while self._pending and allowance > 0:
             v = self._pending.pop()
             control = self.controls[v]
             if self._overdue(v, control, ctx.time_ns):
@@ -405,18 +430,31 @@ class TimeWindowTraffic(FunctionBlock):
                 self._late.add(v)  # planned first, from where it stands
                 self.wait_replans += 1
             entry = self._entry(v, control)
+            allowance -= 1
             if entry is not None:
                 self._entries[v] = entry
+                allowance -= len(entry.committed)
 
     def _commit(self, ctx: CycleContext) -> None:
-        """Lay out and book what the vehicles are committed to, and queue the searches."""
-        self._pending = None
+        """Lay out and book what the vehicles are committed to, and queue the searches:
+        ``budget`` units of it per scan (:data:`VISITS_PER_UNIT`), like the searches, so
+        that a thousand vehicles' commitments do not make one scan long. Until it is done
+        nobody is released a node it was not released before."""
+        if self._committing is None:
+            self._committing = self._commit_steps(ctx)
+        if self._resume(self._committing, self.budget):
+            self._committing = None
+            self._pending = None
+            self._limit = {
+                v: e.offset + len(e.committed) - 1
+                for v, e in self._entries.items()
+                if e.offset >= 0
+            }
+
+    def _commit_steps(self, ctx: CycleContext) -> Iterator[int]:
         fit = self._fit(ctx)
-        kept = self._keep_beyond(fit)
-        self._chain()
-        self._limit = {
-            v: e.offset + len(e.committed) - 1 for v, e in self._entries.items() if e.offset >= 0
-        }
+        kept = yield from self._keep_beyond(fit)
+        yield from self._chain()
         # conflicts are resolved up to the window (and past every committed window, which
         # this round's searches must all see); plans are booked up to the horizon
         self._until = max(
@@ -429,6 +467,7 @@ class TimeWindowTraffic(FunctionBlock):
             self._book_committed(entry)
             if entry.goal is not None and not entry.kept:
                 movers.append(entry)
+            yield len(entry.committed)
         self._weights = self._arc_weights()
         late = self._late
         self._queue = sorted(
@@ -436,7 +475,7 @@ class TimeWindowTraffic(FunctionBlock):
         )
         self._late = set()
 
-    def _keep_beyond(self, fit: int) -> list[_Entry]:
+    def _keep_beyond(self, fit: int) -> Iterator[int]:
         """A round searches about as many vehicles as the budget gets through in
         ``replan_s`` at the latest searches' cost (``fit``): a round that searched a thousand
         vehicles would outlast the plans it replaces, and the vehicles would stand at
@@ -448,7 +487,7 @@ class TimeWindowTraffic(FunctionBlock):
         out), is searched all the same, so a round can take on more than ``fit`` (a fleet
         starting, or one whose plans run out faster than the budget replaces them):
         putting those off too made them stand in the others' way, and cost more tasks at
-        1000 vehicles than it saved."""
+        1000 vehicles than it saved. (A generator: yields the visits it looked at.)"""
         wanting = [
             e for e in self._entries.values() if e.goal is not None and not e.kept and not e.fixed
         ]
@@ -458,11 +497,13 @@ class TimeWindowTraffic(FunctionBlock):
             key=lambda e: (-e.booked_ahead, self.priority(e.vehicle)),
         )
         kept = []
+        yield len(wanting)
         for entry in keepable:
             if len(kept) >= spare:
                 break
             if self._keep_whole(entry):
                 kept.append(entry)
+            yield len(entry.committed)
         return kept
 
     def _fit(self, ctx: CycleContext) -> int:
@@ -508,7 +549,7 @@ class TimeWindowTraffic(FunctionBlock):
     def _entry(self, v: int, control) -> _Entry | None:
         """What ``v`` is committed to: the nodes it holds and, while it drives on during
         the round, the next steps of its old plan (labelled as they were)."""
-        held = [int(self.plant.ids[n]) for n in self.reservation.holds[v]]
+        held = [self._ids[n] for n in self.reservation.holds[v]]
         if control.current is None or not held:
             return None
         goal = self._moving_goal(control)
@@ -579,7 +620,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._time_committed(entry)
         return True
 
-    def _chain(self) -> None:
+    def _chain(self) -> Iterator[int]:
         """Lay out the committed windows: at each node one after the other in the order the
         visits had (a held node first: the vehicle is there), from now; along each vehicle
         never earlier than its step before, and each window lasting until the next one of
@@ -590,7 +631,8 @@ class TimeWindowTraffic(FunctionBlock):
         stays there for good or only reaches it as its frontier (from there it leaves by its
         new plan, which may not be found), and where it goes on inside an area another
         vehicle holds a node of too. If the old order cannot be laid out (it never should),
-        only the held nodes stay, and if even they cannot, nobody moves this round."""
+        only the held nodes stay, and if even they cannot, nobody moves this round. (A
+        generator: yields the visits it has just looked at.)"""
         key = self.resources.get
         # areas two vehicles hold nodes of (an operator put one there): neither is committed
         # further into it, whose visits there the layout could not keep apart
@@ -600,6 +642,7 @@ class TimeWindowTraffic(FunctionBlock):
                 if node in self.resources:
                     holders.setdefault(key(node), set()).add(e.vehicle)
         shared = {area for area, vehicles in holders.items() if len(vehicles) > 1}
+        yield len(self._entries)
         cut = True
         while cut:
             cut = False
@@ -609,6 +652,7 @@ class TimeWindowTraffic(FunctionBlock):
                 k = 0 if e.goal is None else len(e.committed) - 1
                 for node, label in zip(e.committed[k:], e.labels[k:], strict=True):
                     stays[key(node, node)] = min(stays.get(key(node, node), math.inf), label)
+                yield len(e.committed) - k
             for e in self._entries.values():
                 k = next(
                     (
@@ -622,10 +666,11 @@ class TimeWindowTraffic(FunctionBlock):
                 if k is not None:
                     self._cut(e, k)
                     cut = True
-        if not self._lay_out():
+                yield len(e.committed) // 4 + 1  # a look at each visit: a quarter of one
+        if not (yield from self._lay_out()):
             for e in self._entries.values():
                 self._cut(e, e.held)
-            if not self._lay_out():
+            if not (yield from self._lay_out()):
                 for e in self._entries.values():  # nobody moves this round
                     e.goal, e.kept, e.fixed = None, False, None
                     e.starts = [self._t0] * len(e.committed)
@@ -633,7 +678,7 @@ class TimeWindowTraffic(FunctionBlock):
         for e in self._entries.values():
             e.labels = list(e.starts)
 
-    def _lay_out(self) -> bool:
+    def _lay_out(self) -> Iterator[int]:
         """Give every committed visit the earliest start and end that keep the rules:
 
         * at each node the visits follow each other in their order, the next one starting
@@ -650,8 +695,9 @@ class TimeWindowTraffic(FunctionBlock):
         These rules are a graph of earliest-time constraints (each start and each end a
         vertex), so the earliest times are its longest paths, found in one pass in
         topological order: the cost of a round's set-up grows with the committed visits,
-        never with how far the rules push them. False if the rules form a circle (the old
-        order had one; it never should)."""
+        never with how far the rules push them. Returns False if the rules form a circle
+        (the old order had one; it never should). (A generator: yields the visits it has
+        just handled.)"""
         t0, gap = self._t0, self.gap_s
         entries = list(self._entries.values())
         base: dict[int, int] = {}  # vehicle -> index of its first visit
@@ -680,6 +726,7 @@ class TimeWindowTraffic(FunctionBlock):
                 where = key(node, node)
                 rank = (label, stays, near.get(where, 0), e.vehicle, i)
                 visits.setdefault(where, []).append(rank)
+            yield len(e.committed)
         for queue in visits.values():
             queue.sort()
             for (*_, va, a), (*_, vb, b) in zip(queue, queue[1:], strict=False):
@@ -687,10 +734,13 @@ class TimeWindowTraffic(FunctionBlock):
                     out[2 * a + 1].append((2 * b, gap))
                 else:  # one vehicle again (inside an area, or back): it leaves last
                     out[2 * a + 1].append((2 * b + 1, 0.0))
+            yield len(queue)
         indegree = [0] * len(value)
-        for edges in out:
+        for u, edges in enumerate(out):
             for w, _ in edges:
                 indegree[w] += 1
+            if not u % 256:
+                yield 64
         ready = [u for u, d in enumerate(indegree) if d == 0]
         done = 0
         while ready:
@@ -702,6 +752,8 @@ class TimeWindowTraffic(FunctionBlock):
                 indegree[w] -= 1
                 if indegree[w] == 0:
                     ready.append(w)
+            if not done % 256:
+                yield 128  # two vertices (a start and an end) to a visit
         if done < len(value):
             return False
         for e in entries:
@@ -759,18 +811,22 @@ class TimeWindowTraffic(FunctionBlock):
         return self._arrivals(nodes, t0)[-1], heading
 
     def _direction(self, a: int, b: int) -> tuple[float, float] | None:
-        """Unit vector from node ``a`` to node ``b`` (ids); None where they coincide."""
-        index = self.plant.index
-        d = self.plant.positions[index[b]] - self.plant.positions[index[a]]
-        norm = float(np.hypot(d[0], d[1]))
-        return (float(d[0] / norm), float(d[1] / norm)) if norm > 0 else None
+        """Unit vector from node ``a`` to node ``b`` (ids); None where they coincide.
+        Remembered per pair: a round times thousands of committed steps."""
+        pair = (a, b)
+        if pair not in self._directions:
+            index = self.plant.index
+            d = self.plant.positions[index[b]] - self.plant.positions[index[a]]
+            norm = float(np.hypot(d[0], d[1]))
+            self._directions[pair] = (float(d[0] / norm), float(d[1] / norm)) if norm > 0 else None
+        return self._directions[pair]
 
     def _plan(self, ctx: CycleContext) -> None:
         budget = self.budget
         while budget > 0:
             if self._search is None:
                 if not self._queue:
-                    self._swap(ctx)
+                    self._stage(ctx, budget)
                     return
                 entry = self._queue.pop(0)
                 if entry.fixed is not None:
@@ -932,14 +988,19 @@ class TimeWindowTraffic(FunctionBlock):
         entry.ends[-1] = math.inf
         self._book_committed(entry)
 
-    def _swap(self, ctx: CycleContext) -> None:
-        """The round is complete: its plans replace the old ones, all at once. A vehicle may
-        have been released further along its committed steps while the round was planned:
-        it goes on from there."""
-        self.table = self._next_table
-        self._next_table = None
+    def _stage(self, ctx: CycleContext, budget: int) -> None:
+        """Every plan of the round is made: put them in a new pass order, ``budget`` units
+        of it per scan (:data:`VISITS_PER_UNIT`), then swap (the old order rules
+        meanwhile)."""
+        if self._staging is None:
+            self._staging = self._stage_steps()
+        if self._resume(self._staging, budget):
+            self._staging = None
+            self._swap(ctx)
+
+    def _stage_steps(self) -> Iterator[int]:
         order = PassOrder()
-        steps_of, front_of, goal_of, labels_of = {}, {}, {}, {}
+        staged: dict[int, tuple[list[int], list[float], list[int]]] = {}
         for v, entry in self._entries.items():
             plan = self._made.get(v)
             steps, labels = list(entry.committed), list(entry.labels)
@@ -950,11 +1011,27 @@ class TimeWindowTraffic(FunctionBlock):
                 labels += plan.claims[1 : last + 1]
                 beyond = list(plan.nodes[last + 1 :])
             order.set_plan(v, [self.resources.get(n, n) for n in steps], labels)
+            staged[v] = steps, labels, beyond
+            yield len(steps)
+        self._staged = order, staged
+
+    def _swap(self, ctx: CycleContext) -> None:
+        """The round is complete: its plans replace the old ones, all at once. A vehicle may
+        have been released further along its committed steps while the round was planned:
+        it goes on from there."""
+        self.table = self._next_table
+        self._next_table = None
+        order, staged = self._staged
+        self._staged = None
+        steps_of, front_of, goal_of, labels_of = {}, {}, {}, {}
+        for v, entry in self._entries.items():
+            plan = self._made.get(v)
+            steps, labels, beyond = staged[v]
             # released since the round began: along its committed steps (the old plan)
             front = len(entry.committed) - 1
             if entry.offset >= 0:
                 front = min(self._front[v] - entry.offset, front)
-            held = {int(self.plant.ids[n]) for n in self.reservation.holds[v]}
+            held = {self._ids[n] for n in self.reservation.holds[v]}
             left = next((k for k, n in enumerate(steps) if n in held), 0)
             if left > 0:
                 order.passed(v, left - 1)
