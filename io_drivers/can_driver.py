@@ -165,11 +165,12 @@ class CanDriver:
 
     # ----- the scan -------------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
+        recv, handle = self.bus.recv, self._handle
         for _ in range(self.max_frames):
-            msg = self.bus.recv(timeout=0)
+            msg = recv(timeout=0)
             if msg is None:
                 break
-            self._handle(msg, now_ns)
+            handle(msg, now_ns)
         else:
             self.counters["deferred"] += 1  # more frames waiting: read next tick
         self.records.refresh_flags(now_ns)

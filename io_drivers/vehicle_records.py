@@ -23,7 +23,8 @@ speed and battery are taken at once.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -38,6 +39,30 @@ ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
 # program sees a jump as a change of the count, so no jump can hide behind an earlier one
 LINK_JUMPS, LINK_JUMP_SHIFT = 0x70, 4
 GO_BIT, COUNT_MASK = 0x80, 0x03
+
+
+@dataclass(frozen=True, slots=True)
+class InputWriters:
+    """The checked field writers of one vehicle's input record, in record order."""
+
+    current: Callable[[int], None]
+    next: Callable[[int], None]
+    state: Callable[[int], None]
+    battery: Callable[[int], None]
+    speed: Callable[[int], None]
+    flags: Callable[[int], None]
+
+    @classmethod
+    def at(cls, image: ProcessImage, base: int) -> InputWriters:
+        """The writers of the record at input byte ``base``."""
+        return cls(
+            image.field_writer(f"%IW{base // 2}"),
+            image.field_writer(f"%IW{base // 2 + 1}"),
+            image.field_writer(f"%IB{base + 4}"),
+            image.field_writer(f"%IB{base + 5}"),
+            image.field_writer(f"%IB{base + 6}"),
+            image.field_writer(f"%IB{base + 7}"),
+        )
 
 
 class VehicleRecords:
@@ -59,9 +84,9 @@ class VehicleRecords:
             raise ConfigError(
                 f"vehicle records up to id {self.vehicles[-1]} do not fit the I/Q sizes {image.sizes}"
             )
-        self._in = {v: self._input_writers(image, input_base + RECORD * v) for v in self.vehicles}
+        self._in = {v: InputWriters.at(image, input_base + RECORD * v) for v in self.vehicles}
         for writers in self._in.values():  # no reading yet is not an empty battery
-            writers["battery"](BATTERY_UNKNOWN)
+            writers.battery(BATTERY_UNKNOWN)
         self._out = {
             v: self._output_readers(image, output_base + RECORD * v) for v in self.vehicles
         }
@@ -86,17 +111,6 @@ class VehicleRecords:
         self.counters = {"unconfirmed": 0}
 
     @staticmethod
-    def _input_writers(image: ProcessImage, base: int) -> dict:
-        return {
-            "current": image.field_writer(f"%IW{base // 2}"),
-            "next": image.field_writer(f"%IW{base // 2 + 1}"),
-            "state": image.field_writer(f"%IB{base + 4}"),
-            "battery": image.field_writer(f"%IB{base + 5}"),
-            "speed": image.field_writer(f"%IB{base + 6}"),
-            "flags": image.field_writer(f"%IB{base + 7}"),
-        }
-
-    @staticmethod
     def _output_readers(image: ProcessImage, base: int) -> dict:
         return {
             "nodes": [image.output_reader(f"%QW{base // 2 + k}") for k in range(3)],
@@ -116,32 +130,33 @@ class VehicleRecords:
             self._jumped(v)
         self.status[v] = status
         w = self._in[v]
-        w["state"](STATE_CODE[status.state])
-        w["speed"](min(255, round(status.speed * 100)))
-        position = (status.current_node, status.clear)
+        w.state(STATE_CODE[status.state])
+        w.speed(min(255, round(status.speed * 100)))
+        position, counter, fault = (status.current_node, status.clear), status.counter, status.fault
         candidate = self._candidate.get(v)
-        self._candidate[v] = (position, status.counter, status.fault)
-        if status.fault:
+        self._candidate[v] = (position, counter, fault)
+        if fault:
             self._fault.add(v)
         if candidate is None:
             return
-        consecutive = status.counter == (candidate[1] + 1) % COUNTER_MODULO
-        if consecutive and not status.fault and not candidate[2]:
+        last_position, last_counter, last_fault = candidate
+        consecutive = counter == (last_counter + 1) % COUNTER_MODULO
+        if consecutive and not fault and not last_fault:
             self._fault.discard(v)
-        if candidate[0] == position:
+        if last_position == position:
             if consecutive:
                 self._position[v] = position
                 self._last_seen[v] = now_ns
-                w["current"](status.current_node)
-                w["next"](status.next_node)
-        elif candidate[0] != self._position.get(v):
+                w.current(status.current_node)
+                w.next(status.next_node)
+        elif last_position != self._position.get(v):
             self.counters["unconfirmed"] += 1  # a position nobody repeated: never applied
 
     def received_info(self, info: Info, resync: bool = False) -> None:
         """An accepted info frame: the battery is taken at once."""
         if resync:
             self._jumped(info.vehicle)
-        self._in[info.vehicle]["battery"](info.battery)
+        self._in[info.vehicle].battery(info.battery)
 
     def _jumped(self, vehicle: int) -> None:
         self._jumps[vehicle] = (self._jumps.get(vehicle, 0) + 1) % 8
@@ -155,20 +170,24 @@ class VehicleRecords:
         self._now_ns = now_ns
         if self._first_ns is None:
             self._first_ns = now_ns
+        # is_stale's rule, with its lookups taken out of the loop over every vehicle
+        never_seen, stale_after, written = self._first_ns, self.stale_after_ns, self._flags
+        positions, last_seen = self._position, self._last_seen
+        faults, jumps = self._fault, self._jumps
         for v in self.vehicles:
-            position = self._position.get(v)
-            stale = self.is_stale(v)
+            position = positions.get(v)
+            stale = now_ns - last_seen.get(v, never_seen) > stale_after
             if position is None and not stale:
                 continue  # never heard of: the record holds no position, flags stay 0
             flags = (
                 (STALE if stale else ONLINE)
-                | (FAULT if v in self._fault else 0)
+                | (FAULT if v in faults else 0)
                 | (CLEAR if position is not None and position[1] else 0)
-                | (self._jumps.get(v, 0) << LINK_JUMP_SHIFT)
+                | (jumps.get(v, 0) << LINK_JUMP_SHIFT)
             )
-            if self._flags.get(v) != flags:
-                self._flags[v] = flags
-                self._in[v]["flags"](flags)
+            if written.get(v) != flags:
+                written[v] = flags
+                self._in[v].flags(flags)
 
     def is_stale(self, vehicle: int) -> bool:
         last = self._last_seen.get(

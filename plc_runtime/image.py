@@ -162,7 +162,24 @@ class ProcessImage:
         loc = self.resolve(ref)
         if loc.area != "I":
             raise AddressError(f"{ref}: drivers write field inputs (%I), not area {loc.area}")
-        store, check = loc.writer(self.field_inputs), loc.type.check
+        store, check, kind = loc.writer(self.field_inputs), loc.type.check, loc.type.kind
+        # Drivers write every field of every frame they receive, and nearly all of those
+        # values are plain ints in range (or True/False), which ``check`` would return
+        # unchanged: those skip the generic check; anything else still goes through it.
+        if kind == "int":
+            low, high = loc.type.low, loc.type.high
+
+            def write_int(value: object) -> None:
+                in_range = value.__class__ is int and low <= value <= high
+                store(value if in_range else check(value, ref))
+
+            return write_int
+        if kind == "bool":
+
+            def write_bool(value: object) -> None:
+                store(value if value is True or value is False else check(value, ref))
+
+            return write_bool
         return lambda value: store(check(value, ref))
 
     def output_reader(self, ref: str) -> Callable[[], bool | int | float]:

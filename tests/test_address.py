@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -150,3 +151,49 @@ def test_write_many_is_applied_together_or_not_at_all():
     assert img.pending_writes == 1
     img.apply_quiet_point()
     assert img.read("%MD0") == 0x22221111
+
+
+FIELD_TAGS = {
+    "flag": ("%IX0.0", "BOOL"),
+    "b": ("%IB1", "BYTE"),
+    "s": ("%IB2", "SINT"),
+    "w": ("%IW2", "WORD"),
+    "i": ("%IW3", "INT"),
+    "dw": ("%ID4", "DWORD"),
+    "di": ("%ID5", "DINT"),
+    "r": ("%ID6", "REAL"),
+    "li": ("%IL4", "LINT"),
+    "lr": ("%IL5", "LREAL"),
+}
+any_value = st.one_of(
+    st.integers(-300, 70_000),
+    st.integers(-(2**70), 2**70),
+    st.booleans(),
+    st.floats(),
+    st.sampled_from([np.int16(-5), np.uint8(200), np.int64(2**40), np.float32(1.5), "7", None]),
+)
+
+
+@given(st.lists(st.tuples(st.sampled_from(sorted(FIELD_TAGS)), any_value), max_size=30))
+def test_a_drivers_field_writer_stores_and_refuses_what_a_checked_write_does(writes):
+    """The field writers take plain values without the generic check; whatever the value,
+    they must store the same bytes as a checked write and raise the same error."""
+    tags = TagTable()
+    for name, (address, type_name) in FIELD_TAGS.items():
+        tags.add(name, address, type_name)
+    checked, direct = ProcessImage(tags=tags), ProcessImage(tags=tags)
+    writers = {name: direct.field_writer(name) for name in FIELD_TAGS}
+    for name, value in writes:
+        try:
+            checked.write(name, value)
+            expected = None
+        except ValueRangeError as exc:
+            expected = str(exc)
+        try:
+            writers[name](value)
+            got = None
+        except ValueRangeError as exc:
+            got = str(exc)
+        assert got == expected
+        checked.apply_quiet_point()
+        assert checked.field_inputs.bytes.tobytes() == direct.field_inputs.bytes.tobytes()
