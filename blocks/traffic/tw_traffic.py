@@ -41,11 +41,11 @@ that it lasts about that long, not as long as it takes to search the whole fleet
 more vehicles want a search, plans that still lead to their goal are kept whole instead
 (:meth:`_keep_beyond`).
 
-A round's work is spread over scans, like the A* block's, ``budget`` units per scan:
-reading what the vehicles are committed to (a vehicle a unit), laying it out (one pass in
-topological order) and booking it, the searches (an expansion a unit), and putting the new
-plans in a fresh pass order (:data:`VISITS_PER_UNIT` visits a unit for both), which then
-replaces the old one in one step. Until the layout is fixed nobody is released a node it
+A round's work is spread over scans, like the A* block's, ``budget`` units per scan: the
+searches an expansion a unit; reading what the vehicles are committed to, laying it out
+(one pass in topological order), booking it, and putting the new plans in a fresh pass
+order :data:`VISITS_PER_UNIT` visits a unit. The new order then replaces the old one in
+one step. Until the layout is fixed nobody is released a node it
 was not released before; then the vehicles drive on within their committed steps, by the
 old order, while the searches run. A new round
 starts every ``replan_s`` seconds, and sooner when a vehicle needs one: a new goal, a plan
@@ -253,8 +253,8 @@ class TimeWindowTraffic(FunctionBlock):
         self._next_table: TimeWindowTable | None = None
         self._queue: list[_Entry] = []
         self._entries: dict[int, _Entry] = {}
-        # the round's set-up: vehicles whose commitments are still to be read (None: read,
-        # and laid out)
+        # the round's set-up: vehicles whose commitments are still to be read (empty: all
+        # read, being laid out; None: laid out)
         self._pending: list[int] | None = None
         # the set-up and the swap under way, resumed scan by scan (generators of the work)
         self._committing: Iterator[int] | None = None
@@ -397,8 +397,8 @@ class TimeWindowTraffic(FunctionBlock):
     # ----- a round -----------------------------------------------------------------------
     def _begin(self, ctx: CycleContext) -> None:
         """Start a round. Its set-up is spread over scans like its searches: first what
-        each vehicle is committed to (:meth:`_take_entries`, ``budget`` vehicles per
-        scan), then, in scans of their own, the layout and booking of those commitments
+        each vehicle is committed to (:meth:`_take_entries`, ``budget`` units of visits
+        per scan), then, in scans of their own, the layout and booking of those commitments
         (:meth:`_commit`). Until that layout is fixed nobody is released a node it was not
         released before, so every vehicle's commitments are read from one consistent state
         of the pass order, whichever scan reads them."""
