@@ -116,7 +116,7 @@ class FunctionBlock:
         """Set inputs, run one cycle, return the main output (like an FB call in ST).
 
         Inputs are plain instance attributes, so the values are stored in one dictionary
-        update once every name is known to be an input: a fleet program calls thousands of
+        update once every name is known to be an input: a large program calls thousands of
         blocks per scan, and a check and ``setattr`` per argument cost more than the call."""
         if not inputs.keys() <= self._inputs:
             unknown = next(name for name in inputs if name not in self._inputs)
