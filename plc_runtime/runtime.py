@@ -24,6 +24,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 from .clock import VirtualClock, WallClock
+from .collector import DEFAULT_YOUNG_THRESHOLD, YoungThreshold
 from .context import CycleContext
 from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
@@ -76,6 +77,9 @@ class Runtime:
     ``retain_file``: path of the crash-safe retain file (None: retain only in memory).
     ``retain_interval``: also save the retain file every this many clock seconds while running.
     ``watchdog_interrupt``: let the watchdog abort a hung block (main thread only).
+    ``gc_threshold``: the garbage collector's generation-0 threshold while the cyclic phase
+    runs (raised, never lowered; None: Python's own), so that young collections do not run
+    in the middle of scans and full collections stay rare (:mod:`plc_runtime.collector`).
     """
 
     def __init__(
@@ -91,6 +95,7 @@ class Runtime:
         retain_file: str | Path | None = None,
         retain_interval: float | None = None,
         watchdog_interrupt: bool = True,
+        gc_threshold: int | None = DEFAULT_YOUNG_THRESHOLD,
     ) -> None:
         self.cycle_time = _seconds(cycle_time, "cycle_time", low=MIN_CYCLE_TIME)
         self.watchdog = _seconds(watchdog, "watchdog", low=0.0, low_ok=False)
@@ -111,6 +116,7 @@ class Runtime:
             loc.type.check(value, f"safe output {ref}")
         self.retain_interval = retain_interval
         self.watchdog_interrupt = watchdog_interrupt
+        self._young = YoungThreshold(gc_threshold)
         self._drivers_open = False  # every driver opened (they get the safe state at stop)
         self.tasks: list[Task] = []
         self.drivers: list[IoDriver] = []
@@ -264,6 +270,7 @@ class Runtime:
             self._open_drivers()
             self._run_startup()
             self._check_layout_after_startup()
+            self._young.enter()
             self.clock.enter_run()  # before t0: rt mode's initial full collection must not make tick 0 late
             self._t0 = self.clock.now_ns()
             self._last_tick_start = None
@@ -317,6 +324,7 @@ class Runtime:
                 return
             was_running = self.state in (RUN, FAULT)
             self.clock.exit_run()
+            self._young.exit()
             self._alarm.uninstall()
             retained = self._collect_retain() if was_running else None
             self.image.publish_safe_state(self.safe_outputs)

@@ -7,6 +7,7 @@ preallocated ring buffer so recording a scan costs two array stores and no alloc
 
 from __future__ import annotations
 
+import gc
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -157,6 +158,12 @@ class RuntimeStats:
             "watchdog_ms": rt.watchdog * 1e3,
             "forces": rt.image.forces,
             "clock": rt.clock.status(),
+            # how often the collector ran, per generation: a full collection (the last) is
+            # what shows as a scan-time spike on a large program
+            "gc": {
+                "thresholds": list(gc.get_threshold()),
+                "collections": [g["collections"] for g in gc.get_stats()],
+            },
             "scan": self.scan.to_dict(),
             "tasks": {name: s.to_dict() for name, s in self.tasks.items()},
             "drivers": {d.name: d.stats() for d in rt.drivers},

@@ -163,15 +163,21 @@ class ArcGeometry:
         ]
         self.max_speed = plant.arc_max_speed.tolist()
         self.ids: list[int] = plant.ids.tolist()
-        self._turns: dict[tuple[int, int, TurnTimes], float] = {}
+        self._arcs = len(self.direction)
+        # per set of turn times: arc_in * arcs + arc_out -> seconds. Int keys and float
+        # values, so the garbage collector never has to scan this cache, however large
+        self._turns: dict[TurnTimes, dict[int, float]] = {}
 
     def turn(self, turns: TurnTimes, arc_in: int, arc_out: int) -> float:
         """Seconds to turn from arriving along ``arc_in`` to leaving along ``arc_out``
         (indices), computed once per pair: a search asks for the same pairs again and again."""
-        key = (arc_in, arc_out, turns)
-        out = self._turns.get(key)
+        cache = self._turns.get(turns)
+        if cache is None:
+            cache = self._turns[turns] = {}
+        key = arc_in * self._arcs + arc_out
+        out = cache.get(key)
         if out is None:
-            out = self._turns[key] = turns.between(self.direction[arc_in], self.direction[arc_out])
+            out = cache[key] = turns.between(self.direction[arc_in], self.direction[arc_out])
         return out
 
 
@@ -228,7 +234,8 @@ class SafeIntervalSearch:
         # label it came from with the time it set off from there (None: the start)
         self._labels: list[tuple[tuple[int, int, int], float, float, tuple[int, float] | None]] = []
         self._alive: list[bool] = []
-        self._at: dict[tuple[int, int, int], list[int]] = {}  # state -> its labels alive
+        # state -> its labels alive (a tuple of ints: the collector stops tracking it)
+        self._at: dict[tuple[int, int, int], tuple[int, ...]] = {}
         self._open: list[tuple[float, float, int]] = []  # (f, g, label)
         self.expansions = 0
         self.descended = 0  # steps tried down the distances past the cut-off
@@ -361,7 +368,7 @@ class SafeIntervalSearch:
         labels.append((state, cost, arrive, parent))
         alive.append(True)
         kept.append(label)
-        self._at[state] = kept
+        self._at[state] = tuple(kept)
         heapq.heappush(self._open, (f, cost, label))
 
     def _intervals(self, node: int) -> list[tuple[float, float]]:

@@ -59,6 +59,13 @@ class Window(NamedTuple):
     vehicle: int
 
 
+# How the table stores a window: a plain (start, end, vehicle) tuple. Unlike a Window (a
+# tuple subclass) the garbage collector stops tracking such a tuple, and a thousand
+# vehicles' plans hold tens of thousands of windows that would otherwise make every full
+# collection long. The reading methods hand out Windows.
+_Stored = tuple[float, float, int]
+
+
 class WindowConflict(ValueError):
     """A booking would break a rule against another vehicle's window."""
 
@@ -75,19 +82,19 @@ class TimeWindowTable:
         # node id -> the key its windows are kept under (its area's); a node not in it keeps
         # its own
         self.resources: Mapping[int, Hashable] = resources or {}
-        self._nodes: dict[Hashable, list[Window]] = {}
-        self._segments: dict[tuple[int, int], list[Window]] = {}
+        self._nodes: dict[Hashable, list[_Stored]] = {}
+        self._segments: dict[tuple[int, int], list[_Stored]] = {}
         # what each vehicle booked: the keys, so release never scans the whole table
         self._booked: dict[int, tuple[list[Hashable], list[tuple[int, int]]]] = {}
 
     # ----- reading -------------------------------------------------------------------------
     def node_windows(self, node: int) -> tuple[Window, ...]:
         """The windows on ``node``: on every node of its area, if it is in one."""
-        return tuple(self._nodes.get(self.resources.get(node, node), ()))
+        return tuple(Window(*w) for w in self._nodes.get(self.resources.get(node, node), ()))
 
     def segment_windows(self, a: int, b: int) -> tuple[Window, ...]:
         """Windows on the directed segment a -> b."""
-        return tuple(self._segments.get((a, b), ()))
+        return tuple(Window(*w) for w in self._segments.get((a, b), ()))
 
     @property
     def vehicles(self) -> frozenset[int]:
@@ -112,14 +119,14 @@ class TimeWindowTable:
         node is free from ``until`` on."""
         out: list[tuple[float, float]] = []
         free_from = -math.inf
-        for w in self._nodes.get(self.resources.get(node, node), ()):
-            if w.vehicle == vehicle:
+        for start, end, owner in self._nodes.get(self.resources.get(node, node), ()):
+            if owner == vehicle:
                 continue
-            if w.start >= until:
+            if start >= until:
                 break  # sorted by start: all the rest start later
-            if w.start - self.gap >= free_from - EPS:  # (of no length: passing through is safe)
-                out.append((free_from, w.start - self.gap))
-            free_from = max(free_from, min(w.end + self.gap, until))
+            if start - self.gap >= free_from - EPS:  # (of no length: passing through is safe)
+                out.append((free_from, start - self.gap))
+            free_from = max(free_from, min(end + self.gap, until))
             if free_from == math.inf:
                 return out
         out.append((free_from, math.inf))
@@ -154,23 +161,23 @@ class TimeWindowTable:
             if t >= until:
                 return t
             jump = None
-            for w in oncoming:
+            for start, end, owner in oncoming:
                 if (
-                    w.vehicle != vehicle
-                    and w.start < until
-                    and t < w.end + gap - EPS
-                    and w.start < t + travel + gap - EPS
+                    owner != vehicle
+                    and start < until
+                    and t < end + gap - EPS
+                    and start < t + travel + gap - EPS
                 ):
-                    jump = w.end + gap
+                    jump = end + gap
                     break
             if jump is None:
                 for w in ahead:
                     if (
-                        w.vehicle != vehicle
-                        and w.start < until
+                        w[2] != vehicle
+                        and w[0] < until
                         and not (_follows(t, t + travel, w, gap) or _leads(t, t + travel, w, gap))
                     ):
-                        jump = max(w.start + gap, w.end + gap - travel)
+                        jump = max(w[0] + gap, w[1] + gap - travel)
                         break
             if jump is None:
                 return t
@@ -194,7 +201,7 @@ class TimeWindowTable:
         for node, start, end in nodes if check else ():
             _check_interval(start, end, f"node {node}")
             key = self.resources.get(node, node)
-            for w in self._nodes.get(key, ()):
+            for w in map(Window._make, self._nodes.get(key, ())):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
                     where = f"node {node}" if key == node else f"node {node} (area {key})"
                     raise WindowConflict(
@@ -203,13 +210,13 @@ class TimeWindowTable:
                     )
         for a, b, start, end in segments if check else ():
             _check_interval(start, end, f"segment {a}->{b}")
-            for w in self._segments.get((b, a), ()):
+            for w in map(Window._make, self._segments.get((b, a), ())):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
                     raise WindowConflict(
                         f"vehicle {vehicle} on {a}->{b} during [{start:g}, {end:g}] meets "
                         f"vehicle {w.vehicle} head-on ({b}->{a} during [{w.start:g}, {w.end:g}])"
                     )
-            for w in self._segments.get((a, b), ()):
+            for w in map(Window._make, self._segments.get((a, b), ())):
                 if w.vehicle != vehicle and not (
                     _follows(start, end, w, self.gap) or _leads(start, end, w, self.gap)
                 ):
@@ -220,18 +227,18 @@ class TimeWindowTable:
         self.release(vehicle)
         nodes = [(self.resources.get(n, n), start, end) for n, start, end in nodes]
         for node, start, end in nodes:
-            bisect.insort(self._nodes.setdefault(node, []), Window(start, end, vehicle))
+            bisect.insort(self._nodes.setdefault(node, []), (start, end, vehicle))
         for a, b, start, end in segments:
-            bisect.insort(self._segments.setdefault((a, b), []), Window(start, end, vehicle))
+            bisect.insort(self._segments.setdefault((a, b), []), (start, end, vehicle))
         self._booked[vehicle] = ([n for n, _, _ in nodes], [(a, b) for a, b, _, _ in segments])
 
     def release(self, vehicle: int) -> None:
         """Drop every window of ``vehicle`` (its plan is void: replanned, withdrawn)."""
         nodes, segments = self._booked.pop(vehicle, ((), ()))
         for node in set(nodes):
-            _drop(self._nodes, node, lambda w: w.vehicle == vehicle)
+            _drop(self._nodes, node, lambda w: w[2] == vehicle)
         for key in set(segments):
-            _drop(self._segments, key, lambda w: w.vehicle == vehicle)
+            _drop(self._segments, key, lambda w: w[2] == vehicle)
 
     def expire(self, now: float) -> int:
         """Drop the windows that ended before ``now`` (minus the gap, which still guards
@@ -240,15 +247,13 @@ class TimeWindowTable:
         cutoff = now - self.gap
         for table in (self._nodes, self._segments):
             for key in list(table):
-                _drop(table, key, lambda w: w.end < cutoff)
+                _drop(table, key, lambda w: w[1] < cutoff)
         for vehicle, (nodes, segments) in list(self._booked.items()):
             kept_nodes = [
-                n for n in set(nodes) if any(w.vehicle == vehicle for w in self._nodes.get(n, ()))
+                n for n in set(nodes) if any(w[2] == vehicle for w in self._nodes.get(n, ()))
             ]
             kept_segments = [
-                s
-                for s in set(segments)
-                if any(w.vehicle == vehicle for w in self._segments.get(s, ()))
+                s for s in set(segments) if any(w[2] == vehicle for w in self._segments.get(s, ()))
             ]
             if kept_nodes or kept_segments:
                 self._booked[vehicle] = (kept_nodes, kept_segments)
@@ -264,18 +269,18 @@ def _check_interval(start: float, end: float, where: str) -> None:
         )
 
 
-def _overlap(start: float, end: float, w: Window, gap: float) -> bool:
+def _overlap(start: float, end: float, w: _Stored, gap: float) -> bool:
     """Do [start, end] and w come closer than ``gap``?"""
-    return start < w.end + gap - EPS and w.start < end + gap - EPS
+    return start < w[1] + gap - EPS and w[0] < end + gap - EPS
 
 
-def _follows(start: float, end: float, w: Window, gap: float) -> bool:
+def _follows(start: float, end: float, w: _Stored, gap: float) -> bool:
     """Does a traversal [start, end] keep ``gap`` behind w on the same segment?"""
-    return start >= w.start + gap - EPS and end >= w.end + gap - EPS
+    return start >= w[0] + gap - EPS and end >= w[1] + gap - EPS
 
 
-def _leads(start: float, end: float, w: Window, gap: float) -> bool:
-    return w.start >= start + gap - EPS and w.end >= end + gap - EPS
+def _leads(start: float, end: float, w: _Stored, gap: float) -> bool:
+    return w[0] >= start + gap - EPS and w[1] >= end + gap - EPS
 
 
 def _drop(table: dict, key, gone) -> None:
