@@ -166,6 +166,23 @@ def test_an_empty_grid_gives_the_shortest_path_with_one_turn():
     check_drivable(plant, plan, 0, 15, 0.0)
 
 
+def test_the_turn_cache_is_left_out_of_the_garbage_collectors_scans():
+    """A search asks for the same turns again and again, so they are cached per plant: on a
+    large plant tens of thousands of pairs, which a full collection must not traverse."""
+    import gc
+
+    from blocks.traffic.sipp import ArcGeometry
+
+    plant = grid(np.ones((4, 4)))
+    geometry = ArcGeometry(plant)
+    arcs = len(geometry.direction)
+    seconds = [geometry.turn(TURNS, a, b) for a in range(arcs) for b in range(arcs)]
+    assert set(seconds) <= {0.0, TURNS.turn_90, TURNS.turn_180}
+    assert geometry.turn(TURNS, 0, 0) == 0.0  # straight on: the same arc twice
+    gc.collect()
+    assert not gc.is_tracked(geometry._turns[TURNS])
+
+
 def test_the_start_heading_costs_a_turn_or_a_u_turn():
     plant = grid(np.ones((1, 5)))
     east, west = (1.0, 0.0), (-1.0, 0.0)

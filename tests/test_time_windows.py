@@ -197,3 +197,18 @@ def test_the_nodes_of_a_single_vehicle_area_share_their_windows():
     t.release(1)
     t.book(3, [(4, 0.0, 5.0)], [])
     assert t.vehicles == {2, 3} and len(t) == 3
+
+
+def test_stored_windows_are_left_out_of_the_garbage_collectors_scans():
+    """A thousand vehicles' plans hold tens of thousands of windows; stored as objects the
+    collector tracks, every full collection traverses them all (tens of ms a scan)."""
+    import gc
+
+    t = table()
+    for v in range(20):
+        t.book(v, [(v, 2.0 * v, 2.0 * v + 1)], [(v, v + 1, 2.0 * v + 1, 2.0 * v + 1.5)])
+    gc.collect()
+    stored = [w for windows in (*t._nodes.values(), *t._segments.values()) for w in windows]
+    assert len(stored) == 40
+    assert not any(gc.is_tracked(w) for w in stored)
+    assert t.node_windows(3) == (Window(6.0, 7.0, 3),)  # read back as Windows
