@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
+from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
 from vehicles.agv import AgvParams
@@ -87,6 +88,8 @@ class FleetConfig:
     rounds: int = 0
     cycle_time: float = 0.010
     watchdog: float = 0.150
+    # the collector's young-generation threshold while running; None: Python's own
+    gc_threshold: int | None = DEFAULT_YOUNG_THRESHOLD
     duration_s: float = 600.0
     astar_budget: int = 4
     lookahead: int = 2
@@ -185,6 +188,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         rounds=sequencer.integer("rounds", 0, 0, 10**6),
         cycle_time=runtime.number("cycle_time_ms", 10.0, 0.1, 1000.0) / 1e3,
         watchdog=runtime.number("watchdog_ms", 150.0, 1.0, 6000.0) / 1e3,
+        gc_threshold=runtime.integer("gc_threshold", DEFAULT_YOUNG_THRESHOLD, 0, 10**9) or None,
         duration_s=runtime.number("duration_s", 600.0, 0.001, 1e7),
         astar_budget=routing.integer("astar_budget", 4, 1, 10**6),
         lookahead=routing.integer("lookahead", 2, 1, 3),

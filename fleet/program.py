@@ -160,6 +160,7 @@ class FleetProgram:
             cycle_time=cfg.cycle_time,
             clock=clock,
             watchdog=cfg.watchdog,
+            gc_threshold=cfg.gc_threshold,
             retain_file=retain_file,
             image_sizes={
                 "I": AREA_BYTES * (n_buses + 1),

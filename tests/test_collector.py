@@ -97,3 +97,23 @@ def test_no_young_collection_inside_a_scan(python_thresholds) -> None:
     rt.stop()
     assert busy.during >= 50 * 5  # 5000 / 700: seven young collections a scan
     assert quiet.during <= 1  # at most one, if the count started near the threshold
+
+
+def test_the_fleet_configuration_sets_the_threshold(python_thresholds) -> None:
+    from fleet.config import DEFAULT_CONFIG, parse_config
+    from fleet.program import FleetProgram
+
+    text = DEFAULT_CONFIG.read_text()
+    assert parse_config(text, "d.toml").gc_threshold == DEFAULT_YOUNG_THRESHOLD
+    cfg = parse_config(text.replace("watchdog_ms = 150", "watchdog_ms = 150\ngc_threshold = 0"))
+    assert cfg.gc_threshold is None  # 0: Python's own
+    cfg = parse_config(text.replace("watchdog_ms = 150", "watchdog_ms = 150\ngc_threshold = 3000"))
+    program = FleetProgram(cfg)
+    program.rt.start()
+    try:
+        assert gc.get_threshold()[0] == 3000
+    finally:
+        program.rt.stop()
+    assert gc.get_threshold()[0] == 700
+    with pytest.raises(ConfigError, match="gc_threshold"):
+        parse_config(text.replace("watchdog_ms = 150", "watchdog_ms = 150\ngc_threshold = -1"))

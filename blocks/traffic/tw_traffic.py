@@ -264,6 +264,10 @@ class TimeWindowTraffic(FunctionBlock):
         self._made: dict[int, TimedPlan | None] = {}
         self._gave_way: set[int] = set()  # this round: planned again after a vehicle they blocked
         self._took_way: set[int] = set()  # this round: made others give way
+        # what a round's start or swap replaced (a thousand vehicles' windows, visits and
+        # entries): freed at the start of the next scan, not in the one that replaced it,
+        # since freeing them takes milliseconds at that size
+        self._retired: tuple | None = None
 
     # ----- what the controls ask ---------------------------------------------------------
     def gate(self, vehicle: int, node: int) -> tuple[bool, int | None]:
@@ -337,6 +341,7 @@ class TimeWindowTraffic(FunctionBlock):
     # ----- the scan ----------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
         self.expansions = 0
+        self._retired = None
         if not self.planning and self._round_due(ctx):
             self._begin(ctx)
         if not self.planning:
@@ -410,6 +415,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._allowed = (~self.blockades.blocked).tolist()
         self._t0 = ctx.time
         self._next_table = TimeWindowTable(self.gap_s, self.resources)
+        self._retired = (self._entries, self._made)
         self._made, self._search = {}, None
         self._gave_way, self._took_way = set(), set()
         self._entries = {}
@@ -1019,6 +1025,7 @@ class TimeWindowTraffic(FunctionBlock):
         """The round is complete: its plans replace the old ones, all at once. A vehicle may
         have been released further along its committed steps while the round was planned:
         it goes on from there."""
+        self._retired = (self.table, self.order, self._steps, self._labels)
         self.table = self._next_table
         self._next_table = None
         order, staged = self._staged
