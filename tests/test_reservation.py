@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from blocks.traffic.records import CLEAR, ONLINE, RecordArea, VehicleRecordsView
 from blocks.traffic.reservation import ReservationMatrix
@@ -95,6 +97,34 @@ def test_record_view_reads_what_the_vehicle_link_writes():
     view.write_command(126, (5, 6), True, 9)
     image.copy_out()
     assert records.command(126) == (True, 9, (5, 6))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_the_planned_flow_is_every_vehicles_route_counted_once(data):
+    """Whether a vehicle passes nodes (its route shortened from the front, counted
+    incrementally) or gets a new route, the flow is every current route's arcs."""
+    plant = model_plant()
+    res = ReservationMatrix(plant, [1, 2, 3], contraflow_penalty=3.0)
+    neighbors = {u: [v for v, _arc, _len in plant.neighbors[u]] for u in range(plant.n)}
+    routes = {1: [], 2: [], 3: []}
+    for _ in range(data.draw(st.integers(1, 25))):
+        v = data.draw(st.sampled_from([1, 2, 3]))
+        if routes[v] and data.draw(st.booleans()):
+            route = routes[v][data.draw(st.integers(0, len(routes[v]) - 1)) :]  # passed nodes
+        else:
+            route = [data.draw(st.integers(0, plant.n - 1))]
+            for _ in range(data.draw(st.integers(0, 12))):
+                if not neighbors[route[-1]]:
+                    break  # a dead end
+                route.append(data.draw(st.sampled_from(neighbors[route[-1]])))
+        routes[v] = route
+        res.plan(v, list(route))
+        expected = np.zeros_like(res.flow)
+        for r in routes.values():
+            for a, b in zip(r, r[1:], strict=False):
+                expected[res._arc_of[(a, b)]] += 1
+        assert np.array_equal(res.flow, expected)
 
 
 def test_planned_routes_make_the_opposite_direction_cost_more():

@@ -111,6 +111,7 @@ class ReservationMatrix(FunctionBlock):
             dtype=np.int64,
         )
         self._planned: dict[int, list[int]] = {v: [] for v in self.vehicles}
+        self._planned_nodes: dict[int, list[int]] = {v: [] for v in self.vehicles}
         order = np.argsort(dst, kind="stable")
         self._in_arcs_order = order
         self._in_arcs_start = np.searchsorted(dst[order], np.arange(plant.n + 1))
@@ -283,17 +284,29 @@ class ReservationMatrix(FunctionBlock):
 
     def plan(self, vehicle: int, nodes: list[int]) -> None:
         """The node indices ``vehicle`` plans to drive, from where it is: its share of the
-        planned flow."""
-        arcs = self._planned[vehicle]
-        for arc in arcs:
+        planned flow. A vehicle passing a node only shortens its route from the front, and
+        then only the arcs it passed leave the flow: a route of a hundred arcs is not
+        counted out and in again at every node."""
+        arcs, before = self._planned[vehicle], self._planned_nodes[vehicle]
+        passed = len(before) - len(nodes)
+        if passed >= 0 and before[passed:] == nodes:
+            gone = self._arcs_along(before[: passed + 1])
+            del arcs[: len(gone)]
+        else:
+            gone, arcs[:] = arcs[:], self._arcs_along(nodes)
+            for arc in arcs:
+                self.flow[arc] += 1
+        for arc in gone:
             self.flow[arc] -= 1
-        arcs[:] = [
+        self._planned_nodes[vehicle] = nodes
+
+    def _arcs_along(self, nodes: list[int]) -> list[int]:
+        arc_of = self._arc_of
+        return [
             arc
             for a, b in zip(nodes, nodes[1:], strict=False)
-            if (arc := self._arc_of.get((a, b))) is not None
+            if (arc := arc_of.get((a, b))) is not None
         ]
-        for arc in arcs:
-            self.flow[arc] += 1
 
     def in_arcs(self, node: int) -> np.ndarray:
         return self._in_arcs_order[self._in_arcs_start[node] : self._in_arcs_start[node + 1]]
