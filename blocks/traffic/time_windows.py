@@ -172,12 +172,13 @@ class TimeWindowTable:
                     break
             if jump is None:
                 for w in ahead:
+                    start, end, owner = w
                     if (
-                        w[2] != vehicle
-                        and w[0] < until
+                        owner != vehicle
+                        and start < until
                         and not (_follows(t, t + travel, w, gap) or _leads(t, t + travel, w, gap))
                     ):
-                        jump = max(w[0] + gap, w[1] + gap - travel)
+                        jump = max(start + gap, end + gap - travel)
                         break
             if jump is None:
                 return t
