@@ -5,8 +5,8 @@ of a large program allocates tens of thousands of short-lived ones, so young col
 run in the middle of scans, while the scan's temporaries are still alive. They survive,
 are promoted to the oldest generation, die there, and count towards the next full
 collection. A full collection traverses every object the program holds (tens of
-milliseconds for a program of a thousand function-block instances) and lands in whichever
-scan happens to allocate then: the scan-time spikes a cycle has to absorb.
+milliseconds for a program of several thousand function-block instances) and lands in
+whichever scan happens to allocate then: the scan-time spikes a cycle has to absorb.
 
 Raising the generation-0 threshold above what a scan allocates lets reference counting
 free the temporaries before a young collection sees them. Few objects are promoted, and
@@ -30,7 +30,7 @@ from .errors import ConfigError
 DEFAULT_YOUNG_THRESHOLD = 10_000
 
 
-def check_threshold(value: object) -> int | None:
+def _checked(value: object) -> int | None:
     """``value`` as a generation-0 threshold: an int >= 1, or None (Python's own)."""
     if value is None:
         return None
@@ -45,7 +45,7 @@ class YoungThreshold:
     """Raises the generation-0 threshold for a cyclic phase and restores it afterwards."""
 
     def __init__(self, threshold: int | None) -> None:
-        self.threshold = check_threshold(threshold)
+        self.threshold = _checked(threshold)
         self._saved: tuple[int, ...] | None = None
         self._set: tuple[int, ...] | None = None
 

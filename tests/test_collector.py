@@ -8,6 +8,8 @@ import gc
 
 import pytest
 
+from fleet.config import DEFAULT_CONFIG, parse_config
+from fleet.program import FleetProgram
 from plc_runtime import Runtime
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
@@ -100,9 +102,6 @@ def test_no_young_collection_inside_a_scan(python_thresholds) -> None:
 
 
 def test_the_fleet_configuration_sets_the_threshold(python_thresholds) -> None:
-    from fleet.config import DEFAULT_CONFIG, parse_config
-    from fleet.program import FleetProgram
-
     text = DEFAULT_CONFIG.read_text()
     assert parse_config(text, "d.toml").gc_threshold == DEFAULT_YOUNG_THRESHOLD
     cfg = parse_config(text.replace("watchdog_ms = 150", "watchdog_ms = 150\ngc_threshold = 0"))
