@@ -14,6 +14,11 @@ advances exactly one tick per step (the same run, bit for bit, as on the virtual
 each step waits until the wall clock has caught up with ``speed`` simulated seconds per wall
 second. A machine too slow for the speed just runs slower; it never drops ticks.
 
+A scan's deadline (``ctx.remaining()``, ``ctx.expired()``) is kept on the same clock: it
+passes in real time on the wall clock and on a virtual clock that charges execution, and
+never on the plain virtual and paced clocks, where time stands still while a scan runs; so
+a block that stops at its deadline cannot make their runs depend on the host's load.
+
 ``WallClock`` sleeps to the deadline (``time.sleep`` uses an absolute monotonic deadline
 since Python 3.11), optionally spinning the last part, and optionally in "rt" mode:
 SCHED_FIFO, 1 ns timer slack, ``gc.freeze()`` after startup and garbage collection only in
@@ -55,6 +60,11 @@ class VirtualClock:
     def __init__(self, start: float = 0.0, charge_execution: bool = False) -> None:
         self._now_ns = round(start * 1e9)
         self.charge_execution = charge_execution
+
+    @property
+    def time_passes(self) -> bool:
+        """Does this clock advance while a scan runs (so that a scan's deadline can pass)?"""
+        return self.charge_execution
 
     def now_ns(self) -> int:
         return self._now_ns
@@ -131,6 +141,7 @@ class WallClock:
     """
 
     is_virtual = False
+    time_passes = True  # a scan's deadline passes in real time
 
     def __init__(
         self, spin: float = 0.0, rt: bool = False, rt_priority: int = 50, gc_slack: float = 0.0005

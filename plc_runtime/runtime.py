@@ -264,7 +264,9 @@ class Runtime:
                 )  # no old values after a crash
             for task in self.tasks:
                 task.reset()
-                task.ctx = CycleContext(self._program_image, task.name, task.interval_ns)
+                task.ctx = CycleContext(
+                    self._program_image, task.name, task.interval_ns, self.clock.time_passes
+                )
             self._scan_stats.reset()
             self.ticks = 0
             self._open_drivers()
@@ -296,7 +298,7 @@ class Runtime:
     def _run_startup(self) -> None:
         """Every block's startup, in task priority order, without cycle monitoring."""
         ctx = CycleContext(self._program_image, "startup", self._tick_ns)
-        ctx.deadline_ns = 2**63 - 1
+        ctx.budget_ns = 2**62  # the startup phase has no deadline
         for task in self.tasks:
             for i, block in enumerate(task.blocks):
                 try:
@@ -535,7 +537,7 @@ class Runtime:
         ctx.cycle = task.stats.cycles
         ctx.first_scan = ctx.cycle == 0
         start = perf_counter_ns()
-        ctx.deadline_ns = start + task.budget_ns
+        ctx.started_ns, ctx.budget_ns = start, task.budget_ns
         index = 0
         try:
             for index, block in enumerate(task.blocks):  # noqa: B007 - index names the failing block

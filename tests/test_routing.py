@@ -1,6 +1,7 @@
 """HeuristicTable and IncrementalAStar against an independent oracle, cycle by cycle."""
 
 import math
+import time
 
 import networkx as nx
 import pytest
@@ -271,6 +272,42 @@ def test_microsecond_budget_always_progresses_and_stops_in_time():
     rt.step()
     assert astar.done and astar.cycles == 1 and astar.cost == 28.0
     rt.stop()
+
+
+class Slow(FunctionBlock):
+    """A block before the search that uses up more real time than the scan's budget."""
+
+    def cycle(self, ctx):
+        end = time.perf_counter() + 0.003
+        while time.perf_counter() < end:
+            pass
+
+
+def expansions_after_a_slow_block(clock) -> list[int]:
+    plant = grid(15, 15, obstacles=0.0, stations=0)
+    table = HeuristicTable(plant, targets=[224])
+    astar = IncrementalAStar(plant, table)
+    # a 2 ms budget that the slow block always exceeds; the watchdog is not what this tests
+    rt = Runtime(cycle_time=1.0, clock=clock, watchdog=60.0)
+    rt.add_task("main", [table, Slow(), astar], budget=0.002)
+    rt.start()
+    astar.request, astar.start, astar.goal, astar.budget = True, 0, 224, 5
+    per_cycle = []
+    while not astar.done:
+        rt.step()
+        per_cycle.append(astar.expansions_last_cycle)
+    rt.stop()
+    assert astar.route and astar.cost == 28.0
+    return per_cycle
+
+
+def test_virtual_clock_search_does_not_depend_on_the_hosts_speed():
+    """Past its scan's deadline on the wall clock a search stops after one expansion; on
+    the virtual clock the deadline never comes, so the search does its whole budget every
+    cycle and a run is the same whatever else the machine is doing."""
+    assert expansions_after_a_slow_block(VirtualClock()) == [5] * 5 + [4]
+    charged = expansions_after_a_slow_block(VirtualClock(charge_execution=True))
+    assert charged == [1] * 29
 
 
 @SETTINGS

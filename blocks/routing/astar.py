@@ -9,7 +9,9 @@ vehicle can never follow a half-computed route (thesis 4.4.2).
 Per cycle the block expands up to ``budget`` nodes (default 1, exactly as in the thesis) and,
 if ``budget_us`` is set, stops earlier when that much real time of the cycle is used (at
 least one expansion per cycle, so a search always progresses); it never runs past the
-task's deadline. Open list: a binary heap with lazy deletion, ties broken towards the
+task's deadline on a clock where time passes during a scan (the wall clock). On the virtual
+clock that deadline never comes, so a search with ``budget_us`` unset does the same work in
+every run, however busy the host. Open list: a binary heap with lazy deletion, ties broken towards the
 deeper node and then the newest entry, so with the exact heuristic table and no
 constraints the search expands exactly the nodes of the route it returns (thesis 3.5.2).
 Every heuristic offered is admissible: the exact table under blockades and penalties
@@ -141,13 +143,10 @@ class IncrementalAStar(FunctionBlock):
         heap, g_best, parent, closed = self.open_heap, self.g_best, self.parent, self.closed
         goal = self.search_goal
         limit = self.budget if self.budget is not None else math.inf
-        stop_below = None if self.budget_us is None else ctx.remaining_ns() - self.budget_us * 1000
+        stop_at = None if self.budget_us is None else ctx.elapsed_ns() + self.budget_us * 1000
         n = 0
         while n < limit:
-            if n and (
-                ctx.remaining_ns() <= 0
-                or (stop_below is not None and ctx.remaining_ns() <= stop_below)
-            ):
+            if n and (ctx.expired() or (stop_at is not None and ctx.elapsed_ns() >= stop_at)):
                 break
             if not heap:
                 self.expansions_last_cycle = n
