@@ -57,6 +57,7 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from blocks.jobs.recipe import Recipe  # noqa: E402
+from blocks.traffic.tw_traffic import PLAN_ORDERS  # noqa: E402
 from fleet.config import FleetConfig  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
 from plc_runtime.clock import WallClock  # noqa: E402
@@ -117,6 +118,7 @@ def make_program(
     clock: WallClock | None = None,
     highway_factor: float | None = None,
     window_s: float | None = None,
+    plan_order: str | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -140,6 +142,8 @@ def make_program(
         cfg.time_windows.plan_budget = plan_budget
     if window_s is not None:
         cfg.time_windows.window_s = window_s
+    if plan_order is not None:
+        cfg.time_windows.plan_order = plan_order
     if highway_factor is not None:
         cfg.highway_factor = highway_factor
     return FleetProgram(cfg, clock=clock)
@@ -191,6 +195,7 @@ def run_size(
     traffic: str = "reactive",
     plan_budget: int | None = None,
     window_s: float | None = None,
+    plan_order: str | None = None,
 ) -> dict:
     plant, width, height = plant_for(vehicles)
     begin = time.perf_counter()
@@ -203,6 +208,7 @@ def run_size(
         traffic=traffic,
         plan_budget=plan_budget,
         window_s=window_s,
+        plan_order=plan_order,
     )
     program.rt.start()
     setup_s = time.perf_counter() - begin
@@ -303,6 +309,12 @@ def main() -> None:
         help="time_windows: conflict window in seconds (default: the configuration's, none)",
     )
     parser.add_argument(
+        "--plan-order",
+        choices=PLAN_ORDERS,
+        default=None,
+        help="time_windows: who a round plans first (default: the configuration's, release)",
+    )
+    parser.add_argument(
         "--quick", action="store_true", help="reduced run: --sim-seconds 10 --sizes 4 16 64"
     )
     args = parser.parse_args()
@@ -316,12 +328,19 @@ def main() -> None:
     console.print(
         f"Fleet program against fleet size, Python {sys.version.split()[0]}: {sim_s:g} simulated s "
         f"per size, cycle {args.cycle_ms:g} ms, timestep {timestep_s():g} s, "
-        f"traffic {args.traffic}"
+        f"traffic {args.traffic}" + (f", plan order {args.plan_order}" if args.plan_order else "")
     )
     rows = []
     for n in args.sizes:
         r = run_size(
-            n, sim_s, cycle, args.watchdog_ms / 1e3, args.traffic, args.plan_budget, args.window_s
+            n,
+            sim_s,
+            cycle,
+            args.watchdog_ms / 1e3,
+            args.traffic,
+            args.plan_budget,
+            args.window_s,
+            args.plan_order,
         )
         rows.append(r)
         console.print(

@@ -61,6 +61,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fleet_scale import FUNCTION, ScanRecorder, make_program, timestep_s  # noqa: E402
 
+from blocks.traffic.tw_traffic import PLAN_ORDERS  # noqa: E402
 from topology import kiva, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
 
@@ -107,6 +108,7 @@ def run_size(
     delay_rate: float = 0.0,
     plan_budget: int | None = None,
     highway_factor: float | None = None,
+    plan_order: str | None = None,
 ) -> dict:
     plant = PLANTS[plant_name]()
     begin = time.perf_counter()
@@ -120,6 +122,7 @@ def run_size(
         delay_rate=delay_rate,
         plan_budget=plan_budget,
         highway_factor=highway_factor,
+        plan_order=plan_order,
     )
     program.rt.start()
     setup_s = time.perf_counter() - begin
@@ -167,6 +170,7 @@ def run_size(
         "plant": plant_name,
         "traffic": traffic,
         "highway_factor": program.cfg.highway_factor,
+        "plan_order": program.cfg.time_windows.plan_order,
         "delay_rate": delay_rate,
         "delays": sum(f.counters["delays"] for f in program.fleets),
         "state": rt.state,
@@ -224,6 +228,7 @@ def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
                     "vehicles": n,
                     "traffic": r["traffic"],
                     "highway_factor": r["highway_factor"],
+                    "plan_order": r["plan_order"],
                     "delay_rate": r["delay_rate"],
                     "timesteps": round(r["timesteps"]),
                     "tasks": r["tasks"],
@@ -273,6 +278,12 @@ def main() -> None:
         help="cost factor against a highway lane (kiva's long lanes; default: the "
         "configuration's, 3; 1 ignores them)",
     )
+    parser.add_argument(
+        "--plan-order",
+        choices=PLAN_ORDERS,
+        default=None,
+        help="time_windows: who a round plans first (default: the configuration's, release)",
+    )
     parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
     parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
     parser.add_argument("--cycle-ms", type=float, default=50.0)
@@ -293,7 +304,16 @@ def main() -> None:
     rate = {p: single_vehicle_rate(p, args.bound_timesteps, cycle, watchdog) for p in args.plant}
     rows = [
         run_size(
-            n, timesteps, cycle, watchdog, p, traffic, delay, args.plan_budget, args.highway_factor
+            n,
+            timesteps,
+            cycle,
+            watchdog,
+            p,
+            traffic,
+            delay,
+            args.plan_budget,
+            args.highway_factor,
+            args.plan_order,
         )
         for p in args.plant
         for traffic in args.traffic
@@ -323,7 +343,8 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
         f"Lifelong warehouse throughput, Python {sys.version.split()[0]}: {plant_name} 33x46, "
         f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms, "
         f"traffic {' / '.join(args.traffic)}, random delays per s {args.delay_rate}, "
-        f"highway factor {rows[0]['highway_factor']:g}"
+        f"highway factor {rows[0]['highway_factor']:g}, time-window plan order "
+        f"{rows[0]['plan_order']}"
     )
     for r in rows:
         n = r["vehicles"]

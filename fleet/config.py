@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
+from blocks.traffic.tw_traffic import PLAN_ORDERS
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from topology import SAMPLES, Plant, TopologyError, load
@@ -72,6 +73,7 @@ class TimeWindowsConfig:
     wait_free_s: float = 15.0  # T_w1: a wait for a vehicle still on its way, then replan
     wait_occupied_s: float = 30.0  # T_w2: a wait for a vehicle on the node, then replan
     path_heat: bool = False  # the seed's congestion-aware arc weights in the search
+    plan_order: str = "release"  # who is planned first (PLAN_ORDERS)
 
 
 @dataclass
@@ -246,7 +248,12 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
         wait_free_s=r.number("wait_free_s", 15.0, 0.01, 3600.0),
         wait_occupied_s=r.number("wait_occupied_s", 30.0, 0.01, 3600.0),
         path_heat=r.get("path_heat", bool, False),
+        plan_order=r.get("plan_order", str, "release"),
     )
+    if cfg.plan_order not in PLAN_ORDERS:
+        raise r.fail(
+            "plan_order", f"must be one of {', '.join(PLAN_ORDERS)}, got {cfg.plan_order!r}"
+        )
     r.finish()
     return cfg
 

@@ -221,6 +221,7 @@ class FleetProgram:
                 wait_occupied_s=tw.wait_occupied_s,
                 path_heat=tw.path_heat,
                 highway_factor=cfg.highway_factor,
+                plan_order=tw.plan_order,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}

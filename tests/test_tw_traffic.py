@@ -168,6 +168,64 @@ def test_a_plan_booked_far_enough_ahead_is_kept_and_not_searched_again(tmp_path)
     ][:-1]
 
 
+@pytest.mark.parametrize("order", ["release", "nearest_goal"])
+def test_a_round_plans_in_the_configured_order(tmp_path, order):
+    """``plan_order``: every round queues its searches with the vehicles whose plans failed
+    last round first, then oldest task first (the seed's rule) or least way left to the
+    goal first, from where the search starts."""
+    extra = TIME_WINDOWS + ("" if order == "release" else f'plan_order = "{order}"\n')
+    cfg = load_config(tw_config(tmp_path, extra))
+    assert cfg.time_windows.plan_order == order
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    tw = p.traffic
+    commit = tw._commit
+    queues = []
+
+    def recorded(ctx):
+        late = set(tw._late)
+        commit(ctx)
+        if tw._pending is None:
+            queues.append(
+                [
+                    (
+                        e.vehicle not in late,
+                        tw.heuristic.distance(e.committed[-1], e.goal),
+                        p._priority(e.vehicle),
+                    )
+                    for e in tw._queue
+                ]
+            )
+
+    tw._commit = recorded
+    try:
+        run(p, 120)
+    finally:
+        p.close()
+    assert len(p.completed) > 0
+    several = [q for q in queues if len(q) > 1]
+    assert len(several) > 10
+    for queue in several:
+        if order == "nearest_goal":
+            assert queue == sorted(queue)
+        else:
+            keys = [(late, urgency) for late, _, urgency in queue]
+            assert keys == sorted(keys)
+    # among the vehicles not late, the distances are out of order somewhere only by release:
+    # the test tells the two orders apart
+    unsorted = [ds != sorted(ds) for q in several if (ds := [d for on_time, d, _ in q if on_time])]
+    assert any(unsorted) is (order == "release")
+
+
+def test_a_bad_plan_order_is_named(tmp_path):
+    with pytest.raises(ConfigError, match=r"time_windows\.plan_order: must be one of release"):
+        load_config(tw_config(tmp_path, TIME_WINDOWS + 'plan_order = "fifo"\n'))
+    with pytest.raises(ValueError, match="plan_order must be one of"):
+        cfg = load_config(tw_config(tmp_path))
+        cfg.time_windows.plan_order = "fifo"
+        FleetProgram(cfg)
+
+
 def test_the_planner_keeps_its_budget_per_scan_and_the_fleet_drives_on_meanwhile(tmp_path):
     """A tiny budget spreads every round over many scans; vehicles are still released the
     steps they were committed to while a round is being planned."""
@@ -924,6 +982,15 @@ def test_every_order_can_be_executed_to_the_end_when_rounds_keep_plans_whole(cfg
         p.close()
     assert seen["swaps"] > 0
     assert tw.kept_whole > 0 or len(offered) < 3, offered
+
+
+@crowded(8)
+@given(dense_fleets(CROWDED_PLANTS))
+def test_every_order_can_be_executed_to_the_end_planned_nearest_goal_first(cfg):
+    """Who is planned first changes the plans, not what keeps them safe and live."""
+    cfg.time_windows.plan_order = "nearest_goal"
+    p, seen = run_checked(cfg, 90)
+    assert seen["swaps"] > 0
 
 
 def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():
