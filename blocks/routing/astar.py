@@ -11,8 +11,8 @@ if ``budget_us`` is set, stops earlier when that much real time of the cycle is 
 least one expansion per cycle, so a search always progresses); it never runs past the
 task's deadline on a clock where time passes during a scan (the wall clock). On the virtual
 clock that deadline never comes, so a search with ``budget_us`` unset does the same work in
-every run, however busy the host. Open list: a binary heap with lazy deletion, ties broken towards the
-deeper node and then the newest entry, so with the exact heuristic table and no
+every run, however busy the host. Open list: a binary heap with lazy deletion, ties broken
+towards the deeper node and then the newest entry, so with the exact heuristic table and no
 constraints the search expands exactly the nodes of the route it returns (thesis 3.5.2).
 Every heuristic offered is admissible: the exact table under blockades and penalties
 (which only make arcs dearer), and the Euclidean and Manhattan fallbacks scaled to the
