@@ -159,6 +159,7 @@ def _traffic(program) -> dict:
         "failed_plans": tw.failed,
         "windows_booked": tw.booked,
         "give_ways": tw.give_ways,
+        "cut_short": tw.cut_short,
         "kept_whole": tw.kept_whole,
         "overtakes": tw.overtakes,
         "wait_replans": tw.wait_replans,

@@ -92,6 +92,25 @@ def test_replanning_replaces_a_vehicles_pending_visits():
     assert order.pending(2) == [] and order.pending(7) == []
 
 
+def test_a_plan_cut_short_leaves_its_later_visits_to_the_others():
+    """Vehicle 2 is ordered before vehicle 1 at node 11 (and 1 before 2 at 12); cut before
+    its step at 11, vehicle 2's plan ends at 20, and nobody waits for it at 11 or 21."""
+    order = PassOrder()
+    order.set_plan(1, [10, 11, 12], [0.0, 2.0, 3.0])
+    order.set_plan(2, [20, 11, 21, 12], [0.0, 1.0, 1.5, 4.0])
+    assert order.ahead(1, 1) == [(2, 1)] and order.ahead(2, 1) == []
+    assert order.ahead(2, 3) == [(1, 2)] and order.ahead(1, 0) == []
+    order.cut(2, 1)
+    assert order.ahead(1, 1) == [] and order.blocker(1, 1) is None
+    assert order.pending(21) == [] and order.pending(12) == [(3.0, 1, 2)]
+    assert order.pending(20) == [(0.0, 2, 0)] and order.label(2, 0) == 0.0
+    order.passed(2, 0)
+    assert order.progress(2) == 1 and order.pending(20) == []
+    for step in (0, 1, 5):  # the first step (where it stands), passed, or past the end
+        with pytest.raises(ValueError, match="pending step"):
+            order.cut(2, step)
+
+
 def test_a_plan_needs_a_time_per_node():
     with pytest.raises(ValueError, match="one arrival time per node"):
         PassOrder().set_plan(1, [1, 2], [0.0])

@@ -10,6 +10,7 @@ import copy
 import json
 import math
 
+import numpy as np
 import pytest
 from fleet_scenarios import make_config, run
 from hypothesis import HealthCheck, Phase, assume, given, settings
@@ -23,7 +24,7 @@ from fleet.config import DEFAULT_CONFIG, Blockade, load_config
 from fleet.program import FleetProgram
 from plc_runtime.context import CycleContext
 from plc_runtime.errors import ConfigError
-from topology import Edge, Node, Plant
+from topology import Edge, Node, Plant, kiva
 from vehicles.fleet import Faults
 
 TIME_WINDOWS = """
@@ -436,6 +437,7 @@ def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):
     assert {
         "failed_plans",
         "give_ways",
+        "cut_short",
         "overtakes",
         "wait_replans",
         "stranded",
@@ -827,6 +829,31 @@ def stuck_by_order(traffic) -> list[int]:
     return sorted(v for v in at if v not in done)
 
 
+def ordered_before_a_holder(traffic) -> list[tuple[int, int, int]]:
+    """Visits the pass order puts before a vehicle that is already on their node (or in
+    their area), as (vehicle, node, the holder): such a vehicle would wait for the holder
+    to leave while the holder, next in turn after it elsewhere, may wait for it."""
+    ids, order = traffic._ids, traffic.order
+    found = []
+    for v, held in traffic.reservation.holds.items():
+        steps = traffic._steps.get(v)
+        if steps is None:
+            continue
+        first = order.progress(v)
+        for node in (ids[n] for n in held):
+            mine = next((k for k in range(first, len(steps)) if steps[k] == node), None)
+            if mine is None:
+                continue
+            visit = (order.label(v, mine), v, mine)
+            for pending in order.pending(traffic.resources.get(node, node)):
+                if pending >= visit:
+                    break
+                other, step = pending[1:]
+                if other != v and step > traffic._front[other]:  # (not in it with v too)
+                    found.append((other, node, v))
+    return found
+
+
 def assert_windows_keep_the_rules(table: TimeWindowTable, until: float, areas) -> None:
     """Every window booked starts before the round's cut-off (what was planned against
     nobody is not booked), and the windows keep the rules between vehicles: booked again
@@ -862,6 +889,7 @@ def check_every_swap(program: FleetProgram) -> dict[str, int]:
         for v, (nodes, labels) in tw.order._plans.items():
             assert list(labels) == sorted(labels), (ctx.time, v, nodes, labels)
         assert stuck_by_order(tw) == [], ctx.time
+        assert ordered_before_a_holder(tw) == [], ctx.time
 
     def released_checked(vehicle, node):
         before = tw.overtakes
@@ -991,6 +1019,32 @@ def test_every_order_can_be_executed_to_the_end_planned_nearest_goal_first(cfg):
     cfg.time_windows.plan_order = "nearest_goal"
     p, seen = run_checked(cfg, 90)
     assert seen["swaps"] > 0
+
+
+def test_a_plan_put_before_a_vehicle_that_drove_onto_its_node_meanwhile_is_cut_short():
+    """140 vehicles on kiva, the vehicle nearest its goal planned first. While a round is
+    planned, vehicles drive on along their committed steps (kept plans whole), and a
+    search may have planned another vehicle through one of those nodes before them, in
+    the free time it saw there. After the swap that vehicle would wait for the one on
+    the node, which may wait for it at its next node (at 1000 vehicles two did so,
+    head-on). Such plans are cut short before that node: after every swap no visit is
+    ordered before a vehicle already on its node (:func:`check_every_swap`)."""
+    plant = kiva()
+    starts = np.random.default_rng(0).choice(plant.ids, size=140, replace=False)
+    cfg = make_config(
+        plant,
+        {v + 1: int(s) for v, s in enumerate(starts)},
+        {"t": [2]},
+        {2: [n.id for n in plant.nodes if 2 in n.functions]},
+        strategy="random",
+        processing_s=0.0,
+        cycle_time=0.05,
+        seed=0,
+        traffic="time_windows",
+    )
+    cfg.time_windows.plan_order = "nearest_goal"
+    p, seen = run_checked(cfg, 20)
+    assert seen["swaps"] > 5 and p.traffic.cut_short > 0
 
 
 def test_steps_kept_from_old_plans_are_labelled_in_the_new_rounds_table():

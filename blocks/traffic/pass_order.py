@@ -68,6 +68,16 @@ class PassOrder:
         for step in range(first, len(nodes)):
             self._remove(nodes[step], (arrive[step], vehicle, step))
 
+    def cut(self, vehicle: int, step: int) -> None:
+        """``vehicle``'s plan ends before ``step`` now: its visits from there on are
+        dropped (it waits at the end of what is left for a new plan)."""
+        nodes, arrive = self._plans[vehicle]
+        if not 0 < step < len(nodes) or step < self._passed[vehicle]:
+            raise ValueError(f"step {step} is not a pending step after the first of the plan")
+        for s in range(step, len(nodes)):
+            self._remove(nodes[s], (arrive[s], vehicle, s))
+        self._plans[vehicle] = (nodes[:step], arrive[:step])
+
     def passed(self, vehicle: int, step: int) -> None:
         """``vehicle`` has left the node of ``step`` (and so every step before it)."""
         nodes, arrive = self._plans[vehicle]
@@ -94,6 +104,14 @@ class PassOrder:
             if other_step >= step:
                 return None
         return None
+
+    def ahead(self, vehicle: int, step: int) -> list[tuple[int, int]]:
+        """The other vehicles' visits (vehicle, step) ordered before ``vehicle``'s visit of
+        ``step`` at that node."""
+        nodes, arrive = self._plans[vehicle]
+        queue = self._queues[nodes[step]]
+        end = bisect.bisect_left(queue, (arrive[step], vehicle, step))
+        return [(other, s) for _, other, s in queue[:end] if other != vehicle]
 
     def take_turn(self, vehicle: int, step: int) -> None:
         """Move ``vehicle``'s visit of ``step`` before every pending visit at that node (it

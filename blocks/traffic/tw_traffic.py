@@ -33,11 +33,11 @@ the vehicles that have somewhere to go one after another through the free window
    give way: their plans are dropped and made again after its own (:meth:`_yield_to`).
 3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
    order they had, planned ones by the time they claim the node. Each vehicle's control
-   gets its route from wherever it has been released to meanwhile. (A search may claim a
-   node in the free time before another vehicle's committed window there. If that
-   vehicle drove onto the node while the round was planned, the two may wait for each
-   other after the swap; the next round, which starts at once, plans both afresh from
-   where they stand, as it does every vehicle that waits when a round begins.)
+   gets its route from wherever it has been released to meanwhile. A search may claim a
+   node in the free time before another vehicle's committed window there; if that
+   vehicle drove onto the node while the round was planned, the new plan is cut short
+   before it (:meth:`_cut_before_holders`), so no visit is ever ordered before a vehicle
+   already on its node.
 
 A round takes on about as many searches as its budget gets through in ``replan_s``, so
 that it lasts about that long, not as long as it takes to search the whole fleet: where
@@ -145,6 +145,9 @@ class TimeWindowTraffic(FunctionBlock):
     wait_replans = Output(0, doc="vehicles planned afresh after waiting too long for a node")
     stranded = Output(0, doc="vehicles without a path for longer than wait_occupied_s (FAULT)")
     give_ways = Output(0, doc="plans dropped to let a vehicle they boxed in get away first")
+    cut_short = Output(
+        0, doc="plans cut short at a swap: they put the vehicle before one already there"
+    )
     kept_whole = Output(
         0, doc="plans kept whole, not searched again: more wanted a search than fit"
     )
@@ -1068,6 +1071,7 @@ class TimeWindowTraffic(FunctionBlock):
                 control.follow_plan(steps[front], steps[front + 1 :] + beyond)
             elif entry.goal is None:
                 control.follow_plan(steps[front], [])  # there already: nothing to drive
+        self._cut_before_holders(order, steps_of, front_of, labels_of)
         self.order = order
         self._steps, self._front, self._goal = steps_of, front_of, goal_of
         self._labels = labels_of
@@ -1084,6 +1088,37 @@ class TimeWindowTraffic(FunctionBlock):
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1
+
+    def _cut_before_holders(
+        self,
+        order: PassOrder,
+        steps_of: dict[int, list[int]],
+        front_of: dict[int, int],
+        labels_of: dict[int, list[float]],
+    ) -> None:
+        """Cut every new plan short before a visit the order puts ahead of a vehicle that
+        is already on that node (or in that area). A search may claim a node in the free
+        time before another vehicle's committed window there; if that vehicle was
+        released the node while the round was planned, the plan is out of step with it:
+        the planned vehicle would wait for it to leave, while it may wait for the planned
+        one at its next node (head-on on neighbouring nodes, each waiting for the other).
+        Cut short, the planned vehicle waits at the end of what is left of its plan, for
+        nobody, and the next round, which that wait asks for, plans it on from there. (A
+        visit the other vehicle was released too is left alone: two vehicles an operator
+        put in one area both hold it, in the order the layout gave them.) Only the nodes a
+        vehicle was released while the round was planned are looked at: those it held
+        when the round began come first in their order."""
+        cut: dict[int, int] = {}
+        for v, front in front_of.items():
+            for k in range(max(order.progress(v), self._entries[v].held), front + 1):
+                for other, step in order.ahead(v, k):
+                    if step > front_of[other]:
+                        cut[other] = min(cut.get(other, step), step)
+        for v, step in cut.items():
+            order.cut(v, step)
+            steps_of[v] = steps_of[v][:step]
+            labels_of[v] = labels_of[v][:step]
+        self.cut_short += len(cut)
 
 
 def _exit_hops(plant: Plant, areas: Mapping[int, str]) -> dict[int, int]:
