@@ -17,7 +17,7 @@ the lowest charge seen. Each row is the mean over ``--seeds`` seeds with the spr
 
 Experiments (the seed's, ``docs/benchmarks.md`` "Order allocation"):
 
-1. ``buffer``: B = 8, 18, 28, 38, 48, 58 s, two_stage, 17 vehicles, 150 orders;
+1. ``buffer``: B = 8, 18, 28, 38, 48, 58 s, two_stage, 17 vehicles, 150 orders (``--pool``);
 2. ``fleet``: 11, 13, 15, 17 vehicles x {dhht, two_stage, nearest_idle}, 150 orders
    (this and the next at the configuration's B, the best of experiment 1);
 3. ``fixed``: 100 orders, 17 vehicles, each strategy, and two_stage with 16 vehicles;
@@ -35,7 +35,7 @@ orders, makespan -6.57 %), and the buffer with the least mean order time (the se
 
     .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
-        [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--json FILE] [--report FILE ...]
+        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--json FILE] [--report FILE ...]
         [--quick]
 
 ``--quick``: one seed, 20 orders, 17 vehicles only, B = 8 and 38, a 300 s battery run:
@@ -411,6 +411,9 @@ def main(argv: list[str] | None = None) -> int:
         default="reactive",
         help="the fleet's traffic mode in every run (default: reactive)",
     )
+    parser.add_argument(
+        "--pool", type=int, default=150, help="orders in the pool of the buffer and fleet runs"
+    )
     parser.add_argument("--json", type=Path, help="also write every run's result here")
     parser.add_argument(
         "--report",
@@ -420,7 +423,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
-    args.pool, args.fixed = 150, 100
+    args.fixed = 100
     if args.quick:
         args.seeds, args.pool, args.fixed = 1, 20, 20
         args.buffers, args.fleets, args.battery_s = (8, 38), (17,), 300.0
