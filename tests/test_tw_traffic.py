@@ -1023,9 +1023,10 @@ def test_every_order_can_be_executed_to_the_end_planned_nearest_goal_first(cfg):
 
 def test_a_plan_put_before_a_vehicle_that_drove_onto_its_node_meanwhile_is_cut_short():
     """140 vehicles on kiva, the vehicle nearest its goal planned first. While a round is
-    planned, vehicles drive on along their committed steps (kept plans whole), and a
-    search may have planned another vehicle through one of those nodes before them, in
-    the free time it saw there. After the swap that vehicle would wait for the one on
+    planned, vehicles drive on along their committed steps (kept plans whole) and may
+    overtake a committed visit, which the round laid out in the old order, before their
+    own; a search may also plan another vehicle through such a node before them, in the
+    free time it saw there. After the swap that vehicle would wait for the one on
     the node, which may wait for it at its next node (at 1000 vehicles two did so,
     head-on). Such plans are cut short before that node: after every swap no visit is
     ordered before a vehicle already on its node (:func:`check_every_swap`)."""

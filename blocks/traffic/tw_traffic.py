@@ -33,11 +33,12 @@ the vehicles that have somewhere to go one after another through the free window
    give way: their plans are dropped and made again after its own (:meth:`_yield_to`).
 3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
    order they had, planned ones by the time they claim the node. Each vehicle's control
-   gets its route from wherever it has been released to meanwhile. A search may claim a
-   node in the free time before another vehicle's committed window there; if that
-   vehicle drove onto the node while the round was planned, the new plan is cut short
-   before it (:meth:`_cut_before_holders`), so no visit is ever ordered before a vehicle
-   already on its node.
+   gets its route from wherever it has been released to meanwhile. A vehicle that took a
+   node out of turn while the round was planned (an overtake, under the old order), or
+   onto which a search planned another vehicle in the free time before its committed
+   window, would find that other visit ordered before its own: that plan is cut short
+   before the node (:meth:`_cut_before_holders`), so no visit is ever ordered before a
+   vehicle already on its node.
 
 A round takes on about as many searches as its budget gets through in ``replan_s``, so
 that it lasts about that long, not as long as it takes to search the whole fleet: where
@@ -1097,9 +1098,10 @@ class TimeWindowTraffic(FunctionBlock):
         labels_of: dict[int, list[float]],
     ) -> None:
         """Cut every new plan short before a visit the order puts ahead of a vehicle that
-        is already on that node (or in that area). A search may claim a node in the free
-        time before another vehicle's committed window there; if that vehicle was
-        released the node while the round was planned, the plan is out of step with it:
+        is already on that node (or in that area). The holder may have overtaken that visit
+        while the round was planned (the round laid it out in the old order), or a search
+        may have claimed the node in the free time before the holder's committed window
+        there; either way the plan is out of step with it:
         the planned vehicle would wait for it to leave, while it may wait for the planned
         one at its next node (head-on on neighbouring nodes, each waiting for the other).
         Cut short, the planned vehicle waits at the end of what is left of its plan, for
