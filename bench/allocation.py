@@ -35,8 +35,8 @@ orders, makespan -6.57 %), and the buffer with the least mean order time (the se
 
     .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
-        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--json FILE] [--report FILE ...]
-        [--quick]
+        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--json FILE]
+        [--report FILE ...] [--quick]
 
 ``--quick``: one seed, 20 orders, 17 vehicles only, B = 8 and 38, a 300 s battery run:
 a check that it all runs, not numbers to record.

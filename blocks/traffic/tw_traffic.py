@@ -1101,15 +1101,14 @@ class TimeWindowTraffic(FunctionBlock):
         is already on that node (or in that area). The holder may have overtaken that visit
         while the round was planned (the round laid it out in the old order), or a search
         may have claimed the node in the free time before the holder's committed window
-        there; either way the plan is out of step with it:
-        the planned vehicle would wait for it to leave, while it may wait for the planned
-        one at its next node (head-on on neighbouring nodes, each waiting for the other).
-        Cut short, the planned vehicle waits at the end of what is left of its plan, for
-        nobody, and the next round, which that wait asks for, plans it on from there. (A
-        visit the other vehicle was released too is left alone: two vehicles an operator
-        put in one area both hold it, in the order the layout gave them.) Only the nodes a
-        vehicle was released while the round was planned are looked at: those it held
-        when the round began come first in their order."""
+        there; either way the plan is out of step with it: the planned vehicle would wait
+        for it to leave, while it may wait for the planned one at its next node (head-on
+        on neighbouring nodes, each waiting for the other). Cut short, the planned vehicle
+        waits at the end of what is left of its plan, for nobody, and the next round,
+        which that wait asks for, plans it on from there. Only the nodes a vehicle was
+        released while the round was planned are looked at: those it held when the round
+        began come first in their order. A step the other vehicle was released already is
+        never cut (it may be driving onto it)."""
         cut: dict[int, int] = {}
         for v, front in front_of.items():
             for k in range(max(order.progress(v), self._entries[v].held), front + 1):
