@@ -9,7 +9,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,13 +18,7 @@ from hypothesis import strategies as st
 from test_fleet_properties import grid_plants, one_per_area, ring_plants, with_areas
 
 from blocks.traffic.time_windows import TimeWindowTable
-from blocks.traffic.tw_traffic import (
-    HELD,
-    ROUND_AVERAGE,
-    VISITS_PER_UNIT,
-    TimeWindowTraffic,
-    _Entry,
-)
+from blocks.traffic.tw_traffic import HELD, VISITS_PER_UNIT, TimeWindowTraffic, _Entry
 from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, Blockade, load_config
 from fleet.program import FleetProgram
@@ -562,42 +555,29 @@ def test_a_vehicle_that_waits_too_long_for_a_node_is_planned_afresh():
 def test_vehicles_planned_across_one_that_they_box_in_give_way_to_it(window_s):
     """In a crowded grid with random stops, a vehicle is often boxed in by the plans made
     before it in a round: they cross its node before it can get away. Those plans are
-    then dropped and made after its own, and it is planned at once: every vehicle given
-    way to here got its plan in that round, with no conflict and every order executable
-    to its end. Whether that completes more recipes depends on the plant: on kiva with
-    140 vehicles it finishes 6 % more tasks (docs/benchmarks.md); in this grid, over seeds
-    1-6, fewer (43 recipes against 60 without give way), and on seed 3 vehicles gave way
-    round after round and none completed (11 did without give way)."""
-    p = delayed_crowd(3600.0, window_s)
-    tw = p.traffic
-    yield_to, book = tw._yield_to, tw._book
-    boxed: set[int] = set()
-    outcome = {"given way to": 0, "planned": 0}
-
-    def gave_way(entry):
-        if yield_to(entry):
-            boxed.add(entry.vehicle)
-            outcome["given way to"] += 1
-            return True
-        return False
-
-    def booked(entry, plan):
-        if entry.vehicle in boxed:
-            boxed.discard(entry.vehicle)
-            outcome["planned"] += plan is not None
-        return book(entry, plan)
-
-    tw._yield_to, tw._book = gave_way, booked
-    seen = check_every_swap(p)
-    try:
-        run(p, 200)
-    finally:
-        p.close()
-    assert p.resolver.detected == 0 and seen["swaps"] > 50
-    assert p.monitor.head_on == 0 and p.monitor.node == 0
-    assert tw.give_ways == outcome["given way to"] > 0
-    assert outcome["planned"] == outcome["given way to"] and not boxed, outcome
-    assert len(p.completed) > 0
+    then dropped and made after its own. Without that, its plan fails and it stands
+    until the next round; with it no fewer recipes complete, with no conflict and every
+    order executable to its end. Without a conflict window fewer plans fail too (72
+    against 130 here). With one, more fail (137 against 94: the plans of those that gave
+    way may then only wait until the cut-off, which counts as no plan), but more recipes
+    complete (12 against 9)."""
+    results = {}
+    for give_way in (True, False):
+        p = delayed_crowd(3600.0, window_s)
+        if not give_way:
+            p.traffic._yield_to = lambda entry: False
+        seen = check_every_swap(p)
+        try:
+            run(p, 200)
+        finally:
+            p.close()
+        assert p.resolver.detected == 0 and seen["swaps"] > 50
+        assert p.monitor.head_on == 0 and p.monitor.node == 0
+        results[give_way] = (p.traffic.failed, p.traffic.give_ways, len(p.completed))
+    (failed, give_ways, done), (failed_before, _, done_before) = results[True], results[False]
+    assert give_ways > 0
+    assert failed < failed_before or window_s < 86400, results
+    assert done >= done_before, results
 
 
 def grid_with_stations(w: int, h: int, blocked: set, stations: dict) -> Plant:
@@ -765,7 +745,6 @@ def chain_planner(areas: dict[int, str], hops: dict[int, int], entries: list[_En
     planner._t0, planner.gap_s, planner.speed, planner.frontier_hold_s = 0.0, 0.5, 1.0, 1.0
     planner._lengths = {}
     planner._drive = lambda nodes, t0: (t0, None)
-    planner._ready_s = 0.0
     planner._entries = {e.vehicle: e for e in entries}
     return planner
 
@@ -781,91 +760,6 @@ def test_in_an_area_two_vehicles_hold_neither_is_committed_further_into_it():
     finished(TimeWindowTraffic._chain(planner))
     assert one.committed == [1] and two.committed == [3, 9]
     assert len(one.starts) == 1 and len(two.starts) == 2
-
-
-def test_a_vehicle_driving_to_its_goal_is_booked_for_good_on_its_goal_alone():
-    """Vehicle 1 was released every node up to its goal 3 (it holds 1, 2 and 3) and has
-    nowhere to go past it: it is booked on 1 and 2 until it is estimated to pass them,
-    and for good on 3. So vehicle 2, ordered after it at node 2, stays committed to its
-    step there, while vehicle 3's step onto node 3 is dropped (it would depend on a plan
-    of vehicle 1's not made yet). A vehicle that stays for any other reason (here: held
-    by an operator) stays for good on every node it holds."""
-    planner = chain_planner({}, {}, [])
-    planner._lengths = {(1, 2): 2.0, (2, 3): 3.0}
-    planner._t0 = 10.0
-    arriving = _Entry(1, [1, 2, 3], [HELD] * 3, [], -1, 3, goal=None, arriving=True)
-    TimeWindowTraffic._time_committed(planner, arriving)
-    assert arriving.ends == [12.0, 15.0, math.inf]
-    staying = _Entry(4, [6, 7], [HELD] * 2, [], -1, 2, goal=None)
-    TimeWindowTraffic._time_committed(planner, staying)
-    assert staying.ends == [math.inf, math.inf]
-    behind = _Entry(2, [5, 2, 8], [HELD, 20.0, 21.0], [12.0, 22.0, 25.0], 0, 1, goal=8)
-    onto = _Entry(3, [9, 3, 4], [HELD, 20.0, 21.0], [12.0, 22.0, 25.0], 0, 1, goal=4)
-    planner._entries = {e.vehicle: e for e in (arriving, behind, onto, staying)}
-    finished(TimeWindowTraffic._chain(planner))
-    assert behind.committed == [5, 2, 8] and onto.committed == [9]
-    assert behind.starts[1] >= arriving.ends[1] + planner.gap_s
-
-
-@pytest.mark.parametrize(
-    "change, arriving",
-    [
-        ({}, True),
-        ({"frontier": 2}, False),
-        ({"goal": None}, False),
-        ({"hold": True}, False),
-        ({"suspect": True}, False),
-        ({"state": "fault"}, False),
-        ({"fixed_route": (3, 4)}, False),
-    ],
-)
-def test_only_a_vehicle_on_its_way_to_its_goal_counts_as_arriving(change, arriving):
-    control = {"goal": 3, "frontier": 3, "fixed_route": None, "state": "driving"}
-    control.update(suspect=False, hold=False)
-    control.update(change)
-    assert TimeWindowTraffic._arriving(SimpleNamespace(**control)) is arriving
-
-
-def test_plans_start_no_earlier_than_the_round_is_expected_to_end(tmp_path):
-    """Nobody is released a new step before a round's swap, so a search starts from the
-    frontier no earlier than the round is expected to end: its start plus a moving
-    average of how long the rounds before took (start to swap). Without that, a vehicle
-    standing at its frontier was planned to set off when the round began, and a plan
-    made through the free time before someone else's window there was out of date
-    before it took effect."""
-    cfg = load_config(tw_config(tmp_path))
-    cfg.watchdog = 5.0
-    p = FleetProgram(cfg)
-    tw = p.traffic
-    begin, swap, start = tw._begin, tw._swap, tw._start_search
-    seen = {"average": 0.0, "t0": None, "searches": 0, "clamped": 0, "rounds": 0}
-
-    def begun(ctx):
-        begin(ctx)
-        seen["t0"] = ctx.time
-        assert tw._ready_s == pytest.approx(ctx.time + seen["average"])
-
-    def swapped(ctx):
-        swap(ctx)
-        seen["average"] += ROUND_AVERAGE * (ctx.time - seen["t0"] - seen["average"])
-        seen["rounds"] += 1
-
-    def started(entry):
-        search = start(entry)
-        set_off = tw._set_off(entry)
-        assert set_off >= tw._ready_s
-        arrival = tw._drive(entry.committed, tw._t0)[0]
-        seen["searches"] += 1
-        seen["clamped"] += max(arrival, entry.starts[-1]) < tw._ready_s
-        return search
-
-    tw._begin, tw._swap, tw._start_search = begun, swapped, started
-    try:
-        run(p, 60)
-    finally:
-        p.close()
-    assert seen["rounds"] > 20 and seen["average"] > cfg.cycle_time
-    assert 0 < seen["clamped"] < seen["searches"]
 
 
 def test_if_even_the_held_nodes_cannot_be_laid_out_nobody_moves_this_round():
@@ -1150,7 +1044,7 @@ def test_a_plan_put_before_a_vehicle_that_drove_onto_its_node_meanwhile_is_cut_s
         traffic="time_windows",
     )
     cfg.time_windows.plan_order = "nearest_goal"
-    p, seen = run_checked(cfg, 50)  # without the cut the check fails 45.1 s in
+    p, seen = run_checked(cfg, 20)
     assert seen["swaps"] > 5 and p.traffic.cut_short > 0
 
 

@@ -16,16 +16,13 @@ the vehicles that have somewhere to go one after another through the free window
    committed visits keep their order, and their windows are laid one after the other from
    now (the holder first), so they never conflict. A vehicle with nowhere to go (no goal,
    at its goal, processing, held by an operator, stale, faulty, suspect) stays on its holds
-   for good, except that one whose frontier is its goal leaves the nodes before it as it
-   drives on (it was released all of them): it stays for good on its goal alone. A vehicle
-   about to plan keeps its last committed node (the frontier) a little longer than it
-   needs to reach it, so that nobody is planned across its nose before it can turn away.
+   for good; a vehicle about to plan keeps its last committed node (the frontier) a little
+   longer than it needs to reach it, so that nobody is planned across its nose before it
+   can turn away.
 2. **Planned**, most urgent first (the program's priority: the oldest task, a vehicle at a
    station first; a vehicle whose plan failed in the last round before every other): a
    :class:`SafeIntervalSearch` from the frontier, at the time the vehicle is estimated to
-   reach it but not before the round's plans are expected to take effect (the swap, by a
-   moving average of how long rounds take: nobody is released a new step before), to its
-   goal, where it may stay. A route given by the job (a return lane) is
+   reach it, to its goal, where it may stay. A route given by the job (a return lane) is
    timed along its nodes instead (:func:`time_route`). Only the steps that start within
    ``horizon_s`` are booked; beyond them nothing is released before the next round. With
    ``window_s`` set, plans are windowed too: conflicts are resolved only up to the round's
@@ -115,8 +112,6 @@ FIRST_WORK_ESTIMATE = 100.0
 # out, booked or put in the pass order (about 2.5 us each in CPython, a search expansion
 # about 25), so that a scan of set-up costs about as much as one of searches
 VISITS_PER_UNIT = 10
-# the weight of the latest round in the moving average of how long rounds take
-ROUND_AVERAGE = 0.3
 
 
 @dataclass
@@ -133,9 +128,6 @@ class _Entry:
     heading: tuple[float, float] | None = None
     goal: int | None = None  # None: it stays
     kept: bool = False  # its old plan stays, no search this round
-    # nowhere to go past its frontier only because that is its goal: it drives on to it
-    # along what it was released, so it stays for good on its goal alone
-    arriving: bool = False
     # how far ahead its old plan is booked, if it could be kept (same goal, not late)
     booked_ahead: float | None = None
     hold_end: float = math.inf  # the end of its frontier window before it was planned
@@ -271,10 +263,6 @@ class TimeWindowTraffic(FunctionBlock):
         self._wanted = False
         # the round being planned
         self._t0 = 0.0
-        # how long rounds take from their start to the swap (a moving average), and so the
-        # earliest this round's plans can take effect: nobody is released a new step before
-        self._round_s = 0.0
-        self._ready_s = 0.0
         self._until = math.inf  # the round's cut-off: plans are conflict-free up to there
         self._book_until = math.inf  # plans are booked up to there (not past the cut-off)
         self._next_table: TimeWindowTable | None = None
@@ -418,17 +406,6 @@ class TimeWindowTraffic(FunctionBlock):
         return now_ns - control.wait_since_ns >= limit
 
     @staticmethod
-    def _arriving(control) -> bool:
-        """Does the vehicle stay only because its frontier is its goal (not held, not
-        processing, not out of the game)?"""
-        return (
-            control.goal is not None
-            and control.frontier == control.goal
-            and control.fixed_route is None
-            and not (control.state in WALLS or control.suspect or control.hold)
-        )
-
-    @staticmethod
     def _moving_goal(control) -> int | None:
         """Where a vehicle wants to drive now; None: it stays where it is."""
         if control.state in WALLS or control.suspect or control.hold or control.goal is None:
@@ -452,7 +429,6 @@ class TimeWindowTraffic(FunctionBlock):
         self._began_ns = ctx.time_ns
         self._allowed = (~self.blockades.blocked).tolist()
         self._t0 = ctx.time
-        self._ready_s = self._t0 + self._round_s
         self._next_table = TimeWindowTable(self.gap_s, self.resources)
         self._retired = (self._entries, self._made)
         self._made, self._search = {}, None
@@ -633,7 +609,6 @@ class TimeWindowTraffic(FunctionBlock):
                     committed.append(steps[k])
                     labels.append(old[k])
         entry = _Entry(v, committed, labels, [], offset, len(held), goal=goal, kept=kept)
-        entry.arriving = goal is None and self._arriving(control)
         entry.booked_ahead = booked_ahead
         self._time_committed(entry)
         if goal is not None and control.fixed_route is not None:
@@ -649,15 +624,15 @@ class TimeWindowTraffic(FunctionBlock):
         """When the vehicle is estimated to reach its frontier, its heading there, and when
         it leaves each committed node."""
         committed, labels = entry.committed, entry.labels
-        entry.reach_s, entry.heading = self._reach(committed)
-        if entry.goal is None and not entry.arriving:
+        entry.reach_s, entry.heading = self._drive(committed, self._t0)
+        if entry.goal is None:
             entry.ends = [math.inf] * len(committed)
         else:
             # it leaves a node when it sets off towards the next one: not before it
             # arrives there (estimated), nor before that step's place in the order
             arrive = self._arrivals(committed, self._t0)
             entry.ends = [max(arrive[k + 1], labels[k + 1]) for k in range(len(committed) - 1)]
-            entry.ends.append(math.inf if entry.arriving else entry.reach_s + self.frontier_hold_s)
+            entry.ends.append(entry.reach_s + self.frontier_hold_s)
 
     def _keep_whole(self, entry: _Entry) -> bool:
         """Commit ``entry``'s vehicle to the rest of its old plan too, however soon that
@@ -703,7 +678,7 @@ class TimeWindowTraffic(FunctionBlock):
             # node (its area, if in one) -> the earliest label of a visit ending there
             stays: dict[Hashable, float] = {}
             for e in self._entries.values():
-                k = 0 if e.goal is None and not e.arriving else len(e.committed) - 1
+                k = 0 if e.goal is None else len(e.committed) - 1
                 for node, label in zip(e.committed[k:], e.labels[k:], strict=True):
                     stays[key(node, node)] = min(stays.get(key(node, node), math.inf), label)
                 yield len(e.committed) - k
@@ -824,7 +799,7 @@ class TimeWindowTraffic(FunctionBlock):
             return
         e.kept = False
         e.committed, e.labels, e.ends = e.committed[:k], e.labels[:k], e.ends[:k]
-        e.reach_s, e.heading = self._reach(e.committed)
+        e.reach_s, e.heading = self._drive(e.committed, self._t0)
         if e.goal is not None:
             e.ends[-1] = max(e.ends[-1], e.reach_s + self.frontier_hold_s)
         if e.fixed is not None:
@@ -856,13 +831,6 @@ class TimeWindowTraffic(FunctionBlock):
             t += self._lengths.get((a, b), 0.0) / self.speed
             out.append(t)
         return out
-
-    def _reach(self, committed: list[int]) -> tuple[float, tuple[float, float] | None]:
-        """When a vehicle committed to ``committed`` can set off from its frontier, and its
-        heading there: once it is estimated to arrive, and not before this round's plans
-        are expected to take effect (nobody is released a new step before the swap)."""
-        reach, heading = self._drive(committed, self._t0)
-        return max(reach, self._ready_s), heading
 
     def _drive(self, nodes: list[int], t0: float) -> tuple[float, tuple[float, float] | None]:
         """Estimated arrival at the last of ``nodes`` (driving from the first at ``t0``) and
@@ -1121,7 +1089,6 @@ class TimeWindowTraffic(FunctionBlock):
         self.booked = len(self.table)
         self.planning = False
         self.rounds += 1
-        self._round_s += ROUND_AVERAGE * (ctx.time - self._t0 - self._round_s)
 
     def _cut_before_holders(
         self,
