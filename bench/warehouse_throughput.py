@@ -40,7 +40,7 @@ throughput over the first 500 timesteps and the timestep of the last completed t
 the same table and ratios, but over the start-up, where every vehicle begins at a random
 node, so its throughput is not the lifelong one.
 
-    .venv/bin/python bench/warehouse_throughput.py [--timesteps 5000] [--sizes 60 100 140] [--quick]
+    .venv/bin/python bench/warehouse_throughput.py [--timesteps 5000] [--sizes 60 100 140] [--seeds 0 1 2] [--quick]
 """
 
 from __future__ import annotations
@@ -109,6 +109,7 @@ def run_size(
     plan_budget: int | None = None,
     highway_factor: float | None = None,
     plan_order: str | None = None,
+    seed: int = 0,
 ) -> dict:
     plant = PLANTS[plant_name]()
     begin = time.perf_counter()
@@ -118,6 +119,7 @@ def run_size(
         vehicles,
         cycle_time,
         watchdog,
+        seed=seed,
         traffic=traffic,
         delay_rate=delay_rate,
         plan_budget=plan_budget,
@@ -167,6 +169,7 @@ def run_size(
     early_s = EARLY_TIMESTEPS * timestep_s()
     out = {
         "vehicles": vehicles,
+        "seed": seed,
         "plant": plant_name,
         "traffic": traffic,
         "highway_factor": program.cfg.highway_factor,
@@ -226,6 +229,7 @@ def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
                 {
                     "plant": r["plant"],
                     "vehicles": n,
+                    "seed": r["seed"],
                     "traffic": r["traffic"],
                     "highway_factor": r["highway_factor"],
                     "plan_order": r["plan_order"],
@@ -284,6 +288,13 @@ def main() -> None:
         default=None,
         help="time_windows: who a round plans first (default: the configuration's, release)",
     )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="seeds of the starts and tasks, one run each (a summary over them follows)",
+    )
     parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
     parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
     parser.add_argument("--cycle-ms", type=float, default=50.0)
@@ -314,11 +325,13 @@ def main() -> None:
             args.plan_budget,
             args.highway_factor,
             args.plan_order,
+            seed,
         )
         for p in args.plant
         for traffic in args.traffic
         for delay in args.delay_rate
         for n in args.sizes
+        for seed in args.seeds
     ]
     if args.json:
         print("\n".join(json_rows(rows, rate)))
@@ -330,11 +343,51 @@ def main() -> None:
 
 def same(rows: list[dict], r: dict, **change) -> dict | None:
     """The run that differs from ``r`` only in ``change`` (None: not run, or ``r`` itself)."""
-    keys = ("plant", "vehicles", "traffic", "delay_rate")
+    keys = ("plant", "vehicles", "traffic", "delay_rate", "seed")
     want = {k: change.get(k, r[k]) for k in keys}
     if all(want[k] == r[k] for k in keys):
         return None
     return next((o for o in rows if all(o[k] == want[k] for k in keys)), None)
+
+
+def seed_summary(plant_name: str, rows: list[dict], rate: float) -> Table:
+    """Per traffic mode, delay rate and fleet size: tasks per timestep as the mean over the
+    seeds with their min-max, beside our kinematics' bound and the same seeds' reactive
+    mean. A single run of a large fleet varies by up to 15 % with the seed, so a
+    comparison of two versions or modes needs several."""
+    table = Table(title=f"Over the seeds, {plant_name}: tasks per timestep, mean (min-max)")
+    for name in (
+        "traffic",
+        "delays p/s",
+        "vehicles",
+        "seeds",
+        "tasks/timestep",
+        "x reactive",
+        "ours / our bound",
+        "conflicts",
+    ):
+        table.add_column(name, justify="right")
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["traffic"], r["delay_rate"], r["vehicles"]), []).append(r)
+
+    def mean(group: list[dict]) -> float:
+        return float(np.mean([r["tasks"] / r["timesteps"] for r in group]))
+
+    for (traffic, delay, n), group in groups.items():
+        rates = [r["tasks"] / r["timesteps"] for r in group]
+        reactive = groups.get(("reactive", delay, n))
+        table.add_row(
+            traffic,
+            f"{delay:g}",
+            str(n),
+            str(len(group)),
+            f"{mean(group):.3f} ({min(rates):.3f}-{max(rates):.3f})",
+            f"{mean(group) / mean(reactive):.2f}" if reactive and traffic != "reactive" else "-",
+            f"{mean(group) / (rate * n):.2f}",
+            str(sum(r["head_on"] + r["node"] for r in group)),
+        )
+    return table
 
 
 def report(plant_name, rows, timesteps, rate, args, begin) -> None:
@@ -359,6 +412,7 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
         "traffic",
         "delays p/s",
         "vehicles",
+        "seed",
         "tasks",
         "x reactive",
         "kept vs no delays",
@@ -392,6 +446,7 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
             r["traffic"],
             f"{r['delay_rate']:g}",
             str(n),
+            str(r["seed"]),
             str(r["tasks"]),
             f"{r['tasks'] / reactive['tasks']:.2f}" if reactive and reactive["tasks"] else "-",
             f"{r['tasks'] / undelayed['tasks']:.2f}" if undelayed and undelayed["tasks"] else "-",
@@ -415,6 +470,8 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
             r["state"] if r["fault"] is None else f"{r['state']}: {r['fault']}",
         )
     console.print(table)
+    if len(args.seeds) > 1:
+        console.print(seed_summary(plant_name, rows, rate))
     console.print(
         f"our map's MAPF bound = vehicles / mean shortest distance between random endpoints "
         f"({rows[0]['mean_d']:.1f} cells); stuck = no task completed in the last {STUCK_TIMESTEPS} "

@@ -113,7 +113,8 @@ def test_quick_bench_prints_its_table_with_a_ratio(args, ratio_column, rows):
 
 
 def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
-    """The contract for scripts: --json prints one JSON object per run, one per line."""
+    """The contract for scripts: --json prints one JSON object per run (plant, traffic
+    mode, fleet size, seed), one per line."""
     import json
 
     result = run(
@@ -132,14 +133,18 @@ def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
         "--traffic",
         "reactive",
         "time_windows",
+        "--seeds",
+        "0",
+        "1",
     )
     assert result.returncode == 0, result.stderr
     rows = [json.loads(line) for line in result.stdout.strip().splitlines()]
-    assert [(r["plant"], r["traffic"], r["vehicles"]) for r in rows] == [
-        (plant, traffic, n)
+    assert [(r["plant"], r["traffic"], r["vehicles"], r["seed"]) for r in rows] == [
+        (plant, traffic, n, seed)
         for plant in ("kiva", "warehouse")
         for traffic in ("reactive", "time_windows")
         for n in (3, 5)
+        for seed in (0, 1)
     ]
     for r in rows:
         for key in (
@@ -155,3 +160,37 @@ def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
         assert r["timesteps"] == 15 and r["delay_rate"] == 0
         assert r["head_on_conflicts"] == 0 and r["node_conflicts"] == 0
         assert r["bound_tasks_per_timestep"] >= 0
+
+
+def test_warehouse_throughput_summarises_several_seeds_per_configuration():
+    """With --seeds the runs of each traffic mode and fleet size are summarised: the mean
+    over the seeds with its min-max, and the time-window mean over the reactive mean."""
+    result = run(
+        "bench/warehouse_throughput.py",
+        "--plant",
+        "kiva",
+        "--sizes",
+        "4",
+        "--timesteps",
+        "15",
+        "--bound-timesteps",
+        "100",
+        "--traffic",
+        "reactive",
+        "time_windows",
+        "--seeds",
+        "0",
+        "1",
+        "2",
+    )
+    assert result.returncode == 0, result.stderr
+    summary = result.stdout.split("Over the seeds, kiva")[1]
+    rows = [line.split("│")[1:-1] for line in summary.splitlines() if line.startswith("│")]
+    cells = {row[0].strip(): [c.strip() for c in row] for row in rows[:2]}
+    assert set(cells) == {"reactive", "time_windows"}
+    for row in cells.values():
+        assert row[2] == "4" and row[3] == "3", row
+        mean, spread = row[4].split(" ", 1)
+        low, high = (float(x) for x in spread.strip("()").split("-"))
+        assert low <= float(mean) <= high, row
+    assert cells["reactive"][5] == "-" and float(cells["time_windows"][5]) > 0
