@@ -21,6 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = sorted(p.name for p in (ROOT / "bench").glob("*.py"))
 DOCS = (ROOT / "docs" / "benchmarks.md").read_text()
+TRAFFIC = ("reactive", "time_windows")
 
 
 def recipe(target: str) -> list[str]:
@@ -165,24 +166,8 @@ def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
 def test_warehouse_throughput_summarises_several_seeds_per_configuration():
     """With --seeds the runs of each traffic mode and fleet size are summarised: the mean
     over the seeds with its min-max, and the time-window mean over the reactive mean."""
-    result = run(
-        "bench/warehouse_throughput.py",
-        "--plant",
-        "kiva",
-        "--sizes",
-        "4",
-        "--timesteps",
-        "15",
-        "--bound-timesteps",
-        "100",
-        "--traffic",
-        "reactive",
-        "time_windows",
-        "--seeds",
-        "0",
-        "1",
-        "2",
-    )
+    options = "--plant kiva --sizes 4 --timesteps 15 --bound-timesteps 100 --seeds 0 1 2"
+    result = run("bench/warehouse_throughput.py", *options.split(), "--traffic", *TRAFFIC)
     assert result.returncode == 0, result.stderr
     summary = result.stdout.split("Over the seeds, kiva")[1]
     rows = [line.split("│")[1:-1] for line in summary.splitlines() if line.startswith("│")]
