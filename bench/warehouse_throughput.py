@@ -383,8 +383,10 @@ def seed_summary(plant_name: str, rows: list[dict], rate: float) -> Table:
             str(n),
             str(len(group)),
             f"{mean(group):.3f} ({min(rates):.3f}-{max(rates):.3f})",
-            f"{mean(group) / mean(reactive):.2f}" if reactive and traffic != "reactive" else "-",
-            f"{mean(group) / (rate * n):.2f}",
+            f"{mean(group) / mean(reactive):.2f}"
+            if reactive and traffic != "reactive" and mean(reactive)
+            else "-",
+            f"{mean(group) / (rate * n):.2f}" if rate else "-",
             str(sum(r["head_on"] + r["node"] for r in group)),
         )
     return table
@@ -459,7 +461,7 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
             f"{ours / bound:.2f}" if bound else "-",
             f"{n / r['mean_d']:.2f}",
             f"{rate * n:.2f}",
-            f"{ours / (rate * n):.2f}",
+            f"{ours / (rate * n):.2f}" if rate else "-",
             f"{r['head_on']}/{r['node']}",
             "/".join(str(x) for x in r["deadlocks"]),
             str(len(r["stuck"])),

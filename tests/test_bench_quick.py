@@ -179,3 +179,12 @@ def test_warehouse_throughput_summarises_several_seeds_per_configuration():
         low, high = (float(x) for x in spread.strip("()").split("-"))
         assert low <= float(mean) <= high, row
     assert cells["reactive"][5] == "-" and float(cells["time_windows"][5]) > 0
+
+
+def test_warehouse_throughput_without_a_bound_prints_no_ratio_to_it():
+    """Runs too short for the lone vehicle (or any fleet) to finish a task give no bound
+    and no rate to compare with: the ratios to them are '-', not a division by zero."""
+    options = "--plant kiva --sizes 3 --timesteps 5 --bound-timesteps 5 --seeds 0 1"
+    result = run("bench/warehouse_throughput.py", *options.split(), "--traffic", *TRAFFIC)
+    assert result.returncode == 0, result.stderr
+    assert "0.0000 tasks per timestep" in result.stdout
