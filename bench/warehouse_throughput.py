@@ -371,22 +371,22 @@ def seed_summary(plant_name: str, rows: list[dict], rate: float) -> Table:
     for r in rows:
         groups.setdefault((r["traffic"], r["delay_rate"], r["vehicles"]), []).append(r)
 
-    def mean(group: list[dict]) -> float:
-        return float(np.mean([r["tasks"] / r["timesteps"] for r in group]))
+    def rates(group: list[dict]) -> list[float]:
+        return [r["tasks"] / r["timesteps"] if r["timesteps"] else 0.0 for r in group]
 
     for (traffic, delay, n), group in groups.items():
-        rates = [r["tasks"] / r["timesteps"] for r in group]
+        mine = rates(group)
+        mean = float(np.mean(mine))
         reactive = groups.get(("reactive", delay, n))
+        base = float(np.mean(rates(reactive))) if reactive and traffic != "reactive" else 0.0
         table.add_row(
             traffic,
             f"{delay:g}",
             str(n),
             str(len(group)),
-            f"{mean(group):.3f} ({min(rates):.3f}-{max(rates):.3f})",
-            f"{mean(group) / mean(reactive):.2f}"
-            if reactive and traffic != "reactive" and mean(reactive)
-            else "-",
-            f"{mean(group) / (rate * n):.2f}" if rate else "-",
+            f"{mean:.3f} ({min(mine):.3f}-{max(mine):.3f})",
+            f"{mean / base:.2f}" if base else "-",
+            f"{mean / (rate * n):.2f}" if rate else "-",
             str(sum(r["head_on"] + r["node"] for r in group)),
         )
     return table
