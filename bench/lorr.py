@@ -60,6 +60,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from blocks.routing.heuristic import distances_to  # noqa: E402
+from blocks.traffic.one_step import OneStepPlanner  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
 from topology import Plant  # noqa: E402
@@ -397,6 +398,85 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
         if r.node == r.task:
             finished += 1
             events.append([r.task_index, steps, "finished", r.id])
+    stats = {
+        "searches": traffic.searches,
+        "failures": traffic.failures,
+        "asides": traffic.asides,
+        "voided": traffic.voided,
+    }
+    return output(instance, steps, paths, planner_times, errors, events, finished, stats)
+
+
+def run_one_step(instance: Instance, steps: int) -> dict:
+    """The same rules, planned one timestep at a time by priority inheritance
+    (:class:`OneStepPlanner`): a robot's urgency is the timesteps since its task was
+    revealed (ties by robot number), so the one that has waited longest goes first."""
+    width = instance.passable.shape[1]
+    plant = grid_plant(instance.passable, 1.0, name=instance.name)
+    planner = OneStepPlanner(plant, speed=1.0, turns=TURNS, step_s=1.0)
+    rows: dict[int, np.ndarray] = {}
+
+    def to(goal: int) -> np.ndarray:
+        row = rows.get(goal)
+        if row is None:
+            row = rows[goal] = distances_to(plant, [goal])[0]
+        return row
+
+    tasks = instance.tasks
+    team = instance.team
+    robots = [Robot(i, s, 0, tasks[i % len(tasks)], i) for i, s in enumerate(instance.starts)]
+    since = [0] * team  # the timestep each robot's task was revealed
+    paths: list[list[str]] = [[] for _ in robots]
+    events, planner_times, errors = [], [], []
+    events.extend([r.task_index, 0, "assigned", r.id] for r in robots)
+    finished = stayed = 0
+    for t in range(steps):
+        for r in robots:
+            if r.node == r.task:
+                finished += 1
+                events.append([r.task_index, t, "finished", r.id])
+                r.task_index += team
+                r.task = tasks[r.task_index % len(tasks)]
+                events.append([r.task_index, t, "assigned", r.id])
+                since[r.id] = t
+        begin = time.perf_counter()
+        moves = planner.step(
+            [plant.idx(r.node) for r in robots],
+            [HEADINGS[r.heading] for r in robots],
+            [to(r.task) for r in robots],
+            [t - since[i] + i / team for i in range(team)],
+        )
+        planner_times.append(time.perf_counter() - begin)
+        before = {r.id: r.node for r in robots}
+        for r, m in zip(robots, moves, strict=True):
+            node = int(plant.ids[m.node])
+            if node != r.node:
+                want = HEADINGS.index(
+                    ((node % width) - (r.node % width), (node // width) - (r.node // width))
+                )
+                if want != r.heading:
+                    raise AssertionError(f"robot {r.id} drives off facing {NAMES[r.heading]}")
+                a = "F"
+                r.node = node
+            else:
+                turn = m.turn(HEADINGS[r.heading])
+                a = "R" if turn > 0 else "C" if turn < 0 else "W"
+                r.heading = (r.heading + turn) % 4
+                stayed += a == "W"
+            paths[r.id].append(a)
+        errors.extend(conflicts(robots, before, t))
+    for r in robots:
+        if r.node == r.task:
+            finished += 1
+            events.append([r.task_index, steps, "finished", r.id])
+    stats = {"searches": 0, "failures": 0, "asides": 0, "voided": 0, "waits": stayed}
+    return output(instance, steps, paths, planner_times, errors, events, finished, stats)
+
+
+def output(instance, steps, paths, planner_times, errors, events, finished, stats) -> dict:
+    """The competition's output JSON, and our own counts under ``_stats``."""
+    width = instance.passable.shape[1]
+    tasks = instance.tasks
     return {
         "actionModel": "MAPF_T",
         "AllValid": "No" if errors else "Yes",
@@ -409,16 +489,19 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
         "plannerPaths": [",".join(p) for p in paths],
         "plannerTimes": planner_times,
         "errors": errors,
-        "events": [[e[:3] for e in events if e[3] == r.id] for r in robots],
+        "events": [[e[:3] for e in events if e[3] == k] for k in range(instance.team)],
         "tasks": [[k, loc // width, loc % width] for k, loc in enumerate(tasks)],
-        "_stats": {
-            "searches": traffic.searches,
-            "failures": traffic.failures,
-            "asides": traffic.asides,
-            "voided": traffic.voided,
-            "conflicts": len(errors),
-        },
+        "_stats": {**stats, "conflicts": len(errors)},
     }
+
+
+TRAFFIC = ("time_windows", "one_step")
+
+
+def solve(traffic: str, instance: Instance, steps: int, args: argparse.Namespace) -> dict:
+    if traffic == "one_step":
+        return run_one_step(instance, steps)
+    return run(instance, steps, args.plan_budget, args.stay_s)
 
 
 def summary(result: dict) -> dict:
@@ -435,7 +518,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("instance", nargs="?", type=Path)
     ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--traffic", choices=["time_windows"], default="time_windows")
+    ap.add_argument("--traffic", choices=list(TRAFFIC), default="time_windows")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--data", type=Path, default=DATA, help="the instances' folder (its README)")
     ap.add_argument("--plan-budget", type=int, default=PLAN_BUDGET)
@@ -448,7 +531,7 @@ def main() -> None:
             instance = read_instance(args.instance)
         except InstanceError as e:
             sys.exit(f"lorr.py: {e}")
-        result = run(instance, args.steps or 500, args.plan_budget, args.stay_s)
+        result = solve(args.traffic, instance, args.steps or 500, args)
         stats = result.pop("_stats")
         if args.out:
             args.out.write_text(json.dumps(result))
@@ -488,7 +571,7 @@ def main() -> None:
         if args.quick:
             steps = 50
         steps = args.steps or steps
-        result = run(instance, steps, args.plan_budget, args.stay_s)
+        result = solve(args.traffic, instance, steps, args)
         s = summary(result)
         best = PUBLISHED.get((instance.name, instance.team, steps))
         ratio = f"{s['tasks_finished'] / best:.2f}" if best else "n/a"

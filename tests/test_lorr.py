@@ -91,8 +91,8 @@ def replay(instance_path: Path, out: dict) -> tuple[int, list[str]]:
     return finished, problems
 
 
-@pytest.fixture(scope="module")
-def result(tmp_path_factory):
+@pytest.fixture(scope="module", params=["time_windows", "one_step"])
+def result(request, tmp_path_factory):
     out = tmp_path_factory.mktemp("lorr") / "result.json"
     proc = subprocess.run(
         [
@@ -103,6 +103,8 @@ def result(tmp_path_factory):
             "120",
             "--out",
             str(out),
+            "--traffic",
+            request.param,
         ],
         capture_output=True,
         text=True,

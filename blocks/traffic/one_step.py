@@ -1,0 +1,191 @@
+"""OneStepPlanner: every robot's next node for one timestep, by priority inheritance (PIBT).
+
+Full plans through a crowd fail: when a quarter of the cells hold robots, prioritised
+planning finds no path for most of them, and the robots left without one stand in
+everybody's way. Priority inheritance with backtracking (PIBT, Okumura et al., Artificial
+Intelligence 2022; the planner under the best entries of the League of Robot Runners 2023)
+plans one timestep at a time instead. The most urgent robot picks its best next node; a robot
+standing there must move first and inherits the urgency to do so, recursively; if it cannot
+move anywhere, the urgent one tries its next-best node. Nobody is ever without a move (to
+stay is one), so a step's work is bounded by the robots times their nodes' degree, at any
+density, and a robot that has waited longest is urgent enough to get through.
+
+Robots here have a heading and turn on the spot: a next node that is not straight ahead
+costs the time to face it, and a robot that picks one spends the step turning on its own
+node, so it stays there for the step. That is why a robot asked to make room can only drive
+straight on (turning would keep it where the urgent one wants to go).
+
+No two robots end a step on one node, and no two swap nodes: the result is safe under the
+unit-time model of multi-agent path finding, where a robot may follow another into the node
+it leaves in the same step (tests/test_one_step.py checks both on random grids).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from topology import Plant
+
+from .sipp import TurnTimes
+
+Direction = tuple[float, float] | None
+
+
+@dataclass(frozen=True)
+class Move:
+    """One robot's step: the node (index) it is at afterwards, and, when it stays to turn,
+    the direction it turns to face (else None)."""
+
+    node: int
+    face: Direction = None
+
+    def turn(self, facing: Direction) -> int:
+        """+1 for a quarter turn clockwise (y pointing down, as in a grid's rows), -1 for
+        counter-clockwise, 0 for none; a U-turn starts clockwise."""
+        if self.face is None or facing is None:
+            return 0
+        cross = facing[0] * self.face[1] - facing[1] * self.face[0]
+        dot = facing[0] * self.face[0] + facing[1] * self.face[1]
+        if abs(cross) < 1e-9:
+            return 1 if dot < 0 else 0
+        return 1 if cross > 0 else -1
+
+
+class OneStepPlanner:
+    """PIBT over a plant's routable arcs. Candidates are priced in metres: a neighbour costs
+    its segment, the turn to face it (``turns`` at ``speed``) and its distance to the goal;
+    staying costs one step's drive (``step_s`` at ``speed``) more than the best of those, as
+    it leaves the robot where it was. So a robot stays only when the nodes that would serve
+    it better are taken, and a U-turn away from a goal behind it wins over standing."""
+
+    def __init__(
+        self,
+        plant: Plant,
+        speed: float = 1.0,
+        turns: TurnTimes | None = None,
+        step_s: float = 1.0,
+    ) -> None:
+        self.plant = plant
+        self.speed = speed
+        self.wait_m = speed * step_s  # what standing a step costs: one step's drive
+        self.turns = turns or TurnTimes()
+        xy = plant.positions
+        self._out: list[list[tuple[int, float, Direction]]] = [[] for _ in range(plant.n)]
+        for u, arcs in enumerate(plant.neighbors):
+            for v, _arc, length in arcs:
+                dx, dy = (xy[v] - xy[u]).tolist()
+                norm = float(np.hypot(dx, dy))
+                direction = (dx / norm, dy / norm) if norm > 0 else None
+                self._out[u].append((v, length, direction))
+
+    def step(
+        self,
+        at: Sequence[int],
+        facing: Sequence[Direction],
+        to_goal: Sequence[np.ndarray],
+        priority: Sequence[float],
+    ) -> list[Move]:
+        """Each robot's move: ``at`` its node index, ``facing`` its heading (a unit vector,
+        None for a robot that turns for free), ``to_goal`` the distance of every node index
+        to its goal, ``priority`` its urgency (higher first; make them distinct, e.g. the
+        steps since its task began plus a fraction by robot). ValueError if two robots
+        stand on one node."""
+        n = len(at)
+        here: dict[int, int] = {}
+        for i, node in enumerate(at):
+            if node in here:
+                raise ValueError(f"robots {here[node]} and {i} both stand on node index {node}")
+            here[node] = i
+        want: list[int] = [-1] * n  # node index each robot is given by PIBT
+        taken: dict[int, int] = {}  # node index -> the robot given it
+        for i in sorted(range(n), key=lambda k: -priority[k]):
+            if want[i] < 0:
+                self._inherit(i, at, facing, to_goal, here, taken, want)
+        return self._turn_first(at, facing, want, here)
+
+    def _candidates(self, at: int, facing: Direction, dist: np.ndarray) -> list[int]:
+        """Its own node and every neighbour, cheapest first: a neighbour costs its segment,
+        the turn to face it and its distance to the goal; staying costs a step more than
+        the best of those."""
+        out = []
+        for v, length, direction in self._out[at]:
+            turn = self.turns.between(facing, direction) if facing is not None else 0.0
+            out.append((length + turn * self.speed + float(dist[v]), float(dist[v]), v))
+        best = min((c[0] for c in out), default=float(dist[at]))
+        out.append((best + self.wait_m, float(dist[at]), at))
+        out.sort()
+        return [v for _, _, v in out]
+
+    def _inherit(self, root, at, facing, to_goal, here, taken, want) -> None:
+        """PIBT from ``root`` on nodes alone, with an explicit stack (a chain of robots
+        asked to make room may be as long as the fleet). A frame is [robot, the robot that
+        pushes it or -1, its candidates, the next candidate to try]."""
+        stack = [[root, -1, self._candidates(at[root], facing[root], to_goal[root]), 0]]
+        child_ok: bool | None = None
+        while stack:
+            frame = stack[-1]
+            i, pusher, cands, k = frame
+            if child_ok:  # the robot in the way of cands[k - 1] made room: keep it
+                stack.pop()
+                continue
+            child_ok = None
+            pushed = None
+            while k < len(cands):
+                v = cands[k]
+                k += 1
+                if v in taken or (pusher >= 0 and v == at[pusher]):
+                    continue  # someone will be there, or a swap with the one pushing
+                taken[v] = i
+                want[i] = v
+                j = here.get(v)
+                if j is not None and j != i and want[j] < 0:
+                    pushed = j
+                break
+            else:  # nothing left: it stays, and the one pushing it tries elsewhere
+                taken[at[i]] = i
+                want[i] = at[i]
+                stack.pop()
+                child_ok = False
+                continue
+            if pushed is not None:
+                frame[3] = k
+                stack.append(
+                    [pushed, i, self._candidates(at[pushed], facing[pushed], to_goal[pushed]), 0]
+                )
+                continue
+            stack.pop()
+            child_ok = True
+
+    def _turn_first(self, at, facing, want, here) -> list[Move]:
+        """Robots given a node they do not face turn towards it and stay; whoever was to
+        follow into a node whose robot stays stays too, down the chain. What is left moves:
+        into empty nodes, or behind robots that move on."""
+        n = len(at)
+        face: list[Direction] = [None] * n
+        stays = [False] * n
+        chain = []
+        for i in range(n):
+            if want[i] == at[i]:
+                stays[i] = True
+                chain.append(i)
+                continue
+            direction = self._direction(at[i], want[i])
+            if facing[i] is not None and self.turns.between(facing[i], direction) > 0:
+                face[i], stays[i] = direction, True
+                chain.append(i)
+        behind: dict[int, int] = {want[i]: i for i in range(n) if want[i] != at[i]}
+        while chain:
+            j = behind.get(at[chain.pop()])  # the robot that was to take this node
+            if j is not None and not stays[j]:
+                stays[j] = True
+                chain.append(j)
+        return [Move(at[i], face[i]) if stays[i] else Move(want[i]) for i in range(n)]
+
+    def _direction(self, u: int, v: int) -> Direction:
+        for w, _, direction in self._out[u]:
+            if w == v:
+                return direction
+        raise ValueError(f"node index {v} is not a neighbour of {u}")

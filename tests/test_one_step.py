@@ -1,0 +1,166 @@
+"""OneStepPlanner (priority inheritance, one timestep at a time) on small grids.
+
+The checks are written here from the unit-time model's rules, not taken from the planner:
+after a step no two robots share a cell and no two have swapped cells; a robot that changes
+cell moves to a neighbour straight ahead of it; one that turns stays on its cell and turns a
+quarter (or starts a U-turn). Robots are simulated step by step, with their urgency the
+steps since their goal was last reached, as the planner's users do.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from blocks.routing.heuristic import distances_to
+from blocks.traffic.one_step import Move, OneStepPlanner
+from blocks.traffic.sipp import TurnTimes
+from topology.grid import grid_plant
+
+HEADINGS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))  # E S W N, y down: clockwise
+TURNS = TurnTimes(1.0, 2.0)
+
+
+class Sim:
+    """Robots on a grid, driven by the planner, checked against the rules every step."""
+
+    def __init__(self, rows: list[str], starts, headings, goals) -> None:
+        self.passable = np.array([[c == "." for c in row] for row in rows], dtype=bool)
+        self.width = self.passable.shape[1]
+        self.plant = grid_plant(self.passable)
+        self.planner = OneStepPlanner(self.plant, speed=1.0, turns=TURNS, step_s=1.0)
+        self.cell = list(starts)  # cell numbers (row * width + column)
+        self.heading = list(headings)  # index into HEADINGS
+        self.goals = [list(g) for g in goals]  # each robot's goals, in turn
+        self.since = [0] * len(starts)
+        self.done = [0] * len(starts)
+        self.t = 0
+
+    def step(self) -> list[Move]:
+        n = len(self.cell)
+        for i in range(n):
+            if self.goals[i] and self.cell[i] == self.goals[i][0]:
+                self.goals[i].pop(0)
+                self.done[i] += 1
+                self.since[i] = self.t
+        goal = [g[0] if g else c for g, c in zip(self.goals, self.cell, strict=True)]
+        moves = self.planner.step(
+            [self.plant.idx(c) for c in self.cell],
+            [HEADINGS[h] for h in self.heading],
+            [distances_to(self.plant, [g])[0] for g in goal],
+            [self.t - self.since[i] + i / n for i in range(n)],
+        )
+        assert len(moves) == n
+        before = list(self.cell)
+        for i, m in enumerate(moves):
+            after = int(self.plant.ids[m.node])
+            if after != before[i]:
+                dx, dy = HEADINGS[self.heading[i]]
+                ahead = before[i] + int(dx) + int(dy) * self.width
+                assert after == ahead, f"robot {i} leaves {before[i]} for {after}, not ahead"
+                assert m.face is None
+            else:
+                h = self.heading[i]
+                turn = m.turn(HEADINGS[h])
+                if m.face is not None:  # a quarter turn to face it, or a U-turn's first
+                    assert turn != 0
+                    assert HEADINGS[(h + turn) % 4] == m.face or m.face == HEADINGS[(h + 2) % 4]
+                self.heading[i] = (h + turn) % 4
+            self.cell[i] = after
+        assert len(set(self.cell)) == n, f"step {self.t}: two robots share a cell"
+        where = {c: i for i, c in enumerate(before)}
+        for i in range(n):
+            j = where.get(self.cell[i])
+            assert not (j is not None and j != i and self.cell[j] == before[i]), (
+                f"step {self.t}: robots {i} and {j} swap cells"
+            )
+        self.t += 1
+        return moves
+
+
+def test_turning_signs_follow_the_grid():
+    east, south, west, north = HEADINGS
+    assert Move(0, south).turn(east) == 1  # clockwise with y down
+    assert Move(0, north).turn(east) == -1
+    assert Move(0, west).turn(east) == 1  # a U-turn starts clockwise
+    assert Move(0, east).turn(east) == 0
+    assert Move(0, None).turn(east) == 0
+
+
+def test_two_robots_on_one_node_is_an_error():
+    plant = grid_plant(np.ones((2, 2), dtype=bool))
+    planner = OneStepPlanner(plant)
+    row = distances_to(plant, [0])[0]
+    with pytest.raises(ValueError, match="robots 0 and 1"):
+        planner.step([1, 1], [None, None], [row, row], [1.0, 0.0])
+
+
+def test_a_robot_alone_turns_once_then_drives_the_shortest_way():
+    sim = Sim(["....", "....", "...."], starts=[0], headings=[0], goals=[[8]])  # (0,0) -> (2,0)
+    for _ in range(3):
+        sim.step()
+    assert sim.cell == [8]  # one quarter turn, two moves
+    assert sim.heading == [1]
+
+
+def test_the_more_urgent_robot_pushes_the_other_out_of_its_way():
+    """Head-on on a ring: robot 0 (urgent, facing east) must get along the top row; robot 1
+    stands on its own goal there, facing it. Robot 1 inherits the urgency, turns round (two
+    steps, while robot 0 waits behind it), drives ahead of robot 0 to the corner and round
+    it, and robot 0 arrives. Neither would move out of the way on its own account."""
+    rows = [".......", ".#####.", "......."]
+    sim = Sim(rows, starts=[0, 2], headings=[0, 2], goals=[[6], [2, 2]])
+    sim.since = [-50, 0]  # robot 0 has waited long: it is the more urgent
+    for _ in range(12):
+        sim.step()
+        if not sim.goals[0]:
+            break
+    assert sim.done[0] == 1, f"robot 0 stuck at {sim.cell[0]} after {sim.t} steps"
+    assert sim.cell[1] in (13, 20)  # round the corner, out of the way
+
+
+def test_without_headings_it_is_plain_pibt_and_a_ring_rotates():
+    """Four robots on a 2 x 2 ring, each wanting the next cell clockwise: all move at once,
+    one following another, which the unit-time model allows (no swap, no shared cell)."""
+    plant = grid_plant(np.ones((2, 2), dtype=bool))
+    planner = OneStepPlanner(plant)
+    at = [0, 1, 3, 2]  # node indices of cells (0,0) (0,1) (1,1) (1,0)
+    goals = [1, 3, 2, 0]
+    moves = planner.step(
+        at, [None] * 4, [distances_to(plant, [g])[0] for g in goals], [4.0, 3.0, 2.0, 1.0]
+    )
+    assert [m.node for m in moves] == goals
+
+
+grids = st.integers(4, 8).flatmap(
+    lambda w: st.integers(3, 7).flatmap(
+        lambda h: st.lists(st.booleans(), min_size=w * h, max_size=w * h).map(
+            lambda cells: [
+                "".join(
+                    "." if (free or (y * w + x) % 3 == 0) else "#"
+                    for x, free in enumerate(cells[y * w : (y + 1) * w])
+                )
+                for y in range(h)
+            ]
+        )
+    )
+)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rows=grids, data=st.data())
+def test_no_shared_cell_no_swap_and_only_straight_moves_on_random_grids(rows, data):
+    plant = grid_plant(np.array([[c == "." for c in r] for r in rows], dtype=bool))
+    # the largest connected part, so that every goal is reachable
+    free = [int(c) for c in plant.ids]
+    reach = distances_to(plant, [free[0]])[0]
+    part = [int(plant.ids[k]) for k in np.flatnonzero(np.isfinite(reach))]
+    if len(part) < 3:
+        return
+    n = data.draw(st.integers(2, max(2, min(len(part) - 1, len(part) * 2 // 3))))
+    starts = data.draw(st.permutations(part))[:n]
+    headings = data.draw(st.lists(st.integers(0, 3), min_size=n, max_size=n))
+    goals = [data.draw(st.lists(st.sampled_from(part), min_size=1, max_size=4)) for _ in range(n)]
+    sim = Sim(rows, starts, headings, goals)
+    for _ in range(40):
+        sim.step()
