@@ -1,4 +1,4 @@
-"""League of Robot Runners 2023: our time-window traffic control on the competition's model.
+"""League of Robot Runners 2023: our traffic planners on the competition's model.
 
 Reads an instance of ``../shared/data/lorr2023/`` (its README: map, agents, tasks, round-robin
 assignment, the MAPF_T action model: each timestep a robot moves forward one cell, turns 90
@@ -8,7 +8,8 @@ degrees or waits), runs ``--steps`` timesteps and writes the competition's outpu
 ``tasks``), which any validator of the competition can replay. tests/test_lorr.py replays it
 with its own rules and recounts tasks and conflicts.
 
-The traffic control is the time-window planner of the fleet (``blocks/traffic``):
+``--traffic time_windows`` (the default) is the time-window planner of the fleet
+(``blocks/traffic``):
 safe-interval search over (cell, heading) through a time-window table, with the model's
 timing: a move and a quarter turn take one timestep, a U-turn two, and a gap of one timestep
 (a robot may follow another into the cell it leaves, as the rules allow; never two in a
@@ -33,7 +34,23 @@ robots left plan next timestep), so a step's planning work stays bounded, as the
 competition's 1 s limit demands. The budget counts work, not seconds, so a run gives the
 same result on any machine; ``plannerTimes`` records the seconds each step took here.
 
-    .venv/bin/python bench/lorr.py [INSTANCE.json] [--steps N] [--traffic time_windows]
+``--traffic one_step`` plans one timestep at a time by priority inheritance
+(``blocks/traffic/one_step.py``, PIBT): no plans, so nothing to fail or void, and a
+step's work is bounded by the robots times their cells' degree. A robot's urgency is the
+time since its task was revealed.
+
+``--follow next_step`` forbids what the competition allows, driving into a cell in the step
+its robot leaves it: a cell is entered a step after it was left at the earliest, which is
+what our vehicles' reservations amount to (a node is released once the vehicle ahead has
+cleared it). It measures what that rule costs a fleet.
+
+``--kiva 60 100 140`` runs RHCR's kiva map (``topology.kiva``) in the same model instead of
+the instances: starts on distinct free cells and tasks uniform over its 480 endpoints,
+drawn per seed (``--seeds``), beside RHCR's published tasks per timestep (unit moves
+too, but no turns).
+
+    .venv/bin/python bench/lorr.py [INSTANCE.json] [--steps N] [--traffic time_windows one_step]
+        [--follow same_step|next_step] [--kiva ROBOTS ...] [--seeds 0 1 2]
         [--out result.json] [--plan-budget 40000] [--stay-s 3] [--data DIR] [--quick]
 
 Without INSTANCE: the README's three random-32-32-20 instances and the three warehouse_small
@@ -46,6 +63,7 @@ missing, ``--quick`` runs on the one instance the repository keeps for its tests
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import sys
@@ -65,6 +83,7 @@ from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # no
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
 from topology import Plant  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
+from topology.samples import KIVA_HEIGHT, KIVA_WIDTH, kiva  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "lorr2023"  # the full set, beside the clone
 TEST_DATA = ROOT / "tests" / "data" / "lorr2023"  # one instance kept in the repository
@@ -78,6 +97,10 @@ SEARCH_CAP = 4_000  # expansions of one search: one that needs more counts as fa
 # best known tasks finished, 2023 main round (README of the data)
 PUBLISHED = {("random-32-32-20", 100, 500): 1741, ("random-32-32-20", 200, 500): 3042}
 PUBLISHED[("random-32-32-20", 400, 1000)] = 7432
+# RHCR (Li et al., AAAI 2021) on its kiva map, tasks per timestep: windowed PBS, unit moves
+# without turns, 5000 timesteps
+KIVA_RHCR = {60: 2.33, 100: 3.56, 140: 4.55}
+KIVA_STEPS = 500
 RUNS = (  # (instance, robots, timesteps)
     ("random/EI23-random_100.json", 100, 500),
     ("random/EI23-random_200.json", 200, 500),
@@ -167,8 +190,14 @@ class Robot:
 class TimeWindowTraffic:
     """Lifelong prioritised time-window planning with the fleet's table and search."""
 
-    def __init__(self, plant: Plant, budget: int, stay_s: float = math.inf) -> None:
+    def __init__(
+        self, plant: Plant, budget: int, stay_s: float = math.inf, follow: bool = True
+    ) -> None:
         self.plant, self.budget, self.stay_s = plant, budget, stay_s
+        # the competition's rule: follow into the cell another leaves in the same step (a
+        # window begins on arrival); else a cell is entered a step after it was left at the
+        # earliest (a window begins when the robot sets off towards the cell)
+        self.claim = "arrival" if follow else "departure"
         self.used = 0  # search expansions this timestep
         self.urgent: set[int] = set()  # robots whose stay ends: they plan first
         self.voided = 0  # plans released to make a robot without a plan safe
@@ -282,7 +311,7 @@ class TimeWindowTraffic:
             speed=1.0,
             heading=HEADINGS[r.heading],
             turns=TURNS,
-            claim="arrival",  # the competition's rule: follow into the cell another leaves
+            claim=self.claim,
             hold_s=self.stay_s if goal == r.task else math.inf,
             to_goal=self._to(goal),
             geometry=self.geometry,
@@ -349,10 +378,12 @@ def conflicts(robots: list[Robot], before: dict[int, int], t: int) -> list[list]
     return out
 
 
-def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -> dict:
+def run(
+    instance: Instance, steps: int, budget: int, stay_s: float = math.inf, follow: bool = True
+) -> dict:
     width = instance.passable.shape[1]
     plant = grid_plant(instance.passable, 1.0, name=instance.name)
-    traffic = TimeWindowTraffic(plant, budget, stay_s)
+    traffic = TimeWindowTraffic(plant, budget, stay_s, follow)
     tasks = instance.tasks
     robots = [Robot(i, s, 0, tasks[i % len(tasks)], i) for i, s in enumerate(instance.starts)]
     paths: list[list[str]] = [[] for _ in robots]
@@ -407,19 +438,19 @@ def run(instance: Instance, steps: int, budget: int, stay_s: float = math.inf) -
     return output(instance, steps, paths, planner_times, errors, events, finished, stats)
 
 
-def run_one_step(instance: Instance, steps: int) -> dict:
+def run_one_step(instance: Instance, steps: int, follow: bool = True) -> dict:
     """The same rules, planned one timestep at a time by priority inheritance
     (:class:`OneStepPlanner`): a robot's urgency is the timesteps since its task was
     revealed (ties by robot number), so the one that has waited longest goes first."""
     width = instance.passable.shape[1]
     plant = grid_plant(instance.passable, 1.0, name=instance.name)
-    planner = OneStepPlanner(plant, speed=1.0, turns=TURNS, step_s=1.0)
+    planner = OneStepPlanner(plant, speed=1.0, turns=TURNS, step_s=1.0, follow=follow)
     rows: dict[int, np.ndarray] = {}
 
     def to(goal: int) -> np.ndarray:
         row = rows.get(goal)
         if row is None:
-            row = rows[goal] = distances_to(plant, [goal])[0]
+            row = rows[goal] = planner.distances(goal)
         return row
 
     tasks = instance.tasks
@@ -496,12 +527,60 @@ def output(instance, steps, paths, planner_times, errors, events, finished, stat
 
 
 TRAFFIC = ("time_windows", "one_step")
+FOLLOW = {"same_step": True, "next_step": False}
 
 
 def solve(traffic: str, instance: Instance, steps: int, args: argparse.Namespace) -> dict:
+    follow = FOLLOW[args.follow]
     if traffic == "one_step":
-        return run_one_step(instance, steps)
-    return run(instance, steps, args.plan_budget, args.stay_s)
+        return run_one_step(instance, steps, follow)
+    return run(instance, steps, args.plan_budget, args.stay_s, follow)
+
+
+def kiva_instance(robots: int, seed: int) -> Instance:
+    """RHCR's kiva map (``topology.kiva``, cell for cell) in the competition's model: starts
+    on distinct free cells and tasks uniform over its 480 endpoints, both drawn with
+    ``seed``; robots take the tasks round-robin, as in the competition."""
+    plant = kiva()
+    passable = np.zeros((KIVA_HEIGHT, KIVA_WIDTH), dtype=bool)
+    passable.flat[plant.ids] = True
+    rng = np.random.default_rng(seed)
+    starts = rng.choice(plant.ids, robots, replace=False).tolist()
+    tasks = rng.choice(plant.with_role("station"), robots * 100).tolist()
+    return Instance("kiva", passable, [int(s) for s in starts], [int(t) for t in tasks], robots)
+
+
+def kiva_table(args: argparse.Namespace) -> None:
+    """Tasks per step on kiva per fleet size, traffic mode and following rule, the mean over
+    the seeds with the min-max, beside RHCR's figures (unit moves too, but no turns)."""
+    steps = args.steps or KIVA_STEPS
+    print(
+        f"RHCR's kiva map in the competition's model (unit moves, quarter turns), {steps} "
+        f"steps, seeds {' '.join(map(str, args.seeds))}, following: {args.follow}"
+    )
+    print()
+    print(
+        "| robots | traffic | tasks per step | RHCR (no turns) | ours / RHCR "
+        "| planning mean (s) | planning max (s) | conflicts |"
+    )
+    print("|---:|---|---:|---:|---:|---:|---:|---:|")
+    for robots in args.kiva:
+        for traffic in args.traffic:
+            rates, means, peaks, conflicts = [], [], [], 0
+            for seed in args.seeds:
+                result = solve(traffic, kiva_instance(robots, seed), steps, args)
+                s = summary(result)
+                rates.append(s["tasks_finished"] / steps)
+                means.append(s["plan_mean_s"])
+                peaks.append(s["plan_max_s"])
+                conflicts += s["conflicts"]
+            mean = sum(rates) / len(rates)
+            ref = KIVA_RHCR.get(robots)
+            print(
+                f"| {robots} | {traffic} | {mean:.2f} ({min(rates):.2f}-{max(rates):.2f}) "
+                f"| {ref or '-'} | {f'{mean / ref:.2f}' if ref else '-'} "
+                f"| {sum(means) / len(means):.3f} | {max(peaks):.3f} | {conflicts} |"
+            )
 
 
 def summary(result: dict) -> dict:
@@ -518,20 +597,51 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("instance", nargs="?", type=Path)
     ap.add_argument("--steps", type=int, default=None)
-    ap.add_argument("--traffic", choices=list(TRAFFIC), default="time_windows")
+    ap.add_argument(
+        "--traffic",
+        choices=list(TRAFFIC),
+        nargs="+",
+        help="time_windows: full plans in time, prioritised; one_step: priority inheritance, "
+        "one step at a time. Several: side by side (default: both; with an INSTANCE one, "
+        "time_windows by default)",
+    )
+    ap.add_argument(
+        "--follow",
+        choices=list(FOLLOW),
+        default="same_step",
+        help="same_step: the competition's rule (into a cell in the step its robot leaves "
+        "it); next_step: a step after it was left, as our vehicles' reservations allow",
+    )
+    ap.add_argument(
+        "--kiva",
+        type=int,
+        nargs="+",
+        metavar="ROBOTS",
+        help="run RHCR's kiva map with these fleet sizes instead of the instances",
+    )
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="--kiva's seeds")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--data", type=Path, default=DATA, help="the instances' folder (its README)")
     ap.add_argument("--plan-budget", type=int, default=PLAN_BUDGET)
     ap.add_argument("--stay-s", type=float, default=3.0)
     ap.add_argument("--quick", action="store_true", help="100 robots, 50 steps per instance")
     args = ap.parse_args()
+    if args.traffic is None:
+        args.traffic = ["time_windows"] if args.instance is not None else list(TRAFFIC)
     begin = time.perf_counter()
+    if args.kiva:
+        kiva_table(args)
+        print()
+        print(f"wall time {time.perf_counter() - begin:.1f} s")
+        return
     if args.instance is not None:
+        if len(args.traffic) > 1:
+            sys.exit("lorr.py: one --traffic mode with an INSTANCE")
         try:
             instance = read_instance(args.instance)
         except InstanceError as e:
             sys.exit(f"lorr.py: {e}")
-        result = solve(args.traffic, instance, args.steps or 500, args)
+        result = solve(args.traffic[0], instance, args.steps or 500, args)
         stats = result.pop("_stats")
         if args.out:
             args.out.write_text(json.dumps(result))
@@ -552,16 +662,18 @@ def main() -> None:
             sys.exit(f"lorr.py: no instances at {data} (pass --data DIR, the folder of the README)")
         data = TEST_DATA  # the quick check runs on the instance the repository keeps
     print(
-        f"League of Robot Runners 2023 instances, traffic {args.traffic}, planning budget "
-        f"{args.plan_budget:,} search expansions per timestep"
+        f"League of Robot Runners 2023 instances, traffic {' and '.join(args.traffic)}, "
+        f"following: {args.follow}; time_windows' planning budget {args.plan_budget:,} search "
+        "expansions per timestep"
     )
     print()
     print(
-        "| instance | robots | steps | tasks finished | per step | best known | ours / best known "
-        "| planning mean (s) | planning max (s) | failed searches | stepped aside |"
+        "| instance | robots | steps | traffic | tasks finished | per step | best known "
+        "| ours / best known | planning mean (s) | planning max (s) | failed searches "
+        "| stepped aside |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for rel, robots, steps in RUNS:
+    print("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for (rel, robots, steps), traffic in itertools.product(RUNS, args.traffic):
         if args.quick and robots > 100:
             continue
         if not (data / rel).exists():
@@ -571,12 +683,12 @@ def main() -> None:
         if args.quick:
             steps = 50
         steps = args.steps or steps
-        result = solve(args.traffic, instance, steps, args)
+        result = solve(traffic, instance, steps, args)
         s = summary(result)
         best = PUBLISHED.get((instance.name, instance.team, steps))
         ratio = f"{s['tasks_finished'] / best:.2f}" if best else "n/a"
         print(
-            f"| {instance.name} | {instance.team} | {steps} | {s['tasks_finished']} "
+            f"| {instance.name} | {instance.team} | {steps} | {traffic} | {s['tasks_finished']} "
             f"| {s['tasks_finished'] / steps:.2f} | {best or 'none published'} | {ratio} "
             f"| {s['plan_mean_s']:.3f} | {s['plan_max_s']:.3f} | {s['failures']} | {s['asides']} |"
         )

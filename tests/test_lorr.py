@@ -28,8 +28,9 @@ MOVES = {"E": (0, 1), "S": (1, 0), "W": (0, -1), "N": (-1, 0)}  # (row, column)
 CLOCKWISE = "ESWN"
 
 
-def replay(instance_path: Path, out: dict) -> tuple[int, list[str]]:
-    """(tasks finished, conflicts and invalid moves) by the competition's rules."""
+def replay(instance_path: Path, out: dict, follow: bool = True) -> tuple[int, list[str]]:
+    """(tasks finished, conflicts and invalid moves) by the competition's rules; without
+    ``follow``, also every move into a cell that was not empty as the step began."""
     spec = json.loads(instance_path.read_text())
     base = instance_path.parent
     rows = base.joinpath(spec["mapFile"]).read_text().splitlines()
@@ -68,6 +69,8 @@ def replay(instance_path: Path, out: dict) -> tuple[int, list[str]]:
                 if not (0 <= r < height and 0 <= c < width) or grid[r][c] in "@T":
                     problems.append(f"t {t}: robot {i} drives into an obstacle or off the map")
                     continue
+                if not follow and (r, c) in before:
+                    problems.append(f"t {t}: robot {i} follows into ({r}, {c}) in one step")
                 pos[i] = (r, c)
             elif a == "R":
                 face[i] = CLOCKWISE[(CLOCKWISE.index(face[i]) + 1) % 4]
@@ -212,3 +215,93 @@ def test_the_bench_reports_a_conflict_it_would_make():
     assert [e[3] for e in lorr.conflicts([a, b, c], before, 0)] == ["edge conflict"]
     c.node = 6
     assert "vertex conflict" in [e[3] for e in lorr.conflicts([a, b, c], before, 0)]
+
+
+@pytest.mark.parametrize("traffic", ["time_windows", "one_step"])
+def test_following_a_step_later_is_kept_and_replayed(traffic, tmp_path):
+    """``--follow next_step``: nobody drives into a cell its robot leaves in the same step;
+    the replay checks that too, and still finds the same tasks and no conflict."""
+    out = tmp_path / "next.json"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "bench" / "lorr.py"),
+            str(INSTANCE),
+            "--steps",
+            "60",
+            "--traffic",
+            traffic,
+            "--follow",
+            "next_step",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    finished, problems = replay(INSTANCE, result, follow=False)
+    assert problems == [] and finished == result["numTaskFinished"] > 0
+    # the check itself is not empty: the competition's own rule does follow in one step
+    same = lorr.run_one_step(lorr.read_instance(INSTANCE), 60, follow=True)
+    _, problems = replay(INSTANCE, same, follow=False)
+    assert any("follows into" in p for p in problems)
+
+
+def test_the_kiva_instance_is_rhcrs_map_with_seeded_starts_and_tasks():
+    from topology.samples import kiva
+
+    plant = kiva()
+    endpoints = set(plant.with_role("station"))
+    a, b, c = lorr.kiva_instance(140, 0), lorr.kiva_instance(140, 0), lorr.kiva_instance(140, 1)
+    assert a.starts == b.starts and a.tasks == b.tasks  # the seed decides
+    assert a.starts != c.starts and a.tasks != c.tasks
+    assert len(set(a.starts)) == 140 and all(a.passable.flat[s] for s in a.starts)
+    assert set(a.tasks) <= endpoints and len(set(a.tasks)) > 400  # uniform over the 480
+    assert int(a.passable.sum()) == plant.n == 1278
+
+
+def test_the_kiva_table_runs_both_planners_without_conflict():
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "bench" / "lorr.py"),
+            "--kiva",
+            "20",
+            "--steps",
+            "30",
+            "--seeds",
+            "0",
+            "--traffic",
+            "time_windows",
+            "one_step",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = [line.split("|")[1:-1] for line in proc.stdout.splitlines() if line.startswith("| 20 ")]
+    assert [r[1].strip() for r in rows] == ["time_windows", "one_step"]
+    assert all(r[-1].strip() == "0" for r in rows)  # conflicts
+    assert all(float(r[2].split()[0]) > 0 for r in rows)  # tasks per step
+
+
+def test_several_planners_with_one_instance_is_a_clear_error():
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "bench" / "lorr.py"),
+            str(INSTANCE),
+            "--traffic",
+            "time_windows",
+            "one_step",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode != 0 and "one --traffic" in proc.stderr
+    assert "Traceback" not in proc.stderr

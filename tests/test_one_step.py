@@ -24,11 +24,12 @@ TURNS = TurnTimes(1.0, 2.0)
 class Sim:
     """Robots on a grid, driven by the planner, checked against the rules every step."""
 
-    def __init__(self, rows: list[str], starts, headings, goals) -> None:
+    def __init__(self, rows: list[str], starts, headings, goals, follow: bool = True) -> None:
         self.passable = np.array([[c == "." for c in row] for row in rows], dtype=bool)
         self.width = self.passable.shape[1]
         self.plant = grid_plant(self.passable)
-        self.planner = OneStepPlanner(self.plant, speed=1.0, turns=TURNS, step_s=1.0)
+        self.follow = follow
+        self.planner = OneStepPlanner(self.plant, speed=1.0, turns=TURNS, step_s=1.0, follow=follow)
         self.cell = list(starts)  # cell numbers (row * width + column)
         self.heading = list(headings)  # index into HEADINGS
         self.goals = [list(g) for g in goals]  # each robot's goals, in turn
@@ -59,6 +60,7 @@ class Sim:
                 ahead = before[i] + int(dx) + int(dy) * self.width
                 assert after == ahead, f"robot {i} leaves {before[i]} for {after}, not ahead"
                 assert m.face is None
+                assert self.follow or after not in before, f"robot {i} follows into {after}"
             else:
                 h = self.heading[i]
                 turn = m.turn(HEADINGS[h])
@@ -130,6 +132,20 @@ def test_without_headings_it_is_plain_pibt_and_a_ring_rotates():
         at, [None] * 4, [distances_to(plant, [g])[0] for g in goals], [4.0, 3.0, 2.0, 1.0]
     )
     assert [m.node for m in moves] == goals
+    # where a robot may only drive into an empty node, nobody moves: the ring is full
+    strict = OneStepPlanner(plant, follow=False)
+    moves = strict.step(
+        at, [None] * 4, [distances_to(plant, [g])[0] for g in goals], [4.0, 3.0, 2.0, 1.0]
+    )
+    assert [m.node for m in moves] == at
+
+
+def test_without_following_the_one_behind_drives_a_step_later():
+    sim = Sim(["......"], starts=[1, 0], headings=[0, 0], goals=[[5], [4]], follow=False)
+    sim.step()
+    assert sim.cell == [2, 0]  # the front robot drives on, the one behind waits
+    sim.step()
+    assert sim.cell == [3, 1]
 
 
 grids = st.integers(4, 8).flatmap(
@@ -148,8 +164,9 @@ grids = st.integers(4, 8).flatmap(
 
 
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(rows=grids, data=st.data())
-def test_no_shared_cell_no_swap_and_only_straight_moves_on_random_grids(rows, data):
+@given(rows=grids, data=st.data(), follow=st.booleans())
+def test_no_shared_cell_no_swap_and_only_straight_moves_on_random_grids(rows, data, follow):
+    """With ``follow`` off, also: nobody drives into a cell that was not empty."""
     plant = grid_plant(np.array([[c == "." for c in r] for r in rows], dtype=bool))
     # the largest connected part, so that every goal is reachable
     free = [int(c) for c in plant.ids]
@@ -161,6 +178,6 @@ def test_no_shared_cell_no_swap_and_only_straight_moves_on_random_grids(rows, da
     starts = data.draw(st.permutations(part))[:n]
     headings = data.draw(st.lists(st.integers(0, 3), min_size=n, max_size=n))
     goals = [data.draw(st.lists(st.sampled_from(part), min_size=1, max_size=4)) for _ in range(n)]
-    sim = Sim(rows, starts, headings, goals)
+    sim = Sim(rows, starts, headings, goals, follow)
     for _ in range(40):
         sim.step()

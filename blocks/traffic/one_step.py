@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
 
 from topology import Plant
 
@@ -67,19 +69,64 @@ class OneStepPlanner:
         speed: float = 1.0,
         turns: TurnTimes | None = None,
         step_s: float = 1.0,
+        follow: bool = True,
     ) -> None:
         self.plant = plant
+        self.follow = follow
         self.speed = speed
         self.wait_m = speed * step_s  # what standing a step costs: one step's drive
         self.turns = turns or TurnTimes()
         xy = plant.positions
-        self._out: list[list[tuple[int, float, Direction]]] = [[] for _ in range(plant.n)]
+        # the plant's headings: the distinct directions of its segments (4 on a grid)
+        self.headings: list[tuple[float, float]] = []
+        self._out: list[list[tuple[int, float, Direction, int]]] = [[] for _ in range(plant.n)]
         for u, arcs in enumerate(plant.neighbors):
             for v, _arc, length in arcs:
                 dx, dy = (xy[v] - xy[u]).tolist()
                 norm = float(np.hypot(dx, dy))
                 direction = (dx / norm, dy / norm) if norm > 0 else None
-                self._out[u].append((v, length, direction))
+                self._out[u].append((v, length, direction, self._heading_index(direction)))
+        self._reverse = self._state_graph().T.tocsr()
+
+    def _heading_index(self, direction: Direction) -> int:
+        if direction is None:
+            return -1
+        for k, h in enumerate(self.headings):
+            if abs(h[0] - direction[0]) < 1e-6 and abs(h[1] - direction[1]) < 1e-6:
+                return k
+        self.headings.append(direction)
+        return len(self.headings) - 1
+
+    def _state_graph(self) -> sp.csr_array:
+        """Arcs between (node, heading) states: driving u -> v from heading h costs the
+        turn to face v and the segment, and arrives facing v's direction."""
+        h_count = max(len(self.headings), 1)
+        src, dst, cost = [], [], []
+        for u, arcs in enumerate(self._out):
+            for v, length, direction, d in arcs:
+                for h in range(h_count):
+                    before = self.headings[h] if self.headings else None
+                    turn = self.turns.between(before, direction) * self.speed
+                    src.append(u * h_count + h)
+                    dst.append(v * h_count + (d if d >= 0 else h))
+                    cost.append(length + turn)
+        size = self.plant.n * h_count
+        return sp.csr_array((cost, (src, dst)), shape=(size, size))
+
+    def distances(self, goal: int) -> np.ndarray:
+        """(nodes x headings): the metres, turns counted at ``speed``, from each node facing
+        each heading to the node with id ``goal``, facing any way. Turns are a large part of
+        a trip on a grid, so counting them picks the ways with fewer; rows of this table are
+        what :meth:`step` wants as ``to_goal``."""
+        h_count = max(len(self.headings), 1)
+        g = self.plant.idx(goal)
+        d = dijkstra(
+            self._reverse,
+            directed=True,
+            indices=[g * h_count + h for h in range(h_count)],
+            min_only=True,
+        )
+        return d.reshape(self.plant.n, h_count)
 
     def step(
         self,
@@ -108,14 +155,17 @@ class OneStepPlanner:
 
     def _candidates(self, at: int, facing: Direction, dist: np.ndarray) -> list[int]:
         """Its own node and every neighbour, cheapest first: a neighbour costs its segment,
-        the turn to face it and its distance to the goal; staying costs a step more than
-        the best of those."""
+        the turn to face it and its distance to the goal (per heading if ``dist`` has a
+        column per heading); staying costs a step more than the best of those."""
         out = []
-        for v, length, direction in self._out[at]:
+        per_heading = dist.ndim == 2
+        for v, length, direction, d in self._out[at]:
             turn = self.turns.between(facing, direction) if facing is not None else 0.0
-            out.append((length + turn * self.speed + float(dist[v]), float(dist[v]), v))
-        best = min((c[0] for c in out), default=float(dist[at]))
-        out.append((best + self.wait_m, float(dist[at]), at))
+            rest = float(dist[v, d] if d >= 0 else dist[v].min()) if per_heading else float(dist[v])
+            out.append((length + turn * self.speed + rest, rest, v))
+        here = float(dist[at].min()) if per_heading else float(dist[at])
+        best = min((c[0] for c in out), default=here)
+        out.append((best + self.wait_m, here, at))
         out.sort()
         return [v for _, _, v in out]
 
@@ -161,8 +211,9 @@ class OneStepPlanner:
 
     def _turn_first(self, at, facing, want, here) -> list[Move]:
         """Robots given a node they do not face turn towards it and stay; whoever was to
-        follow into a node whose robot stays stays too, down the chain. What is left moves:
-        into empty nodes, or behind robots that move on."""
+        follow into a node whose robot stays stays too, down the chain (without ``follow``,
+        whoever was to drive into a node that is not empty now). What is left moves: into
+        empty nodes, or behind robots that move on."""
         n = len(at)
         face: list[Direction] = [None] * n
         stays = [False] * n
@@ -176,6 +227,10 @@ class OneStepPlanner:
             if facing[i] is not None and self.turns.between(facing[i], direction) > 0:
                 face[i], stays[i] = direction, True
                 chain.append(i)
+        if not self.follow:
+            for i in range(n):
+                if not stays[i] and here.get(want[i], i) != i:
+                    stays[i] = True  # into a node that is not empty yet: not this step
         behind: dict[int, int] = {want[i]: i for i in range(n) if want[i] != at[i]}
         while chain:
             j = behind.get(at[chain.pop()])  # the robot that was to take this node
@@ -185,7 +240,7 @@ class OneStepPlanner:
         return [Move(at[i], face[i]) if stays[i] else Move(want[i]) for i in range(n)]
 
     def _direction(self, u: int, v: int) -> Direction:
-        for w, _, direction in self._out[u]:
+        for w, _, direction, _ in self._out[u]:
             if w == v:
                 return direction
         raise ValueError(f"node index {v} is not a neighbour of {u}")
