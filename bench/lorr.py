@@ -560,10 +560,10 @@ def kiva_table(args: argparse.Namespace) -> None:
     )
     print()
     print(
-        "| robots | traffic | tasks per step | RHCR (no turns) | ours / RHCR "
+        "| robots | following | traffic | tasks per step | RHCR (no turns) | ours / RHCR "
         "| planning mean (s) | planning max (s) | conflicts |"
     )
-    print("|---:|---|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|")
     for robots in args.kiva:
         for traffic in args.traffic:
             rates, means, peaks, conflicts = [], [], [], 0
@@ -577,7 +577,8 @@ def kiva_table(args: argparse.Namespace) -> None:
             mean = sum(rates) / len(rates)
             ref = KIVA_RHCR.get(robots)
             print(
-                f"| {robots} | {traffic} | {mean:.2f} ({min(rates):.2f}-{max(rates):.2f}) "
+                f"| {robots} | {args.follow} | {traffic} "
+                f"| {mean:.2f} ({min(rates):.2f}-{max(rates):.2f}) "
                 f"| {ref or '-'} | {f'{mean / ref:.2f}' if ref else '-'} "
                 f"| {sum(means) / len(means):.3f} | {max(peaks):.3f} | {conflicts} |"
             )
@@ -593,10 +594,21 @@ def summary(result: dict) -> dict:
     }
 
 
+def positive(text: str) -> int:
+    """An argument that must be a whole number of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("instance", nargs="?", type=Path)
-    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--steps", type=positive, default=None)
     ap.add_argument(
         "--traffic",
         choices=list(TRAFFIC),

@@ -284,9 +284,10 @@ def test_the_kiva_table_runs_both_planners_without_conflict():
     )
     assert proc.returncode == 0, proc.stderr
     rows = [line.split("|")[1:-1] for line in proc.stdout.splitlines() if line.startswith("| 20 ")]
-    assert [r[1].strip() for r in rows] == ["time_windows", "one_step"]
+    assert [r[2].strip() for r in rows] == ["time_windows", "one_step"]
+    assert all(r[1].strip() == "same_step" for r in rows)
     assert all(r[-1].strip() == "0" for r in rows)  # conflicts
-    assert all(float(r[2].split()[0]) > 0 for r in rows)  # tasks per step
+    assert all(float(r[3].split()[0]) > 0 for r in rows)  # tasks per step
 
 
 def test_several_planners_with_one_instance_is_a_clear_error():

@@ -12,8 +12,10 @@ density, and a robot that has waited longest is urgent enough to get through.
 
 Robots here have a heading and turn on the spot: a next node that is not straight ahead
 costs the time to face it, and a robot that picks one spends the step turning on its own
-node, so it stays there for the step. That is why a robot asked to make room can only drive
-straight on (turning would keep it where the urgent one wants to go).
+node, so it stays there for the step, and whoever was to follow into its node waits too. A
+robot asked to make room that must turn first thus leaves a step later, and the one that
+pushed it waits behind it meanwhile. "Straight ahead" is what the turn times price at
+nothing: with turns of 1 s and 2 s on a grid, the one neighbour the robot faces.
 
 No two robots end a step on one node, and no two swap nodes: the result is safe under the
 unit-time model of multi-agent path finding, where a robot may follow another into the node
@@ -22,6 +24,7 @@ it leaves in the same step (tests/test_one_step.py checks both on random grids).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -59,9 +62,11 @@ class Move:
 class OneStepPlanner:
     """PIBT over a plant's routable arcs. Candidates are priced in metres: a neighbour costs
     its segment, the turn to face it (``turns`` at ``speed``) and its distance to the goal;
-    staying costs one step's drive (``step_s`` at ``speed``) more than the best of those, as
-    it leaves the robot where it was. So a robot stays only when the nodes that would serve
-    it better are taken, and a U-turn away from a goal behind it wins over standing."""
+    staying costs one step's drive (``step_s`` at ``speed``) more than the best way on from
+    where the robot stands, and nothing more on its goal. So a robot off its goal stays only
+    when the nodes that would serve it better are taken, a U-turn away from a goal behind
+    it wins over standing, and a robot on its goal stays there unless asked to make room.
+    A robot whose goal it cannot reach stays (its distances are inf) unless asked to move."""
 
     def __init__(
         self,
@@ -87,6 +92,7 @@ class OneStepPlanner:
                 direction = (dx / norm, dy / norm) if norm > 0 else None
                 self._out[u].append((v, length, direction, self._heading_index(direction)))
         self._reverse = self._state_graph().T.tocsr()
+        self._facing: dict[tuple[float, float], int] = {}
 
     def _heading_index(self, direction: Direction) -> int:
         if direction is None:
@@ -156,18 +162,42 @@ class OneStepPlanner:
     def _candidates(self, at: int, facing: Direction, dist: np.ndarray) -> list[int]:
         """Its own node and every neighbour, cheapest first: a neighbour costs its segment,
         the turn to face it and its distance to the goal (per heading if ``dist`` has a
-        column per heading); staying costs a step more than the best of those."""
+        column per heading); staying costs a step more than going on as well as it can."""
         out = []
         per_heading = dist.ndim == 2
         for v, length, direction, d in self._out[at]:
             turn = self.turns.between(facing, direction) if facing is not None else 0.0
             rest = float(dist[v, d] if d >= 0 else dist[v].min()) if per_heading else float(dist[v])
-            out.append((length + turn * self.speed + rest, rest, v))
-        here = float(dist[at].min()) if per_heading else float(dist[at])
-        best = min((c[0] for c in out), default=here)
-        out.append((best + self.wait_m, here, at))
+            out.append((length + turn * self.speed + rest, 1, rest, v))
+        if per_heading:
+            h = self._heading_of(facing)
+            here = float(dist[at, h] if h >= 0 else dist[at].min())
+        else:
+            here = float(dist[at])
+        # going on as well as it can from here: a table per heading holds exactly that (0 on
+        # the goal); a table per node alone does not count the turns, and would price
+        # standing below a U-turn towards the goal for ever, so the best neighbour stands in
+        best = min((c[0] for c in out), default=math.inf)
+        on = here if per_heading or here == 0 else best
+        out.append((on + self.wait_m, 0, here, at))  # ties (inf: no way to the goal): stay
         out.sort()
-        return [v for _, _, v in out]
+        return [c[3] for c in out]
+
+    def _heading_of(self, facing: Direction) -> int:
+        """Index of the plant's heading ``facing`` is (-1: None, or none of them)."""
+        if facing is None:
+            return -1
+        k = self._facing.get(facing)
+        if k is None:
+            k = self._facing[facing] = next(
+                (
+                    j
+                    for j, h in enumerate(self.headings)
+                    if abs(h[0] - facing[0]) < 1e-6 and abs(h[1] - facing[1]) < 1e-6
+                ),
+                -1,
+            )
+        return k
 
     def _inherit(self, root, at, facing, to_goal, here, taken, want) -> None:
         """PIBT from ``root`` on nodes alone, with an explicit stack (a chain of robots
