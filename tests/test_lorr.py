@@ -28,6 +28,16 @@ MOVES = {"E": (0, 1), "S": (1, 0), "W": (0, -1), "N": (-1, 0)}  # (row, column)
 CLOCKWISE = "ESWN"
 
 
+def bench(*args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """bench/lorr.py run as a user runs it, with these arguments."""
+    return subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "lorr.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
 def replay(instance_path: Path, out: dict, follow: bool = True) -> tuple[int, list[str]]:
     """(tasks finished, conflicts and invalid moves) by the competition's rules; without
     ``follow``, also every move into a cell that was not empty as the step began."""
@@ -97,21 +107,8 @@ def replay(instance_path: Path, out: dict, follow: bool = True) -> tuple[int, li
 @pytest.fixture(scope="module", params=["time_windows", "one_step"])
 def result(request, tmp_path_factory):
     out = tmp_path_factory.mktemp("lorr") / "result.json"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "bench" / "lorr.py"),
-            str(INSTANCE),
-            "--steps",
-            "120",
-            "--out",
-            str(out),
-            "--traffic",
-            request.param,
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
+    proc = bench(
+        str(INSTANCE), "--steps", "120", "--out", str(out), "--traffic", request.param, timeout=900
     )
     assert proc.returncode == 0, proc.stderr
     return json.loads(out.read_text()), json.loads(proc.stdout)
@@ -199,12 +196,7 @@ def test_a_bad_instance_gets_a_clear_error(tmp_path):
     )
     with pytest.raises(lorr.InstanceError, match="bad.json"):
         lorr.read_instance(bad)
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "lorr.py"), str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    proc = bench(str(bad), timeout=60)
     assert proc.returncode != 0 and "bad.json" in proc.stderr and "Traceback" not in proc.stderr
 
 
@@ -222,22 +214,16 @@ def test_following_a_step_later_is_kept_and_replayed(traffic, tmp_path):
     """``--follow next_step``: nobody drives into a cell its robot leaves in the same step;
     the replay checks that too, and still finds the same tasks and no conflict."""
     out = tmp_path / "next.json"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "bench" / "lorr.py"),
-            str(INSTANCE),
-            "--steps",
-            "60",
-            "--traffic",
-            traffic,
-            "--follow",
-            "next_step",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
+    proc = bench(
+        str(INSTANCE),
+        "--steps",
+        "60",
+        "--traffic",
+        traffic,
+        "--follow",
+        "next_step",
+        "--out",
+        str(out),
         timeout=600,
     )
     assert proc.returncode == 0, proc.stderr
@@ -264,22 +250,16 @@ def test_the_kiva_instance_is_rhcrs_map_with_seeded_starts_and_tasks():
 
 
 def test_the_kiva_table_runs_both_planners_without_conflict():
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "bench" / "lorr.py"),
-            "--kiva",
-            "20",
-            "--steps",
-            "30",
-            "--seeds",
-            "0",
-            "--traffic",
-            "time_windows",
-            "one_step",
-        ],
-        capture_output=True,
-        text=True,
+    proc = bench(
+        "--kiva",
+        "20",
+        "--steps",
+        "30",
+        "--seeds",
+        "0",
+        "--traffic",
+        "time_windows",
+        "one_step",
         timeout=600,
     )
     assert proc.returncode == 0, proc.stderr
@@ -291,18 +271,6 @@ def test_the_kiva_table_runs_both_planners_without_conflict():
 
 
 def test_several_planners_with_one_instance_is_a_clear_error():
-    proc = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "bench" / "lorr.py"),
-            str(INSTANCE),
-            "--traffic",
-            "time_windows",
-            "one_step",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    proc = bench(str(INSTANCE), "--traffic", "time_windows", "one_step", timeout=60)
     assert proc.returncode != 0 and "one --traffic" in proc.stderr
     assert "Traceback" not in proc.stderr
