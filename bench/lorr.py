@@ -63,6 +63,7 @@ missing, ``--quick`` runs on the one instance the repository keeps for its tests
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import json
 import math
@@ -344,13 +345,34 @@ class TimeWindowTraffic:
         return None
 
 
+def heading(a: int, b: int, width: int) -> int:
+    """Index into HEADINGS of the way from cell ``a`` to its neighbour ``b``."""
+    return HEADINGS.index(((b % width) - (a % width), (b // width) - (a // width)))
+
+
+def finish(r: Robot, t: int, instance: Instance, events: list) -> None:
+    """``r`` stands on its task's cell at timestep t: the task is finished, and the next one
+    of its round-robin share is revealed to it."""
+    events.append([r.task_index, t, "finished", r.id])
+    r.task_index += instance.team
+    r.task = instance.tasks[r.task_index % len(instance.tasks)]
+    events.append([r.task_index, t, "assigned", r.id])
+
+
+def last_finishes(robots: list[Robot], steps: int, events: list) -> int:
+    """Tasks finished by standing on their cells after the last timestep."""
+    done = [r for r in robots if r.node == r.task]
+    events.extend([r.task_index, steps, "finished", r.id] for r in done)
+    return len(done)
+
+
 def action(r: Robot, t: int, width: int) -> str:
     """The robot's action for timestep t -> t+1 from its plan: turn as late as the plan
     allows, set off at the planned departure, else wait."""
     if r.step + 1 >= len(r.nodes):
         return "W"
     a, b = r.nodes[r.step], r.nodes[r.step + 1]
-    want = HEADINGS.index(((b % width) - (a % width), (b // width) - (a // width)))
+    want = heading(a, b, width)
     depart = round(r.depart[r.step])
     if t == depart:
         if want != r.heading:
@@ -397,10 +419,7 @@ def run(
         for r in robots:
             if r.node == r.task:  # standing on it finishes it, passing through included
                 finished += 1
-                events.append([r.task_index, t, "finished", r.id])
-                r.task_index += instance.team
-                r.task = tasks[r.task_index % len(tasks)]
-                events.append([r.task_index, t, "assigned", r.id])
+                finish(r, t, instance, events)
                 r.replan = True
             if r.step + 1 >= len(r.nodes):  # its plan has ended: a new one from here
                 if r.aside is not None and r.node == r.aside:
@@ -425,10 +444,7 @@ def run(
             elif a == "C":
                 r.heading = (r.heading - 1) % 4
         errors.extend(conflicts(robots, before, t))
-    for r in robots:  # the last timestep's finishes
-        if r.node == r.task:
-            finished += 1
-            events.append([r.task_index, steps, "finished", r.id])
+    finished += last_finishes(robots, steps, events)
     stats = {
         "searches": traffic.searches,
         "failures": traffic.failures,
@@ -445,14 +461,7 @@ def run_one_step(instance: Instance, steps: int, follow: bool = True) -> dict:
     width = instance.passable.shape[1]
     plant = grid_plant(instance.passable, 1.0, name=instance.name)
     planner = OneStepPlanner(plant, speed=1.0, turns=TURNS, step_s=1.0, follow=follow)
-    rows: dict[int, np.ndarray] = {}
-
-    def to(goal: int) -> np.ndarray:
-        row = rows.get(goal)
-        if row is None:
-            row = rows[goal] = planner.distances(goal)
-        return row
-
+    to = functools.cache(planner.distances)  # robots head for the same cells again and again
     tasks = instance.tasks
     team = instance.team
     robots = [Robot(i, s, 0, tasks[i % len(tasks)], i) for i, s in enumerate(instance.starts)]
@@ -465,10 +474,7 @@ def run_one_step(instance: Instance, steps: int, follow: bool = True) -> dict:
         for r in robots:
             if r.node == r.task:
                 finished += 1
-                events.append([r.task_index, t, "finished", r.id])
-                r.task_index += team
-                r.task = tasks[r.task_index % len(tasks)]
-                events.append([r.task_index, t, "assigned", r.id])
+                finish(r, t, instance, events)
                 since[r.id] = t
         begin = time.perf_counter()
         moves = planner.step(
@@ -482,9 +488,7 @@ def run_one_step(instance: Instance, steps: int, follow: bool = True) -> dict:
         for r, m in zip(robots, moves, strict=True):
             node = int(plant.ids[m.node])
             if node != r.node:
-                want = HEADINGS.index(
-                    ((node % width) - (r.node % width), (node // width) - (r.node // width))
-                )
+                want = heading(r.node, node, width)
                 if want != r.heading:
                     raise AssertionError(f"robot {r.id} drives off facing {NAMES[r.heading]}")
                 a = "F"
@@ -496,10 +500,7 @@ def run_one_step(instance: Instance, steps: int, follow: bool = True) -> dict:
                 stayed += a == "W"
             paths[r.id].append(a)
         errors.extend(conflicts(robots, before, t))
-    for r in robots:
-        if r.node == r.task:
-            finished += 1
-            events.append([r.task_index, steps, "finished", r.id])
+    finished += last_finishes(robots, steps, events)
     stats = {"searches": 0, "failures": 0, "asides": 0, "voided": 0, "waits": stayed}
     return output(instance, steps, paths, planner_times, errors, events, finished, stats)
 

@@ -34,7 +34,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from topology import Plant
 
-from .sipp import TurnTimes
+from .sipp import ArcGeometry, TurnTimes
 
 Direction = tuple[float, float] | None
 
@@ -81,27 +81,19 @@ class OneStepPlanner:
         self.speed = speed
         self.wait_m = speed * step_s  # what standing a step costs: one step's drive
         self.turns = turns or TurnTimes()
-        xy = plant.positions
+        geometry = ArcGeometry(plant)
         # the plant's headings: the distinct directions of its segments (4 on a grid)
         self.headings: list[tuple[float, float]] = []
         self._out: list[list[tuple[int, float, Direction, int]]] = [[] for _ in range(plant.n)]
         for u, arcs in enumerate(plant.neighbors):
-            for v, _arc, length in arcs:
-                dx, dy = (xy[v] - xy[u]).tolist()
-                norm = float(np.hypot(dx, dy))
-                direction = (dx / norm, dy / norm) if norm > 0 else None
-                self._out[u].append((v, length, direction, self._heading_index(direction)))
+            for v, arc, length in arcs:
+                direction = geometry.direction[arc]
+                d = self._heading_of(direction)
+                if d < 0 and direction is not None:
+                    self.headings.append(direction)
+                    d = len(self.headings) - 1
+                self._out[u].append((v, length, direction, d))
         self._reverse = self._state_graph().T.tocsr()
-        self._facing: dict[tuple[float, float], int] = {}
-
-    def _heading_index(self, direction: Direction) -> int:
-        if direction is None:
-            return -1
-        for k, h in enumerate(self.headings):
-            if abs(h[0] - direction[0]) < 1e-6 and abs(h[1] - direction[1]) < 1e-6:
-                return k
-        self.headings.append(direction)
-        return len(self.headings) - 1
 
     def _state_graph(self) -> sp.csr_array:
         """Arcs between (node, heading) states: driving u -> v from heading h costs the
@@ -187,17 +179,14 @@ class OneStepPlanner:
         """Index of the plant's heading ``facing`` is (-1: None, or none of them)."""
         if facing is None:
             return -1
-        k = self._facing.get(facing)
-        if k is None:
-            k = self._facing[facing] = next(
-                (
-                    j
-                    for j, h in enumerate(self.headings)
-                    if abs(h[0] - facing[0]) < 1e-6 and abs(h[1] - facing[1]) < 1e-6
-                ),
-                -1,
-            )
-        return k
+        return next(
+            (
+                j
+                for j, h in enumerate(self.headings)
+                if abs(h[0] - facing[0]) < 1e-6 and abs(h[1] - facing[1]) < 1e-6
+            ),
+            -1,
+        )
 
     def _inherit(self, root, at, facing, to_goal, here, taken, want) -> None:
         """PIBT from ``root`` on nodes alone, with an explicit stack (a chain of robots
