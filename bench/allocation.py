@@ -29,16 +29,24 @@ Experiments (the seed's, ``docs/benchmarks.md`` "Order allocation"):
    the same run with batteries off (full, no policy): orders finished, throughput lost,
    charger use, the lowest charge.
 
+5. ``arrival``: 17 vehicles, each strategy, the generator's arrival for ``--arrival-s``
+   seconds (each order known ``lead_s`` before its start, as the seed's warehouse system
+   releases them) at each of ``--loads`` times the seed's rates, batteries off: orders
+   finished by the end and their mean order time. The seed's fleet worked such a stream;
+   the pool experiments above give every strategy the same orders to choose from.
+
 Ratios against the seed's published figures are printed beside ours: two_stage against
 dhht (the seed: -13.6 % mean order time at 17 vehicles with a large pool, -7.45 % with 100
 orders, makespan -6.57 %), and the buffer with the least mean order time (the seed: 38 s).
 
-    .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery]
+    .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery arrival]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
-        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--json FILE]
+        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5]
+        [--arrival-s 3600] [--loads 0.5 0.75 1] [--json FILE]
         [--report FILE ...] [--quick]
 
-``--quick``: one seed, 20 orders, 17 vehicles only, B = 8 and 38, a 300 s battery run:
+``--quick``: one seed, 20 orders, 17 vehicles only, B = 8 and 38, 300 s battery and arrival
+runs at 0.5 x the rates:
 a check that it all runs, not numbers to record.
 """
 
@@ -70,6 +78,7 @@ CONFIG = ROOT / "examples" / "distribution-centre.toml"
 STRATEGIES = ("dhht", "two_stage", "nearest_idle")
 BUFFERS = (8, 18, 28, 38, 48, 58)
 FLEETS = (11, 13, 15, 17)
+LOADS = (0.5, 0.75, 1.0)  # arrival: x the seed's rates (about 210, 315 and 420 orders per hour)
 # the seed's published figures (reference/seed-000-order-allocation.md)
 SEED_GAP_LARGE_POOL = -0.136  # two_stage vs dhht, mean order time, 17 robots, large pool
 SEED_GAP_100 = -0.0745  # the same with 100 orders (99.98 s -> 92.53 s)
@@ -229,6 +238,13 @@ def cases(args: argparse.Namespace) -> list[Case]:
             for on in (False, True)
             for s in seeds
         ]
+    if "arrival" in args.experiments:
+        out += [
+            Case("arrival", st, 17, s, arrival_s=args.arrival_s, load=load, traffic=tr)
+            for load in args.loads
+            for st in STRATEGIES
+            for s in seeds
+        ]
     return out
 
 
@@ -381,7 +397,44 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
         console.print(
             f"throughput lost to charging: {1 - done[True] / done[False]:.1%} (goal < 5 %)"
         )
+    if "arrival" in args.experiments:
+        arrival_table(results, args, console)
     console.print(f"conflicts seen by the independent monitor in all runs: {conflicts}")
+
+
+def arrival_table(results: list[Result], args: argparse.Namespace, console: Console) -> None:
+    """Experiment 5: per load, each strategy's orders finished and mean order time, and
+    two_stage against dhht on both (finished: more is better)."""
+    lead = load_config(CONFIG).orders.lead_s
+    t = Table(
+        title=f"5. Steady arrival: 17 vehicles, {args.arrival_s:.0f} s of the generator's orders "
+        f"(each known {lead:.0f} s before its start)"
+    )
+    columns = ["x seed's rates", "orders"]
+    for st in STRATEGIES:
+        columns += [f"{st} finished", f"{st} mean order time (s)"]
+    for c in (*columns, "two_stage / dhht - 1: mean order time", "finished"):
+        t.add_column(c)
+    for load in args.loads:
+        cells, means, done = [], {}, {}
+        rs = group(results, experiment="arrival", load=load)
+        if not rs:
+            continue
+        for st in STRATEGIES:
+            mine = group(rs, strategy=st)
+            means[st], done[st] = mean_of(mine, "mean_order_s"), mean_of(mine, "finished")
+            cells += [
+                spread([float(r.finished) for r in mine], "{:.0f}"),
+                spread([r.mean_order_s for r in mine if r.mean_order_s]),
+            ]
+        t.add_row(
+            f"{load:g}",
+            f"{mean_of(rs, 'total'):.0f}",
+            *cells,
+            f"{means['two_stage'] / means['dhht'] - 1:+.1%}",
+            f"{done['two_stage'] / done['dhht'] - 1:+.1%}",
+        )
+    console.print(t)
 
 
 def loaded(item: dict) -> Result:
@@ -392,7 +445,12 @@ def loaded(item: dict) -> Result:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--experiments", nargs="+", default=["buffer", "fleet", "fixed", "battery"])
+    parser.add_argument(
+        "--experiments",
+        nargs="+",
+        choices=("buffer", "fleet", "fixed", "battery", "arrival"),
+        default=["buffer", "fleet", "fixed", "battery", "arrival"],
+    )
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--fleets", type=int, nargs="+", default=list(FLEETS))
     parser.add_argument("--buffers", type=float, nargs="+", default=list(BUFFERS))
@@ -400,6 +458,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-s", type=float, default=4000.0, help="simulated time cap per run")
     parser.add_argument("--battery-s", type=float, default=3600.0)
     parser.add_argument("--battery-load", type=float, default=0.5, help="x the seed's rates")
+    parser.add_argument("--arrival-s", type=float, default=3600.0, help="arrival runs' length")
+    parser.add_argument(
+        "--loads", type=float, nargs="+", default=list(LOADS), help="arrival: x the seed's rates"
+    )
     parser.add_argument(
         "--no-deadlines",
         action="store_true",
@@ -427,6 +489,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.seeds, args.pool, args.fixed = 1, 20, 20
         args.buffers, args.fleets, args.battery_s = (8, 38), (17,), 300.0
+        args.arrival_s, args.loads = 300.0, (0.5,)
     console = Console()
     begin = time.perf_counter()
     if args.report:

@@ -562,14 +562,15 @@ def kiva_table(args: argparse.Namespace) -> None:
     print()
     print(
         "| robots | following | traffic | tasks per step | RHCR (no turns) | ours / RHCR "
-        "| planning mean (s) | planning max (s) | conflicts |"
+        "| moves / turns / waits per task | planning mean (s) | planning max (s) | conflicts |"
     )
-    print("|---:|---|---|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---|---|---:|---:|---:|---|---:|---:|---:|")
     for robots in args.kiva:
         for traffic in args.traffic:
-            rates, means, peaks, conflicts = [], [], [], 0
+            rates, means, peaks, conflicts, actions = [], [], [], 0, []
             for seed in args.seeds:
                 result = solve(traffic, kiva_instance(robots, seed), steps, args)
+                actions.append(actions_per_task(result))
                 s = summary(result)
                 rates.append(s["tasks_finished"] / steps)
                 means.append(s["plan_mean_s"])
@@ -577,12 +578,28 @@ def kiva_table(args: argparse.Namespace) -> None:
                 conflicts += s["conflicts"]
             mean = sum(rates) / len(rates)
             ref = KIVA_RHCR.get(robots)
+            per_task = " / ".join(f"{sum(a) / len(a):.1f}" for a in zip(*actions, strict=True))
             print(
                 f"| {robots} | {args.follow} | {traffic} "
                 f"| {mean:.2f} ({min(rates):.2f}-{max(rates):.2f}) "
                 f"| {ref or '-'} | {f'{mean / ref:.2f}' if ref else '-'} "
+                f"| {per_task} "
                 f"| {sum(means) / len(means):.3f} | {max(peaks):.3f} | {conflicts} |"
             )
+
+
+def actions_per_task(result: dict) -> tuple[float, float, float]:
+    """A finished task's share of the fleet's timesteps: (moves, turns, waits) per task,
+    from the actions in ``actualPaths``. Their sum is the robot-steps a task costs, so it
+    says where a fleet's rate goes: longer ways round, more turns, or standing."""
+    tasks = result["numTaskFinished"]
+    counts = {"F": 0, "R": 0, "C": 0, "W": 0}
+    for path in result["actualPaths"]:
+        for a in path.split(",") if path else ():
+            counts[a] += 1
+    if not tasks:
+        return (math.inf, math.inf, math.inf)
+    return (counts["F"] / tasks, (counts["R"] + counts["C"]) / tasks, counts["W"] / tasks)
 
 
 def summary(result: dict) -> dict:

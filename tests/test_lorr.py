@@ -268,6 +268,20 @@ def test_the_kiva_table_runs_both_planners_without_conflict():
     assert all(r[1].strip() == "same_step" for r in rows)
     assert all(r[-1].strip() == "0" for r in rows)  # conflicts
     assert all(float(r[3].split()[0]) > 0 for r in rows)  # tasks per step
+    for r in rows:  # a task's robot-steps: 20 robots x 30 steps over the tasks finished
+        moves, turns, waits = (float(x) for x in r[6].split(" / "))
+        tasks = float(r[3].split()[0]) * 30
+        assert moves > 0 and turns >= 0 and waits >= 0
+        # (the rate is printed to two decimals)
+        assert moves + turns + waits == pytest.approx(20 * 30 / tasks, rel=0.03)
+
+
+def test_a_tasks_steps_are_counted_by_action():
+    result = {"numTaskFinished": 2, "actualPaths": ["F,F,R,W", "C,F,W,W", ""]}
+    assert lorr.actions_per_task(result) == (1.5, 1.0, 1.5)
+    assert (
+        lorr.actions_per_task({"numTaskFinished": 0, "actualPaths": ["W"]}) == (float("inf"),) * 3
+    )
 
 
 def test_several_planners_with_one_instance_is_a_clear_error():
