@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import random
 import statistics
 import sys
@@ -128,7 +129,9 @@ def orders_for(case: Case, cfg) -> list[TransportOrder]:
     relations = [type(r)(r.source, r.target, r.rate_per_h * case.load) for r in g.relations]
     orders = generate_orders(relations, units, duration, case.seed, control, window_s=g.window_s)
     if case.arrival_s:
-        return orders
+        if case.deadlines:
+            return orders
+        return [TransportOrder(o.id, o.get, o.put, o.start_s, inf) for o in orders]
     return [
         TransportOrder(o.id, o.get, o.put, start_s=0.0, end_s=o.end_s if case.deadlines else inf)
         for o in orders[: case.orders]
@@ -240,7 +243,7 @@ def cases(args: argparse.Namespace) -> list[Case]:
         ]
     if "arrival" in args.experiments:
         out += [
-            Case("arrival", st, 17, s, arrival_s=args.arrival_s, load=load, traffic=tr)
+            Case("arrival", st, 17, s, arrival_s=args.arrival_s, load=load, deadlines=d, traffic=tr)
             for load in args.loads
             for st in STRATEGIES
             for s in seeds
@@ -404,22 +407,23 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
 
 def arrival_table(results: list[Result], args: argparse.Namespace, console: Console) -> None:
     """Experiment 5: per load, each strategy's orders finished and mean order time, and
-    two_stage against dhht on both (finished: more is better)."""
+    two_stage against dhht on both (finished: more is better). Loads and run length are
+    the results' own, so a ``--report`` of earlier runs shows them as they were made."""
+    runs = group(results, experiment="arrival")
+    lengths = sorted({r.case.arrival_s for r in runs})
     lead = load_config(CONFIG).orders.lead_s
     t = Table(
-        title=f"5. Steady arrival: 17 vehicles, {args.arrival_s:.0f} s of the generator's orders "
-        f"(each known {lead:.0f} s before its start)"
+        title=f"5. Steady arrival: 17 vehicles, {' / '.join(f'{x:.0f}' for x in lengths)} s of "
+        f"the generator's orders (each known {lead:.0f} s before its start)"
     )
     columns = ["x seed's rates", "orders"]
     for st in STRATEGIES:
         columns += [f"{st} finished", f"{st} mean order time (s)"]
     for c in (*columns, "two_stage / dhht - 1: mean order time", "finished"):
         t.add_column(c)
-    for load in args.loads:
+    for load in sorted({r.case.load for r in runs}):
         cells, means, done = [], {}, {}
-        rs = group(results, experiment="arrival", load=load)
-        if not rs:
-            continue
+        rs = group(runs, load=load)
         for st in STRATEGIES:
             mine = group(rs, strategy=st)
             means[st], done[st] = mean_of(mine, "mean_order_s"), mean_of(mine, "finished")
@@ -431,10 +435,17 @@ def arrival_table(results: list[Result], args: argparse.Namespace, console: Cons
             f"{load:g}",
             f"{mean_of(rs, 'total'):.0f}",
             *cells,
-            f"{means['two_stage'] / means['dhht'] - 1:+.1%}",
-            f"{done['two_stage'] / done['dhht'] - 1:+.1%}",
+            change(means["two_stage"], means["dhht"]),
+            change(done["two_stage"], done["dhht"]),
         )
     console.print(t)
+
+
+def change(value: float, base: float) -> str:
+    """``value / base - 1`` as a signed percentage; "-" where either is missing or base is 0."""
+    if not base or math.isnan(base) or math.isnan(value):
+        return "-"
+    return f"{value / base - 1:+.1%}"
 
 
 def loaded(item: dict) -> Result:
@@ -458,14 +469,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-s", type=float, default=4000.0, help="simulated time cap per run")
     parser.add_argument("--battery-s", type=float, default=3600.0)
     parser.add_argument("--battery-load", type=float, default=0.5, help="x the seed's rates")
-    parser.add_argument("--arrival-s", type=float, default=3600.0, help="arrival runs' length")
+    parser.add_argument(
+        "--arrival-s",
+        type=float,
+        default=3600.0,
+        help="arrival runs' length in simulated s (--max-s is for pool runs)",
+    )
     parser.add_argument(
         "--loads", type=float, nargs="+", default=list(LOADS), help="arrival: x the seed's rates"
     )
     parser.add_argument(
         "--no-deadlines",
         action="store_true",
-        help="pool runs: orders without a latest delivery time (no order is ever late)",
+        help="pool and arrival runs: orders without a latest delivery time (none is ever late)",
     )
     parser.add_argument(
         "--traffic",

@@ -35,6 +35,9 @@ def test_the_arrival_experiment_runs_every_strategy_at_every_load_and_seed():
     }
     assert all(c.experiment == "arrival" and c.vehicles == 17 for c in cases)
     assert all(c.arrival_s == 1800.0 and not c.battery for c in cases)
+    assert all(c.traffic == "reactive" and c.deadlines for c in cases)
+    other = allocation.cases(arrival_args(traffic="time_windows", no_deadlines=True))
+    assert all(c.traffic == "time_windows" and not c.deadlines for c in other)
 
 
 def result(strategy: str, load: float, seed: int, finished: int, mean_s: float):
@@ -51,15 +54,44 @@ def test_the_arrival_table_compares_two_stage_with_dhht_per_load(capsys):
         result("nearest_idle", 0.5, 1, 90, 300.0),
         result("nearest_idle", 0.5, 2, 92, 310.0),
     ]
-    allocation.arrival_table(results, arrival_args(), allocation.Console())
+    # the loads and the length are the results' own, whatever the command line says now
+    allocation.arrival_table(
+        results, arrival_args(loads=[2.0], arrival_s=60.0), allocation.Console()
+    )
     out = capsys.readouterr().out
     assert "1800 s of the generator's orders (each known 600 s before its start)" in out
     (row,) = [line for line in out.splitlines() if line.startswith("| 0.5 ")]
     cells = [c.strip() for c in row.split("|")[1:-1]]
     assert cells[:4] == ["0.5", "200", "105 (100-110)", "210.0 (200.0-220.0)"]
     assert cells[4:6] == ["116 (111-120)", "189.0 (180.0-198.0)"]
+    assert cells[6:8] == ["91 (90-92)", "305.0 (300.0-310.0)"]
     assert cells[-2:] == ["-10.0%", "+10.0%"]  # 189 / 210 - 1, 115.5 / 105 - 1
-    assert not [line for line in out.splitlines() if line.startswith("| 1 ")]  # no runs
+    assert len(cells) == 10
+    assert [line[:6] for line in out.splitlines() if line[:2] == "| " and line[2].isdigit()] == [
+        "| 0.5 "
+    ]
+
+
+def test_an_arrival_row_without_dhht_runs_has_no_ratio(capsys):
+    results = [result("two_stage", 1.0, 1, 50, 180.0)]
+    allocation.arrival_table(results, arrival_args(), allocation.Console())
+    (row,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 1 ")]
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    assert cells[2:6] == ["-", "-", "50", "180.0"] and cells[-2:] == ["-", "-"]
+
+
+def test_arrival_orders_keep_or_drop_their_deadlines():
+    cfg = allocation.load_config(allocation.CONFIG)
+    case = allocation.Case("arrival", "dhht", 17, 1, arrival_s=600.0, load=1.0)
+    kept = allocation.orders_for(case, cfg)
+    dropped = allocation.orders_for(
+        allocation.Case("arrival", "dhht", 17, 1, arrival_s=600.0, load=1.0, deadlines=False), cfg
+    )
+    assert kept and all(o.end_s < float("inf") for o in kept)
+    assert [(o.id, o.get, o.put, o.start_s) for o in dropped] == [
+        (o.id, o.get, o.put, o.start_s) for o in kept
+    ]
+    assert all(o.end_s == float("inf") for o in dropped)
 
 
 def test_a_short_arrival_run_drives_the_generators_orders_without_conflict():

@@ -8,6 +8,7 @@ task finished when its robot stands on its cell. It recounts the finished tasks 
 requires zero conflicts.
 """
 
+import argparse
 import importlib.util
 import json
 import subprocess
@@ -274,6 +275,35 @@ def test_the_kiva_table_runs_both_planners_without_conflict():
         assert moves > 0 and turns >= 0 and waits >= 0
         # (the rate is printed to two decimals)
         assert moves + turns + waits == pytest.approx(20 * 30 / tasks, rel=0.03)
+
+
+def test_the_kiva_table_averages_each_column_over_the_seeds(monkeypatch, capsys):
+    runs = {  # seed -> (tasks, paths of two robots over 4 steps)
+        0: (2, ["F,F,F,R", "W,W,F,F"]),  # 2.5 / 0.5 / 1.0 per task
+        1: (4, ["F,F,F,F", "F,F,C,C"]),  # 1.5 / 0.5 / 0.0 per task
+    }
+
+    def solved(traffic, seed, steps, args):
+        tasks, paths = runs[seed]
+        times = [0.01 * (seed + 1)] * steps
+        return {
+            "numTaskFinished": tasks,
+            "actualPaths": paths,
+            "plannerTimes": times,
+            "_stats": {"conflicts": seed},
+        }
+
+    monkeypatch.setattr(lorr, "kiva_instance", lambda robots, seed: seed)
+    monkeypatch.setattr(lorr, "solve", solved)
+    args = argparse.Namespace(
+        steps=4, kiva=[2], traffic=["time_windows"], seeds=[0, 1], follow="same_step"
+    )
+    lorr.kiva_table(args)
+    (row,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 2 ")]
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    assert cells[3] == "0.75 (0.50-1.00)"  # 2 and 4 tasks in 4 steps
+    assert cells[6] == "2.0 / 0.5 / 0.5"
+    assert cells[7:] == ["0.015", "0.020", "1"]  # mean and max planning time, conflicts
 
 
 def test_a_tasks_steps_are_counted_by_action():
