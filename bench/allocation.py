@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import random
 import statistics
 import sys
@@ -62,7 +61,7 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
-from math import inf
+from math import inf, isnan
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -443,7 +442,7 @@ def arrival_table(results: list[Result], args: argparse.Namespace, console: Cons
 
 def change(value: float, base: float) -> str:
     """``value / base - 1`` as a signed percentage; "-" where either is missing or base is 0."""
-    if not base or math.isnan(base) or math.isnan(value):
+    if not base or isnan(base) or isnan(value):
         return "-"
     return f"{value / base - 1:+.1%}"
 
