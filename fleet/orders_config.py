@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from blocks.dispatch.charging import ChargePolicy
-from blocks.dispatch.generator import SEED_RELATIONS, Relation
+from blocks.dispatch.generator import SEED_RELATIONS, Relation, order_counts
 from blocks.dispatch.strategies import STRATEGIES
 from plc_runtime.errors import ConfigError
 from topology import Plant
@@ -98,9 +98,12 @@ def _generator(r: TableReader, plant: Plant) -> GeneratorConfig:
             raise r.fail(
                 f"units.{name}", f"expected a function id of plant {plant.name!r}, got {f!r}"
             )
+        _check_stations(r, f"units.{name}", plant, f)
     control = r.get("control", int, None)
-    if control is not None and control not in functions:
-        raise r.fail("control", f"function {control} is not provided by any node of the plant")
+    if control is not None:
+        if control not in functions:
+            raise r.fail("control", f"function {control} is not provided by any node of the plant")
+        _check_stations(r, "control", plant, control)
     items = r.get("relations", list, None)
     relations = (
         SEED_RELATIONS
@@ -121,7 +124,32 @@ def _generator(r: TableReader, plant: Plant) -> GeneratorConfig:
         scale=r.number("scale", 1.0, 0.0, 1e3),
     )
     r.finish()
+    rates = [Relation(rel.source, rel.target, rel.rate_per_h * cfg.scale) for rel in relations]
+    try:
+        order_counts(rates, cfg.duration_s, control is not None)
+    except ValueError as exc:
+        raise ConfigError(f"{r.source}: orders.generator: {exc}") from None
     return cfg
+
+
+def _check_stations(r: TableReader, key: str, plant: Plant, function: int) -> None:
+    """The generator makes orders from and to every node of a unit's function, so each must
+    be a Get/Put station: checked here, where the key that chose them can be named, not when
+    the orders reach the book."""
+    stations = set(plant.with_role("station"))
+    others = [n for n in plant.stations_for(function) if n not in stations]
+    if others:
+        listed = ", ".join(map(str, others[:5])) + (", ..." if len(others) > 5 else "")
+        nodes = (
+            f"node {listed} is not a Get/Put station"
+            if len(others) == 1
+            else f"nodes {listed} are not Get/Put stations"
+        )
+        raise r.fail(
+            key,
+            f"function {function}'s {nodes} "
+            "(generated orders fetch and deliver at every node of the function)",
+        )
 
 
 def _relation(r: TableReader, k: int, item: object) -> Relation:

@@ -165,7 +165,7 @@ def test_withdraw_then_withdraw_again(ctl):
     )
     again = ctl.call("DELETE", f"{ORDERS}/later%2F1", token=TOKEN)
     assert (again.status, again.body["field"]) == (409, "state")
-    assert "cannot go from WITHDRAWN" in again.body["error"]
+    assert "the order is final (WITHDRAWN) and cannot be withdrawn" in again.body["error"]
     assert ctl.call("GET", f"{ORDERS}/later%2F1").body["state"] == "WITHDRAWN"
 
 

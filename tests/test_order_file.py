@@ -147,7 +147,10 @@ BAD_CSV = [
         ":3: 8 cells, the header has 7",
     ),  # line it starts
     (HEADER + 'o1,10,20,,,,\n"o1"x,10,20,,,,\n', ":3: unreadable CSV"),
-    (HEADER + "o1," + "9" * 200 + ",20,,,,\n", ":2: field 'get': not an integer: '999999"),
+    (
+        HEADER + "o1," + "9" * 200 + ",20,,,,\n",
+        ":2: field 'get': not an integer of at most 18 digits: '999999",
+    ),
 ]
 
 
@@ -169,7 +172,7 @@ BAD_JSON = [
     ({"orders": [], "version": 2}, ': expected a list of orders or {"orders": [...]}'),
     ({"order": []}, ": expected a list of orders or"),
     ("42", ": expected a list of orders, got int"),
-    ([GOOD, "o8"], ": order 2: expected an object, got str"),
+    ([GOOD, "o8"], ": order 2: expected an object, got 'o8'"),
     ([GOOD | {"colour": "red"}], ": order 1 (id 'o7'): unknown key 'colour'"),
     ([{"id": "o7", "get": 10}], ": order 1 (id 'o7'): field 'put': missing"),
     ([{"get": 10, "put": 20}], ": order 1: field 'id': missing"),
@@ -187,6 +190,79 @@ BAD_JSON = [
     ([GOOD | {"priority": 0.5}], ": order 1 (id 'o7'): field 'priority': must be an integer"),
     ([GOOD | {"vehicle": "3"}], ": order 1 (id 'o7'): field 'vehicle': must be a vehicle id"),
     ([GOOD, GOOD], ": order 2 (id 'o7'): field 'id': used again (first by order 1)"),
+    # null is the default only where there is one
+    ([GOOD | {"id": None}], ": order 1: field 'id': required, got null"),
+    ([GOOD | {"get": None}], ": order 1 (id 'o7'): field 'get': required, got null"),
+    ([GOOD | {"put": None}], ": order 1 (id 'o7'): field 'put': required, got null"),
+    # numbers a float cannot hold, and JSON's non-numbers
+    (
+        '[{"id": "o7", "get": 10, "put": 20, "start_s": 1' + "0" * 320 + "}]",
+        ": order 1 (id 'o7'): field 'start_s': must be a finite number of seconds, got 1000",
+    ),
+    (
+        '[{"id": "o7", "get": 10, "put": 20, "end_s": 1' + "0" * 320 + "}]",
+        ": order 1 (id 'o7'): field 'end_s': must be a finite number of seconds (null: no dead",
+    ),
+    (
+        '[{"id": "o7", "get": 10, "put": 20, "end_s": 1e999}]',
+        ": order 1 (id 'o7'): field 'end_s': must be a finite number of seconds (null: no "
+        "deadline), got inf",
+    ),
+    (
+        '[{"id": "o7", "get": 10, "put": 20, "end_s": Infinity}]',
+        ": order 1 (id 'o7'): field 'end_s': must be a finite number of seconds (null: no "
+        "deadline), got Infinity",
+    ),
+    (
+        '[{"id": "o7", "get": 10, "put": 20, "priority": -Infinity}]',
+        ": order 1 (id 'o7'): field 'priority': must be an integer, got -Infinity",
+    ),
+    # a key twice: json.loads would keep the last silently
+    ('[{"id": "h17", "id": "h18", "get": 10, "put": 20}]', ": order 1: key 'id' appears twice"),
+    ('[{"id": "o7", "get": 10, "put": 20, "get": 11}]', ": order 1: key 'get' appears twice"),
+    ('{"orders": [], "orders": []}', ": key 'orders' appears twice"),
+    # bools, floats and containers where an integer, a number or a string is meant
+    ([GOOD | {"get": 10.0}], ": order 1 (id 'o7'): field 'get': must be a station node id (an "),
+    (
+        [GOOD | {"put": [20] * 10_000}],
+        ": order 1 (id 'o7'): field 'put': must be a station node id (an integer >= 0), got a list",
+    ),
+    (
+        [GOOD | {"vehicle": {"id": 3}}],
+        ": order 1 (id 'o7'): field 'vehicle': must be a vehicle id (an integer), got an object",
+    ),
+    (
+        [GOOD | {"vehicle": False}],
+        ": order 1 (id 'o7'): field 'vehicle': must be a vehicle id (an integer), got false",
+    ),
+    (
+        [GOOD | {"priority": True}],
+        ": order 1 (id 'o7'): field 'priority': must be an integer, got true",
+    ),
+    (
+        [GOOD | {"priority": 10**18}],
+        ": order 1 (id 'o7'): field 'priority': not an integer of at most 18 digits: '1000",
+    ),
+    (
+        [GOOD | {"start_s": False}],
+        ": order 1 (id 'o7'): field 'start_s': must be a finite number of seconds, got false",
+    ),
+    (
+        [GOOD | {"start_s": [0]}],
+        ": order 1 (id 'o7'): field 'start_s': must be a finite number of seconds, got a list",
+    ),
+    (
+        [GOOD | {"end_s": {"s": 1}}],
+        ": order 1 (id 'o7'): field 'end_s': must be a finite number of seconds (null: no ",
+    ),
+    (
+        [GOOD | {"id": ["o7"] * 10_000}],
+        ": order 1: field 'id': must be a non-empty string, got a list",
+    ),
+    (
+        [GOOD | {"id": "x" * 10_000}],
+        ": order 1 (id 'xxxxxxxxxxxxxxxxxxxx...'): field 'id': longer than 64",
+    ),
 ]
 
 
@@ -197,6 +273,38 @@ def test_a_bad_json_file_is_one_line_naming_the_order_and_field(tmp_path, conten
     message = error_of(path)
     assert f"{path}{words}" in message, message
     assert len(message) < 200 + len(str(path))
+
+
+def test_json_null_takes_the_default_of_every_optional_field(tmp_path):
+    nulls = {"start_s": None, "end_s": None, "priority": None, "vehicle": None}
+    path = write(tmp_path, "o.json", json.dumps([GOOD | nulls]))
+    assert [fields(o) for o in load_orders(path)] == [("o7", 10, 20, 0.0, math.inf, 0, None)]
+
+
+def test_json_times_are_floats_as_in_csv(tmp_path):
+    path = write(tmp_path, "o.json", json.dumps([GOOD | {"start_s": 5, "end_s": 10**300}]))
+    (order,) = load_orders(path)
+    assert (type(order.start_s), type(order.end_s), order.end_s) == (float, float, 1e300)
+
+
+INTEGERS = [0, -1, 10**18 - 1, -(10**18 - 1), 10**18, -(10**18), 10**40]
+
+
+@pytest.mark.parametrize("field", ["get", "priority", "vehicle"])
+@pytest.mark.parametrize("value", INTEGERS)
+def test_csv_and_json_take_and_refuse_the_same_integers_alike(tmp_path, field, value):
+    row = {"id": "o7", "get": 10, "put": 20} | {field: value}
+    csv_path = write(tmp_path, "o.csv", HEADER + ",".join(str(row.get(c, "")) for c in FIELDS))
+    json_path = write(tmp_path, "o.json", json.dumps([row]))
+    outcomes = []
+    for path, where in ((csv_path, f"{csv_path}:2: "), (json_path, f"{json_path}: order 1 ")):
+        try:
+            outcomes.append(fields(load_orders(path)[0]))
+        except OrderFileError as err:
+            outcomes.append(str(err).removeprefix(where).removeprefix("(id 'o7'): "))
+    assert outcomes[0] == outcomes[1]
+    if len(str(abs(value))) > 18:
+        assert outcomes[0].startswith(f"field '{field}': not an integer of at most 18 digits")
 
 
 # ----- files that are no order files ---------------------------------------------------------

@@ -14,6 +14,7 @@ from blocks.dispatch.generator import (
     OrderFeed,
     Relation,
     generate_orders,
+    order_counts,
 )
 from blocks.dispatch.orders import OrderBook, TransportOrder
 
@@ -195,6 +196,49 @@ def test_too_many_orders_are_refused(monkeypatch):
     monkeypatch.setattr(generator, "MAX_ORDERS", 400)
     with pytest.raises(ValueError, match="412 orders: more than 400"):
         generate_orders(SEED_RELATIONS, UNITS, 3600.0, seed=0)
+
+
+def test_order_counts_are_exactly_what_is_generated():
+    counts = order_counts(SEED_RELATIONS, 3600.0, control=True)
+    assert sum(n for n, _ in counts) == 412 and sum(extra for _, extra in counts) == 7
+    assert order_counts(SEED_RELATIONS, 3600.0, control=False)[0] == (72, 0)
+
+
+def no_generating(*args):
+    raise AssertionError("orders were generated before they were counted")
+
+
+@pytest.mark.parametrize(
+    ("rate", "duration", "words"),
+    [
+        (999_999.0, 1e7, "about 2,777,775,000 orders: more than 100,000, the limit"),
+        (1e308, 1e7, "too many to count orders: more than 100,000"),  # rate x duration is inf
+    ],
+)
+def test_too_many_orders_are_refused_before_any_is_made(monkeypatch, rate, duration, words):
+    monkeypatch.setattr(generator, "_spread", no_generating)
+    monkeypatch.setattr(generator, "_dealt", no_generating)
+    units = {"a": [1, 2], "b": [3]}
+    with pytest.raises(ValueError, match=words):
+        generate_orders([Relation("a", "b", rate)], units, duration, seed=0)
+
+
+def test_the_control_share_counts_towards_the_limit(monkeypatch):
+    monkeypatch.setattr(generator, "MAX_ORDERS", 415)
+    assert len(generate_orders(SEED_RELATIONS, UNITS, 3600.0, seed=0)) == 412
+    with pytest.raises(ValueError, match="419 orders: more than 415"):
+        generate_orders(SEED_RELATIONS, UNITS, 3600.0, seed=0, control_station=CONTROL)
+
+
+def test_generating_stops_once_past_the_limit_whatever_was_counted(monkeypatch):
+    monkeypatch.setattr(generator, "MAX_ORDERS", 100)
+    monkeypatch.setattr(generator, "order_counts", lambda *args: [(80, 0), (80, 0), (80, 0)])
+    made = []
+    real_spread = generator._spread
+    monkeypatch.setattr(generator, "_spread", lambda n, *a: made.append(n) or real_spread(n, *a))
+    with pytest.raises(ValueError, match="160 orders: more than 100"):
+        generate_orders(SEED_RELATIONS[:3], UNITS, 3600.0, seed=0)
+    assert made == [80, 80]  # the third relation was never made
 
 
 # ----- the release feed --------------------------------------------------------------------

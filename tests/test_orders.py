@@ -202,6 +202,24 @@ BAD = [
     (order(oid=" o9"), None, "id", "leading/trailing spaces"),
     (order(state=S.FINISHED), None, "state", "must be RAW"),
     (order(history=[(0.0, S.RAW)]), None, "state", "must be RAW"),
+    (order(assigned=0), None, "state", "must be RAW"),
+    # whatever a field holds, the answer is an OrderError naming it (no OverflowError,
+    # no TypeError), and an integer has at most the 18 digits an order file can hold
+    (order(oid=["x"]), None, "id", "non-empty string"),
+    (order(start_s=10**400), None, "start_s", "got an integer of about 10^400"),
+    (order(end_s=10**400), None, "end_s", "number of seconds"),
+    (order(end_s=-(10**400)), None, "end_s", "number of seconds"),
+    (order(start_s=[0]), None, "start_s", "finite number"),
+    (order(get=1.5), None, "get", "must be a station node id"),
+    (order(get=10**19), None, "get", "not an integer of at most 18 digits: '10000000000000000000'"),
+    (order(put=None), None, "put", "must be a station node id"),
+    (order(priority=10**19), None, "priority", "not an integer of at most 18 digits"),
+    (order(priority=-(10**19)), None, "priority", "not an integer of at most 18 digits"),
+    (order(priority=10**5000), None, "priority", "at most 18 digits: an integer of about 10^5000"),
+    (order(priority=None), None, "priority", "must be an integer"),
+    (order(vehicle=True), {1, 2, 3}, "vehicle", "must be a vehicle id"),
+    (order(vehicle=10**19), None, "vehicle", "not an integer of at most 18 digits"),
+    (order(state="RAW"), None, "state", "must be RAW"),
 ]
 
 
@@ -221,6 +239,57 @@ def test_a_bad_order_is_named_and_changes_nothing(bad, vehicles, field, words):
     if isinstance(bad.id, str) and bad.id:
         assert bad.id not in b
     assert (bad.state, bad.history) == own
+
+
+def test_the_largest_integers_an_order_file_holds_are_taken():
+    big = 10**18 - 1
+    b = book({1, big})
+    added = b.add(order(priority=big, vehicle=big), 0.0)
+    assert (added.priority, b.add(order("o2", priority=-big), 0.0).priority) == (big, -big)
+
+
+@pytest.mark.parametrize("bad", [None, "o1", {"id": "o1", "get": 10, "put": 20}])
+def test_what_is_no_order_at_all_is_an_order_error(bad):
+    b = book()
+    with pytest.raises(OrderError, match="field 'order': must be a TransportOrder, got"):
+        b.add(bad, 0.0)
+    assert len(b) == 0
+
+
+def test_a_huge_id_is_named_without_flooding_or_raising():
+    with pytest.raises(OrderError) as err:
+        book().add(order(oid=10**5000), 0.0)
+    assert str(err.value) == (
+        "order an integer of about 10^5000: field 'id': must be a non-empty string"
+    )
+
+
+def test_an_order_for_a_vehicle_that_runs_recipes_is_refused_saying_so():
+    b = OrderBook(STATIONS, vehicles={2, 3}, recipe_vehicles={1})
+    with pytest.raises(OrderError) as err:
+        b.add(order(vehicle=1), 0.0)
+    assert (err.value.field, str(err.value)) == (
+        "vehicle",
+        "order 'o1': field 'vehicle': vehicle 1 runs recipes, it takes no orders",
+    )
+    with pytest.raises(OrderError, match="there is no vehicle 4"):
+        b.add(order(vehicle=4), 0.0)
+    assert len(b) == 0 and b.add(order(vehicle=2), 0.0).vehicle == 2
+
+
+def test_an_order_withdrawn_before_it_was_released_goes_in_withdrawn():
+    b = book()
+    o = b.add(order("w"), 7.0, withdrawn="withdrawn")
+    assert (o.state, o.reason, o.history) == (
+        S.WITHDRAWN,
+        "withdrawn",
+        [(7.0, S.RAW), (7.0, S.WITHDRAWN)],
+    )
+    assert b.dispatchable() == [] and b.counts()["WITHDRAWN"] == 1 and "w" in b
+    with pytest.raises(OrderError, match="already used by an order that is WITHDRAWN"):
+        b.add(order("w"), 8.0)
+    with pytest.raises(OrderError, match="the order is final"):
+        b.withdraw("w", 8.0)
 
 
 def test_duplicate_ids_are_refused_also_against_final_orders():
@@ -330,7 +399,9 @@ def test_withdraw_open_orders_and_refuse_final_and_unknown_ones():
         3,  # the executor still knows whose it was
     )
     before = snapshot(b)
-    with pytest.raises(OrderError, match="cannot go from WITHDRAWN to WITHDRAWN"):
+    with pytest.raises(
+        OrderError, match=r"field 'state': the order is final \(WITHDRAWN\) and cannot be withdrawn"
+    ):
         b.withdraw("w", 7.0)
     with pytest.raises(OrderError, match="order 'nope': field 'id': no such order"):
         b.withdraw("nope", 7.0)

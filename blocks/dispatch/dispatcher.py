@@ -23,6 +23,7 @@ either, and a charging one only once its charge is sufficient.
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable, Mapping
 
@@ -96,6 +97,7 @@ class Dispatcher(FunctionBlock):
         self._working: StationSchedule | None = None
         self._last_round_ns: int | None = None
         self._checked: set[str] = set()
+        self._revision = 0  # the book's revision when the routes were last checked
         self._epoch: int | None = None
         self._deviated: set[tuple[str, str]] = set()
         self._origin: dict[str, int] = {}  # order id -> the node its vehicle took it at
@@ -109,24 +111,39 @@ class Dispatcher(FunctionBlock):
             self._start_round(ctx)
         if self._round is not None:
             self._advance(ctx)
-        self.waiting = sum(1 for o in self.book.dispatchable())
+        self.waiting = self._open()
+
+    def _open(self) -> int:
+        """DISPATCHABLE orders, from the book's counts: the scan must not walk every open
+        order (a released order file may hold 100,000)."""
+        return self.book.counts()[OrderState.DISPATCHABLE.value]
 
     def _due(self, ctx: CycleContext) -> bool:
         if self._last_round_ns is not None and ctx.time_ns - self._last_round_ns < self.interval_ns:
             return False
-        return bool(self.book.dispatchable()) and bool(self._candidates(ctx, {}))
+        return self._open() > 0 and bool(self._candidates(ctx, {}))
 
     # ----- routes ------------------------------------------------------------------------------
     def _check_routes(self, ctx: CycleContext) -> None:
         blockades_changed = self._epoch != self.reach.blockades.epoch
         self._epoch = self.reach.blockades.epoch
-        for order in self.book.dispatchable():
+        # only the orders that changed state since the last check can be new to it (a few
+        # per scan); all of them after a blockade change, or if the book's journal overran
+        changed = None if blockades_changed else self.book.changed_since(self._revision)
+        if changed is None:
+            fresh = self.book.dispatchable()
+        else:
+            fresh = [
+                o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None
+            ]
+        for order in fresh:
             if order.id in self._checked and not blockades_changed:
                 continue
             self._checked.add(order.id)
             why = self._unroutable(order)
             if why is not None:
                 self.book.transition(order, OrderState.UNROUTABLE, ctx.time, why)
+        self._revision = self.book.revision
         if not blockades_changed:
             return
         for runner in self.runners.values():
@@ -213,8 +230,10 @@ class Dispatcher(FunctionBlock):
         orders = self.book.dispatchable()
         if self.strategy != "two_stage":
             orders = [o for o in orders if o.start_s <= ctx.time]
-        orders.sort(key=lambda o: (-o.priority, o.end_s, o.start_s, o.id))
-        return orders[: self.pool_limit]
+        # the most urgent pool_limit, as sorting all would (without sorting 100,000 orders)
+        return heapq.nsmallest(
+            self.pool_limit, orders, key=lambda o: (-o.priority, o.end_s, o.start_s, o.id)
+        )
 
     def _start_round(self, ctx: CycleContext) -> None:
         self._last_round_ns = ctx.time_ns

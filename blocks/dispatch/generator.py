@@ -80,27 +80,54 @@ def generate_orders(
     extra orders are made. ValueError names what is wrong with the arguments.
     """
     _check_arguments(relations, units, duration_s, control_station, extra_per_100, window_s)
+    counts = order_counts(relations, duration_s, control_station is not None, extra_per_100)
     timed: list[tuple[float, int, int]] = []  # (start, get, put)
-    for relation in relations:
+    for relation, (n, extra) in zip(relations, counts, strict=True):
         rng = random.Random(f"{seed}:{relation.source}>{relation.target}")
-        n = round(relation.rate_per_h * duration_s / 3600)
-        extra = round(n * extra_per_100 / 100) if control_station is not None else 0
         gets = _dealt(units[relation.source], n + extra, rng)
         puts = _dealt(units[relation.target], n, rng)
         timed += zip(_spread(n, duration_s, rng), gets[:n], puts, strict=True)
         if extra:
             controls = [control_station] * extra
             timed += zip(_spread(extra, duration_s, rng), gets[n:], controls, strict=True)
-    if len(timed) > MAX_ORDERS:
-        raise ValueError(
-            f"{len(timed):,} orders: more than {MAX_ORDERS:,}, the limit of an order "
-            "file (docs/orders.md, Size limits): generate a shorter duration"
-        )
+        if len(timed) > MAX_ORDERS:  # order_counts refused this already; never grow past it
+            raise ValueError(_too_many(len(timed)))
     timed.sort(key=lambda item: item[0])  # stable: equal starts keep the relations' order
     return [
         TransportOrder(f"o{k:05d}", get, put, start_s=start, end_s=start + window_s)
         for k, (start, get, put) in enumerate(timed, start=1)
     ]
+
+
+def order_counts(
+    relations: Sequence[Relation],
+    duration_s: float,
+    control: bool,
+    extra_per_100: float = 2,
+) -> list[tuple[int, int]]:
+    """(orders, control-station orders) per relation, or ValueError if together they are
+    more than MAX_ORDERS: counted before anything is generated, because a large rate times
+    a long duration would otherwise fill the memory before the limit could be checked."""
+    share = 1 + extra_per_100 / 100 if control else 1
+    expected = sum(r.rate_per_h for r in relations) * duration_s / 3600 * share
+    if not expected <= 2 * MAX_ORDERS:  # far too many (or inf): no need to count exactly
+        raise ValueError(_too_many(expected, "about "))
+    counts = []
+    for relation in relations:
+        n = round(relation.rate_per_h * duration_s / 3600)
+        counts.append((n, round(n * extra_per_100 / 100) if control else 0))
+    total = sum(n + extra for n, extra in counts)
+    if total > MAX_ORDERS:
+        raise ValueError(_too_many(total))
+    return counts
+
+
+def _too_many(count: float, about: str = "") -> str:
+    counted = f"{about}{count:,.0f}" if math.isfinite(count) else "too many to count"
+    return (
+        f"{counted} orders: more than {MAX_ORDERS:,}, the limit of an order file "
+        "(docs/orders.md, Size limits): generate a shorter duration or lower rates"
+    )
 
 
 def _spread(n: int, duration_s: float, rng: random.Random) -> list[float]:

@@ -3,7 +3,10 @@
 An order file is what a warehouse system exports, so it is checked as strictly as a plant
 file: ASCII decimal numbers only (no ``nan``, ``inf``, ``1_0`` or other scripts' digits), known
 columns or keys only, and every problem is one line naming the file, the line (CSV) or the
-order (JSON), the field and what is wrong. The checks that need no plant run here
+order (JSON), the field and what is wrong. JSON is read as strictly as CSV: the same
+integers (at most 18 digits), finite numbers only (no ``NaN``, ``Infinity`` or ``1e999``), no
+key twice in an object, and ``null`` only where it means the documented default (never for
+``id``, ``get`` or ``put``). The checks that need no plant run here
 (``check_order``: get = put, end before start, negative times; and no id twice in a file);
 the stations and vehicles are checked when the orders are added to the run's OrderBook.
 
@@ -18,11 +21,12 @@ import csv
 import io
 import json
 import math
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from topology.formats.numbers import parse_float, parse_int, shown
+from topology.formats.numbers import MAX_DIGITS, parse_float, parse_int, shown
 
 from .orders import SECTIONS, OrderError, TransportOrder, check_order
 
@@ -151,21 +155,53 @@ def _csv_order(cells: dict[str, str], where: str) -> TransportOrder:
         else:
             number = parse_int(text)
             if number is None:
-                raise OrderFileError(f"{where}: field {name!r}: not an integer: {shown(text)}")
+                problem = _TOO_LONG if _DIGITS.fullmatch(text) else "not an integer"
+                raise OrderFileError(f"{where}: field {name!r}: {problem}: {shown(text)}")
             values[name] = number
     return _checked(TransportOrder(**values), where)
 
 
+_DIGITS = re.compile(r"[+-]?[0-9]+", re.ASCII)
+# an integer beyond what parse_int reads (an int64 still), worded alike for CSV and JSON
+_TOO_LONG = f"not an integer of at most {MAX_DIGITS} digits"
+
+
+class _NonStandard:
+    """``NaN``, ``Infinity`` or ``-Infinity``: Python's json reads them, but they are not JSON
+    numbers, and an ``end_s`` of ``Infinity`` must not pass for "no deadline"."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+class _Object(dict):
+    """A JSON object that remembers a key it had twice: json keeps the last value silently,
+    and an order with two ids is a broken export, not a choice."""
+
+    twice: str | None = None
+
+
+def _object(pairs: list[tuple[str, Any]]) -> _Object:
+    obj = _Object()
+    for key, value in pairs:
+        if key in obj and obj.twice is None:
+            obj.twice = key
+        obj[key] = value
+    return obj
+
+
 def _parse_json(text: str, source: str) -> list[TransportOrder]:
     try:
-        data = json.loads(text)
+        data = json.loads(text, parse_constant=_NonStandard, object_pairs_hook=_object)
     except json.JSONDecodeError as exc:
         raise OrderFileError(
             f"{source}:{exc.lineno}: invalid JSON: {exc.msg} (column {exc.colno})"
         ) from None
     except (ValueError, RecursionError) as exc:  # a 5000-digit integer, nesting thousands deep
         raise OrderFileError(f"{source}: unreadable JSON: {str(exc)[:80]}") from None
-    if isinstance(data, dict):
+    if isinstance(data, _Object):
+        if data.twice is not None:
+            raise OrderFileError(f"{source}: key {shown(data.twice)} appears twice")
         if set(data) != {"orders"}:
             raise OrderFileError(
                 f'{source}: expected a list of orders or {{"orders": [...]}}, got the keys {", ".join(map(repr, sorted(data)))}'
@@ -181,8 +217,10 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
     first: dict[str, int] = {}
     for k, item in enumerate(data, start=1):
         where = f"{source}: order {k}"
-        if not isinstance(item, dict):
-            raise OrderFileError(f"{where}: expected an object, got {type(item).__name__}")
+        if not isinstance(item, _Object):
+            raise OrderFileError(f"{where}: expected an object, got {_json_shown(item)}")
+        if item.twice is not None:
+            raise OrderFileError(f"{where}: key {shown(item.twice)} appears twice")
         if isinstance(item.get("id"), str):
             where += f" (id {shown(item['id'])})"
         for key in item:
@@ -193,7 +231,11 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
         for key in REQUIRED:
             if key not in item:
                 raise OrderFileError(f"{where}: field {key!r}: missing")
-        values = {key: value for key, value in item.items() if value is not None}
+        values = {
+            key: _json_field(key, value, f"{where}: field {key!r}")
+            for key, value in item.items()
+            if value is not None or key in REQUIRED  # null: the default (docs/orders.md)
+        }
         order = _checked(TransportOrder(**values), where)
         if order.id in first:
             raise OrderFileError(
@@ -202,6 +244,57 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
         first[order.id] = k
         orders.append(order)
     return orders
+
+
+_INTEGERS = {
+    "get": "must be a station node id (an integer >= 0)",
+    "put": "must be a station node id (an integer >= 0)",
+    "priority": "must be an integer",
+    "vehicle": "must be a vehicle id (an integer)",
+}
+
+
+def _json_field(name: str, value: Any, where: str) -> Any:
+    """One key's value as the order field, or OrderFileError for what JSON can say and the
+    field cannot hold: null for a required field, a bool, list or object, a float where an
+    integer is meant, a number too large for a float or (like CSV) for 18 digits. The rest
+    (ranges, get = put, the time window) is ``check_order``'s."""
+    got = _json_shown(value)
+    if value is None:
+        raise OrderFileError(f"{where}: required, got null")
+    if name == "id":
+        if not isinstance(value, str):
+            raise OrderFileError(f"{where}: must be a non-empty string, got {got}")
+        return value
+    if name in _INTEGERS:
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise OrderFileError(f"{where}: {_INTEGERS[name]}, got {got}")
+        if len(str(abs(value))) > MAX_DIGITS:
+            raise OrderFileError(f"{where}: {_TOO_LONG}: {shown(str(value))}")
+        return value
+    number = None
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        try:
+            number = float(value)
+        except OverflowError:  # an integer of 310 digits and more
+            pass
+    if number is None or not math.isfinite(number):
+        hint = " (null: no deadline)" if name == "end_s" else ""
+        raise OrderFileError(f"{where}: must be a finite number of seconds{hint}, got {got}")
+    return number
+
+
+def _json_shown(value: Any) -> str:
+    """A JSON value for a message, short: a list of a million numbers must not flood it."""
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
+    if isinstance(value, str):
+        return shown(value)
+    if isinstance(value, int | float):
+        return shown(repr(value)).strip("'")
+    if isinstance(value, _NonStandard):
+        return value.name
+    return "an object" if isinstance(value, dict) else "a list"
 
 
 def _checked(order: TransportOrder, where: str) -> TransportOrder:

@@ -31,8 +31,13 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+from topology.formats.numbers import MAX_DIGITS, shown
+
 CHANGE_LOG = 4096  # state changes the book remembers for live views
 MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
+# integers (stations, priority, vehicle) have at most the digits an order file reads, so
+# every order the book takes can be written to a file and read back
+MAX_INT = 10**MAX_DIGITS - 1
 
 
 class OrderState(StrEnum):
@@ -120,11 +125,17 @@ class TransportOrder:
         return self.history[-1][0] if self.state.final and self.history else None
 
 
-def check_order(order: TransportOrder) -> None:
+def check_order(order: object) -> None:
     """OrderError for what is wrong with ``order`` on its own, without knowing the plant:
-    types, get = put, the time window, a fresh run-time state. The order files run these
+    types, ranges, get = put, the time window, a fresh run-time state. The order files run these
     checks while reading, so a bad file is reported with its line; the book adds the checks
-    that need the plant (stations, vehicles) and the other orders (duplicate ids)."""
+    that need the plant (stations, vehicles) and the other orders (duplicate ids).
+
+    Total: whatever ``order`` holds (a list as id, a 400-digit number as time, a bool as
+    station) the answer is an OrderError naming the field, never another exception, so a
+    caller may run it on input from outside before anything else touches the order."""
+    if not isinstance(order, TransportOrder):
+        raise OrderError(None, "order", f"must be a TransportOrder, got {type(order).__name__}")
     oid = order.id
     if not isinstance(oid, str) or not oid:
         raise OrderError(oid, "id", "must be a non-empty string")
@@ -133,28 +144,37 @@ def check_order(order: TransportOrder) -> None:
     if not oid.isprintable() or oid != oid.strip():
         raise OrderError(oid, "id", "has control characters or leading/trailing spaces")
     for name in ("get", "put"):
-        value = getattr(order, name)
-        if not _is_int(value) or value < 0:
-            raise OrderError(
-                oid, name, f"must be a station node id (an integer >= 0), got {value!r}"
-            )
+        _check_int(
+            oid, name, getattr(order, name), "must be a station node id (an integer >= 0)", 0
+        )
     if order.get == order.put:
         raise OrderError(oid, "put", f"Put station {order.put} is the Get station")
-    start, end = order.start_s, order.end_s
-    if not _is_number(start) or not math.isfinite(start) or start < 0:
-        raise OrderError(oid, "start_s", f"must be a finite number of seconds >= 0, got {start!r}")
-    if not _is_number(end) or math.isnan(end):
-        raise OrderError(oid, "end_s", f"must be a number of seconds (or inf), got {end!r}")
+    start, end = _seconds(order.start_s), _seconds(order.end_s)
+    if start is None or not math.isfinite(start) or start < 0:
+        raise OrderError(
+            oid, "start_s", f"must be a finite number of seconds >= 0, got {_brief(order.start_s)}"
+        )
+    if end is None or math.isnan(end):
+        raise OrderError(
+            oid, "end_s", f"must be a number of seconds (or inf), got {_brief(order.end_s)}"
+        )
     if end < start:
         raise OrderError(oid, "end_s", f"end {end} s is before the start {start} s")
-    if not _is_int(order.priority):
-        raise OrderError(oid, "priority", f"must be an integer, got {order.priority!r}")
-    if order.vehicle is not None and not _is_int(order.vehicle):
-        raise OrderError(
-            oid, "vehicle", f"must be a vehicle id (an integer), got {order.vehicle!r}"
-        )
-    if order.state is not OrderState.RAW or order.history or order.sections or order.assigned:
-        raise OrderError(oid, "state", f"a new order must be RAW and unused, it is {order.state}")
+    _check_int(oid, "priority", order.priority, "must be an integer")
+    if order.vehicle is not None:
+        _check_int(oid, "vehicle", order.vehicle, "must be a vehicle id (an integer)")
+    fresh = (
+        order.state is OrderState.RAW
+        and type(order.history) is list
+        and not order.history
+        and type(order.sections) is dict
+        and not order.sections
+        and order.assigned is None
+    )
+    if not fresh:
+        state = order.state
+        what = state.value if isinstance(state, OrderState) else _brief(state)
+        raise OrderError(oid, "state", f"a new order must be RAW and unused, it is {what}")
 
 
 class OrderBook:
@@ -165,11 +185,19 @@ class OrderBook:
     can be written at the end (docs/orders.md, "Size limits").
     """
 
-    def __init__(self, stations: Mapping[int, str], vehicles: Iterable[int] | None = None) -> None:
+    def __init__(
+        self,
+        stations: Mapping[int, str],
+        vehicles: Iterable[int] | None = None,
+        recipe_vehicles: Iterable[int] = (),
+    ) -> None:
         """``stations``: the valid Get/Put stations (node id -> name for messages);
-        ``vehicles``: the fleet's vehicle ids, if intended vehicles are to be checked."""
+        ``vehicles``: the ids of the vehicles that take orders, if intended vehicles are to
+        be checked; ``recipe_vehicles``: the fleet's other vehicles, which run recipes: an
+        order intended for one would wait for ever, and is refused saying why."""
         self.stations = dict(stations)
         self.vehicles = None if vehicles is None else frozenset(vehicles)
+        self.recipe_vehicles = frozenset(recipe_vehicles)
         self._orders: dict[str, TransportOrder] = {}
         # the DISPATCHABLE ones, in the order added: a scan asks for them every cycle, and a
         # long run's book is mostly final orders
@@ -182,19 +210,27 @@ class OrderBook:
         self._changed: deque[tuple[int, str]] = deque(maxlen=CHANGE_LOG)
 
     # ----- the pool ------------------------------------------------------------------------
-    def add(self, order: TransportOrder, now_s: float) -> TransportOrder:
+    def add(
+        self, order: TransportOrder, now_s: float, withdrawn: str | None = None
+    ) -> TransportOrder:
         """Check ``order`` whole, then put it in the book as DISPATCHABLE (RAW and
         DISPATCHABLE both time-stamped ``now_s``). A bad order raises OrderError and leaves
-        the book unchanged."""
+        the book unchanged. With ``withdrawn`` (the reason) it goes in WITHDRAWN instead:
+        a known order withdrawn before it was released keeps its id and history, and is
+        never dispatched."""
         check_order(order)
         oid = order.id
         for name in ("get", "put"):
             station = getattr(order, name)
             if station not in self.stations:
                 raise OrderError(oid, name, f"node {station} is not a Get/Put station")
-        if self.vehicles is not None and order.vehicle is not None:
-            if order.vehicle not in self.vehicles:
-                raise OrderError(oid, "vehicle", f"there is no vehicle {order.vehicle}")
+        vehicle = order.vehicle
+        if self.vehicles is not None and vehicle is not None and vehicle not in self.vehicles:
+            if vehicle in self.recipe_vehicles:
+                raise OrderError(
+                    oid, "vehicle", f"vehicle {vehicle} runs recipes, it takes no orders"
+                )
+            raise OrderError(oid, "vehicle", f"there is no vehicle {vehicle}")
         if oid in self._orders:
             raise OrderError(
                 oid, "id", f"already used by an order that is {self._orders[oid].state}"
@@ -203,13 +239,20 @@ class OrderBook:
         self._orders[oid] = order
         self._counts[order.state.value] += 1
         order.history.append((now_s, OrderState.RAW))
-        self.transition(order, OrderState.DISPATCHABLE, now_s)
+        if withdrawn is None:
+            self.transition(order, OrderState.DISPATCHABLE, now_s)
+        else:
+            self.transition(order, OrderState.WITHDRAWN, now_s, withdrawn)
         return order
 
     def withdraw(self, order_id: str, now_s: float, reason: str = "withdrawn") -> TransportOrder:
         """Withdraw an open order. A vehicle processing it sees the final state and stops;
         a final order cannot be withdrawn (OrderError)."""
         order = self.get(order_id)
+        if order.state.final:
+            raise OrderError(
+                order.id, "state", f"the order is final ({order.state}) and cannot be withdrawn"
+            )
         self.transition(order, OrderState.WITHDRAWN, now_s, reason)
         return order
 
@@ -352,16 +395,47 @@ def _section_index(order: TransportOrder, name: str) -> int:
         ) from None
 
 
-def _is_int(value: object) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
 def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _check_int(oid: object, name: str, value: object, kind: str, low: int | None = None) -> None:
+    """OrderError unless ``value`` is an int (not a bool), >= ``low`` if given, of at most
+    MAX_DIGITS digits; worded as the order files word the same faults."""
+    if not isinstance(value, int) or isinstance(value, bool) or (low is not None and value < low):
+        raise OrderError(oid, name, f"{kind}, got {_brief(value)}")
+    if abs(value) > MAX_INT:
+        text = shown(str(value)) if abs(value) < 10**40 else _brief(value)
+        raise OrderError(oid, name, f"not an integer of at most {MAX_DIGITS} digits: {text}")
+
+
+def _seconds(value: object) -> float | None:
+    """``value`` as a float if it is a number (not a bool) a float can hold, else None:
+    ``float(10**400)`` raises instead of answering."""
+    if not _is_number(value):
+        return None
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except OverflowError:
+        return None
+
+
+def _brief(value: object) -> str:
+    """A value for a message, short: a 5000-digit number must not flood the terminal (nor
+    raise, as ``repr`` of an integer over 4300 digits does)."""
+    if isinstance(value, int) and abs(value) >= 10**40:
+        return f"an integer of about 10^{int(math.log10(abs(value)))}"
+    try:
+        text = repr(value)
+    except Exception:  # an object whose repr fails still gets its message
+        return f"a {type(value).__name__}"
+    return text if len(text) <= 40 else text[:32] + "..."
 
 
 def _shown(value: object) -> str:
     """An id quoted for a message, whole if it could be a valid one, else shortened: a
     5000-character id must not flood the terminal."""
+    if not isinstance(value, str):
+        return _brief(value)
     text = repr(value)
     return text if len(text) <= MAX_ID_CHARS + 8 else text[: MAX_ID_CHARS // 2] + "...'"

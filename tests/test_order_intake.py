@@ -1,0 +1,160 @@
+"""The order intake of the running fleet program (fleet/order_system.py): whatever is
+submitted, the Future gets the answer and the scan goes on; a large order file is released a
+bounded number of orders per scan, in its order; an order for a vehicle that runs recipes is
+refused; a configured order not released yet can be withdrawn."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from test_orders_program import config, run, start
+
+from blocks.dispatch.order_file import OrderFileError, load_orders, write_orders
+from blocks.dispatch.orders import OrderError, OrderState, TransportOrder, check_order
+from fleet.order_system import RELEASE_BUDGET
+from fleet.web.models import OrderIn
+from plc_runtime.errors import ConfigError
+
+LATER = "id,get,put,start_s\nlater,20,25,70\n"  # released at 10 s (lead 60 s)
+RECIPES = '[[recipes]]\nname = "drill-inspect"\nfunctions = [5, 6, 1]\n'
+RECIPE_VEHICLE = '[[vehicles]]\nid = 1\nstart = 0\nrecipes = ["drill-inspect"]\n'
+
+
+@pytest.fixture
+def made():
+    programs = []
+    yield programs
+    for p in programs:
+        p.close()
+
+
+def released(book) -> int:
+    return len(book) - book.counts()["WITHDRAWN"]
+
+
+def ids(book) -> list[str]:
+    return [o.id for o in book]
+
+
+@pytest.mark.parametrize(
+    ("bad", "field"),
+    [
+        (TransportOrder("x", get=20, put=21, start_s=10**400), "start_s"),
+        (TransportOrder(["x"], get=20, put=21), "id"),
+        (TransportOrder(10**5000, get=20, put=21), "id"),
+        (TransportOrder("x", get=True, put=21), "get"),
+        (TransportOrder("x", get=20, put="21"), "put"),
+        (TransportOrder("x", get=20, put=21, start_s=math.nan), "start_s"),
+        (TransportOrder("x", get=20, put=21, end_s=10**400), "end_s"),
+        (TransportOrder("x", get=20, put=21, priority=10**19), "priority"),
+        (TransportOrder("x", get=20, put=21, vehicle=[1]), "vehicle"),
+        ({"id": "x", "get": 20, "put": 21}, "order"),
+    ],
+)
+def test_whatever_is_submitted_the_future_gets_the_refusal_and_the_scan_goes_on(
+    bad, field, tmp_path, made
+):
+    p = start(config(LATER, tmp_path), made)
+    run(p, 0.1)
+    refused = p.orders.submit(bad)
+    withdrawn = p.orders.withdraw(["x"])
+    good = p.orders.submit(TransportOrder("good", 20, 25))
+    run(p, 0.1)  # asserts the controller still runs
+    with pytest.raises(OrderError) as err:
+        refused.result(0)
+    assert err.value.field == field and "\n" not in str(err.value)
+    with pytest.raises(OrderError, match="no such order"):
+        withdrawn.result(0)
+    assert good.result(0).id == "good" and ids(p.orders.book) == ["good"]
+
+
+def test_a_large_order_file_is_released_a_budget_a_scan_in_its_order(tmp_path, made):
+    n = 20_000
+    stations = range(20, 30)
+    rows = "".join(f"o{k},{stations[k % 10]},{stations[(k + 3) % 10]}\n" for k in range(n))
+    p = start(config("id,get,put\n" + rows, tmp_path), made)  # all due at the first scan
+    book, scans = p.orders.book, math.ceil(n / RELEASE_BUDGET)
+    assert RELEASE_BUDGET < n
+    for scan in range(scans + 2):
+        before = released(book)
+        run(p, p.cfg.cycle_time)  # one scan; asserts no fault
+        assert released(book) - before <= RELEASE_BUDGET, scan
+        assert book.counts()["RAW"] == 0, scan
+        if scan == 0:  # already due, not yet in the book: withdrawn, it is never released
+            last = p.orders.withdraw(f"o{n - 1}")
+    assert last.result(0).state is OrderState.WITHDRAWN
+    first = 2 * RELEASE_BUDGET  # released in scans 0 and 1, before the withdrawal
+    order = [f"o{k}" for k in range(first)] + [f"o{n - 1}"] + [f"o{k}" for k in range(first, n - 1)]
+    assert len(book) == n and ids(book) == order
+    assert all(o.state is not OrderState.RAW for o in book)
+    assert book.counts()["WITHDRAWN"] == 1
+    assert book.get(f"o{n - 1}").history[-1][1] is OrderState.WITHDRAWN
+
+
+def test_a_configured_order_not_released_yet_can_be_withdrawn(tmp_path, made):
+    p = start(config(LATER, tmp_path), made)
+    run(p, 2)
+    w = p.orders.withdraw("later")
+    run(p, 0.1)
+    order = w.result(0)
+    now = order.history[0][0]
+    assert (order.state, order.reason, order.history) == (
+        OrderState.WITHDRAWN,
+        "withdrawn",
+        [(now, OrderState.RAW), (now, OrderState.WITHDRAWN)],
+    )
+    assert p.orders.book.get("later") is order and 2.0 <= now < 10.0
+    again = p.orders.withdraw("later")
+    reuse = p.orders.submit(TransportOrder("later", 21, 25))
+    run(p, 0.1)
+    with pytest.raises(OrderError) as err:
+        again.result(0)
+    assert (err.value.field, err.value.problem) == (
+        "state",
+        "the order is final (WITHDRAWN) and cannot be withdrawn",
+    )
+    with pytest.raises(OrderError, match="already used by an order that is WITHDRAWN"):
+        reuse.result(0)
+    run(p, 80)  # well past its release at 10 s: never released, never taken
+    assert ids(p.orders.book) == ["later"] and order.state is OrderState.WITHDRAWN
+    assert len(order.history) == 2 and order.assigned is None
+    assert p.orders.book.counts()["WITHDRAWN"] == 1
+
+
+def test_an_order_for_a_vehicle_that_runs_recipes_is_refused(tmp_path, made):
+    extra = RECIPES + RECIPE_VEHICLE
+    vehicles = ((2, 11), (3, 14))
+    cfg = config("id,get,put,vehicle\nv1,20,25,1\n", tmp_path, vehicles, extra)
+    assert cfg.order_vehicles == [2, 3]
+    with pytest.raises(ConfigError, match="field 'vehicle': vehicle 1 runs recipes, it takes no"):
+        start(cfg, made)
+    p = start(config("id,get,put\n", tmp_path, vehicles, extra), made)
+    refused = p.orders.submit(TransportOrder("x", 20, 25, vehicle=1))
+    taken = p.orders.submit(TransportOrder("y", 20, 25, vehicle=2))
+    run(p, 0.1)
+    with pytest.raises(OrderError) as err:
+        refused.result(0)
+    assert (
+        str(err.value) == "order 'x': field 'vehicle': vehicle 1 runs recipes, it takes no orders"
+    )
+    assert taken.result(0).vehicle == 2 and ids(p.orders.book) == ["y"]
+
+
+def test_priority_is_bounded_alike_in_files_over_http_and_at_submit(tmp_path):
+    """A priority a JSON file or HTTP takes can be written as CSV and read back; one over 18
+    digits is refused everywhere with the same words."""
+    big = 10**18 - 1
+    order = TransportOrder("p", 20, 21, priority=-big)
+    write_orders(tmp_path / "p.json", [order])
+    (loaded,) = load_orders(tmp_path / "p.json")
+    write_orders(tmp_path / "p.csv", [loaded])
+    assert load_orders(tmp_path / "p.csv")[0].priority == -big
+    (tmp_path / "too.csv").write_text(f"id,get,put,priority\np,20,21,{10**19}\n")
+    with pytest.raises(OrderFileError) as in_file:
+        load_orders(tmp_path / "too.csv")
+    over_http = OrderIn.model_validate({"id": "p", "get": 20, "put": 21, "priority": 10**19})
+    with pytest.raises(OrderError) as checked:
+        check_order(over_http.order())
+    words = "field 'priority': not an integer of at most 18 digits: '10000000000000000000'"
+    assert str(in_file.value).endswith(words) and str(checked.value).endswith(words)
