@@ -2,7 +2,9 @@
 
 At 80 columns everything must still be readable: columns are taken in order of what an
 operator needs first (vehicle, state, node, target, ...) while they fit, headers are
-short, and long texts (event lines, captions) are cut rather than wrapped.
+short, and long texts (event lines, captions) are cut rather than wrapped. Every text is
+a rich ``Text``, never a markup string: order ids, station names, reasons and file names
+come from users, and ``[/oops]`` would stop the run with a MarkupError.
 """
 
 from __future__ import annotations
@@ -44,6 +46,11 @@ def _cell(value: object) -> str:
     return "-" if value is None else str(value)
 
 
+def _row(table: Table, *cells: object) -> None:
+    """A row shown literally (see the module's docstring)."""
+    table.add_row(*(Text(_cell(c)) for c in cells))
+
+
 def vehicle_table(rows: list[dict[str, Any]], width: int) -> Table:
     """The vehicles, with as many columns as fit in ``width`` characters."""
     shown = rows[:MAX_VEHICLE_ROWS]
@@ -58,7 +65,7 @@ def vehicle_table(rows: list[dict[str, Any]], width: int) -> Table:
     for _key, header, left in chosen:
         table.add_column(header, justify="left" if left else "right", no_wrap=True)
     for row in shown:
-        table.add_row(*(_cell(row[key]) for key, _h, _l in chosen))
+        _row(table, *(row[key] for key, _h, _l in chosen))
     if len(rows) > len(shown):
         table.caption = f"... and {len(rows) - len(shown)} more"
     return table
@@ -116,7 +123,8 @@ def _tasks(rows: dict[str, dict[str, Any]], width: int) -> Table:
     for col in NARROW_TASK_COLUMNS:
         table.add_column(short[col], justify="right", no_wrap=True)
     for name, d in rows.items():
-        table.add_row(
+        _row(
+            table,
             name,
             str(d["cycles"]),
             f"{d['exec_us']['p99']:.0f}",
@@ -152,12 +160,13 @@ def final_tables(result: dict[str, Any]) -> Group:
         "node_conflicts",
         "area_conflicts",
     ):
-        fleet.add_row(key, str(result.get(key)))
+        _row(fleet, key, str(result.get(key)))
     util = Table(title="station utilisation")
     for col in ("station", "assigned", "visits", "busy s", "utilisation"):
         util.add_column(col, justify="right")
     for station, u in result["station_utilisation"].items():
-        util.add_row(
+        _row(
+            util,
             station,
             str(u["assigned"]),
             str(u["visits"]),
@@ -166,16 +175,16 @@ def final_tables(result: dict[str, Any]) -> Group:
         )
     if "orders" in result:
         for key in ("mean_order_time_s", "station_wait_s", "makespan_s"):
-            fleet.add_row(key, str(result[key]))
-        fleet.add_row("orders", ", ".join(f"{k} {n}" for k, n in result["orders"].items() if n))
+            _row(fleet, key, str(result[key]))
+        _row(fleet, "orders", ", ".join(f"{k} {n}" for k, n in result["orders"].items() if n))
         c = result["charging"]
-        fleet.add_row(
-            "charging", f"{c['visits']} visits, {c['time_s']:.0f} s, min {c['min_battery']}%"
+        _row(
+            fleet, "charging", f"{c['visits']} visits, {c['time_s']:.0f} s, min {c['min_battery']}%"
         )
     files = "  ".join(f"{k}: {v}" for k, v in result.get("files", {}).items())
     if result["fault_reason"]:
-        fleet.caption = f"FAULT: {result['fault_reason']}"
+        fleet.caption = Text(f"FAULT: {result['fault_reason']}")
     counts = ", ".join(f"{k} {n}" for k, n in result.get("event_counts", {}).items()) or "none"
     used = any(u["assigned"] or u["visits"] for u in result["station_utilisation"].values())
     parts = (tasks, fleet, util) if used else (tasks, fleet)  # recipes' stations only
-    return Group(*parts, f"events: {counts}", f"written: {files}")
+    return Group(*parts, Text(f"events: {counts}"), Text(f"written: {files}"))

@@ -118,7 +118,9 @@ def test_add_show_list_withdraw(ctl, capsys):
     code, out, err = order(capsys, "withdraw", *url, "--token", TOKEN, "cli-1")
     assert (code, out, err) == (0, "order 'cli-1': WITHDRAWN\n", "")
     code, out, _ = order(capsys, "withdraw", *url, "--token", TOKEN, "cli-1", "--json")
-    assert "cannot go from WITHDRAWN to WITHDRAWN (HTTP 409)" in error_line(code, _)
+    assert "the order is final (WITHDRAWN) and cannot be withdrawn (HTTP 409)" in error_line(
+        code, _
+    )
 
 
 def test_an_order_added_from_the_command_line_is_delivered(ctl, capsys, monkeypatch):
@@ -226,11 +228,62 @@ def test_an_unreachable_controller_is_one_line(capsys):
         )
 
 
-def test_a_url_that_is_not_http_is_one_line(capsys):
-    code, _, err = order(capsys, "list", "--url", "file:///etc/passwd")
-    assert error_line(code, err) == (
-        "--url 'file:///etc/passwd': expected http://HOST:PORT, e.g. http://127.0.0.1:8080"
-    )
+@pytest.mark.parametrize(
+    ("url", "wrong"),
+    [
+        ("file:///etc/passwd", "not http or https"),
+        ("http://:8080", "no host"),
+        ("http://[::1", "Invalid IPv6 URL"),
+        ("http://127.0.0.1:abc", "the port is not a number 0-65535"),
+        ("http://127.0.0.1:65536", "the port is not a number 0-65535"),
+        ("http://127.0.0.1:-1", "the port is not a number 0-65535"),
+        ("http://127.0.0.1:\u0668\u0660", "the port is not a number 0-65535"),  # Arabic-Indic 80
+        ("http://127.0.0.1:80_80", "the port is not a number 0-65535"),
+    ],
+)
+def test_a_url_that_names_no_controller_is_one_line(capsys, url, wrong):
+    for argv in (["list"], ["show", "x"], ["withdraw", "--token", TOKEN, "x"]):
+        code, _, err = order(capsys, argv[0], "--url", url, *argv[1:])
+        assert error_line(code, err) == (
+            f"--url {url!r}: {wrong}; expected http://HOST:PORT, e.g. http://127.0.0.1:8080"
+        )
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "wrong"),
+    [
+        ("--get", "\u0663", "not an integer: '\u0663'"),  # Arabic-Indic 3: int() takes it
+        ("--put", "2_5", "not an integer: '2_5'"),
+        ("--priority", "1.5", "not an integer: '1.5'"),
+        ("--get", "9" * 19, "not an integer of at most 18 digits: '9999999999999999999'"),
+        ("--vehicle", "\uff12", "not an integer: '\uff12'"),  # fullwidth 2
+        ("--start", "1_0", "not a finite decimal number: '1_0'"),
+        ("--end", "\u0661\u0660", "not a finite decimal number: '\u0661\u0660'"),
+        ("--end", "nan", "not a finite decimal number: 'nan'"),
+        ("--start", "-5", "must be >= 0: '-5'"),
+    ],
+)
+def test_numbers_are_read_as_order_files_read_them(capsys, option, value, wrong):
+    argv = {"--id": "x", "--get": "21", "--put": "23", option: value}
+    with pytest.raises(SystemExit) as exc:
+        main(["order", "add", "--url", f"http://127.0.0.1:{closed_port()}",
+              *(part for pair in argv.items() for part in pair)])  # fmt: skip
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f"argument {option}: {wrong}")
+
+
+def test_ids_that_look_like_markup_are_shown_literally(ctl, capsys):
+    """An id is the user's text, not rich markup: no MarkupError, no red "x"."""
+    url = ["--url", ctl.url]
+    for oid in ("[/oops]", "[red]x"):
+        code, out, err = order(capsys, "add", *url, "--token", TOKEN, "--id", oid, "--get",
+                               "21", "--put", "23", "--start", "9000")  # fmt: skip
+        assert (code, err) == (0, "") and out.startswith(f"order {oid!r}: ")
+        code, out, err = order(capsys, "show", *url, oid)
+        assert (code, err) == (0, "") and f"order {oid!r}" in out
+    code, out, err = order(capsys, "list", *url)
+    assert (code, err) == (0, "")
+    assert " [/oops] " in out and " [red]x " in out
 
 
 class _Quiet(http.server.BaseHTTPRequestHandler):

@@ -5,10 +5,13 @@ HTTP API (fleet/web) with the standard library's urllib, so scripts need nothing
 ``add`` and ``withdraw`` need the token the run was given (``--token``, or the environment
 variable ``PLC_RUNTIME_TOKEN``); reading needs none.
 
-Every failure is one line on stderr and exit code 2: the controller cannot be reached, the
-token is missing or wrong, there is no such order, or the controller refused the order (the
-line names the field and what is wrong, as the order book says it). Requests go straight to
-the URL given: no proxy from the environment sees the token, and a redirect is not followed.
+Every failure is one line on stderr and exit code 2: ``--url`` names no controller, the
+controller cannot be reached, the token is missing or wrong, there is no such order, or the
+controller refused the order (the line names the field and what is wrong, as the order book
+says it). Requests go straight to the URL given: no proxy from the environment sees the
+token, and a redirect is not followed. Numbers are read as order files read them (ASCII
+digits only), and the tables show ids, reasons and every other text of the answer
+literally, never as rich markup.
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ from urllib.parse import quote, urlsplit
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
-from plc_runtime.cli import CliError, non_negative
+from plc_runtime.cli import CliError
+from topology.formats.numbers import MAX_DIGITS, parse_float, parse_int, shown
 
 from ..web.options import TOKEN_ENV, bearer_token
 
@@ -32,6 +37,28 @@ DEFAULT_URL = "http://127.0.0.1:8080"
 PREFIX = "/api/v1"
 PAGE = 500  # orders per request of ``list`` (the API's largest page)
 TIMEOUT_S = 15.0  # the controller answers within two of its 5 s waits for the scan
+
+
+def integer(text: str) -> int:
+    """An argparse type: an integer as an order file spells it (``int()`` would also take
+    ``1_0`` and other scripts' digits, which an order file refuses)."""
+    value = parse_int(text)
+    if value is None:
+        digits = text[1:] if text[:1] in ("+", "-") else text
+        long = digits.isascii() and digits.isdigit()
+        what = f"not an integer of at most {MAX_DIGITS} digits" if long else "not an integer"
+        raise argparse.ArgumentTypeError(f"{what}: {shown(text)}")
+    return value
+
+
+def seconds(text: str) -> float:
+    """An argparse type: a time >= 0 as an order file spells it (ASCII decimal, finite)."""
+    value = parse_float(text)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"not a finite decimal number: {shown(text)}")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {shown(text)}")
+    return value
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -54,16 +81,16 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     for parser in (add, withdraw, listing, show):
         parser.add_argument("--json", action="store_true", help="print the answer as JSON")
     add.add_argument("--id", required=True, help="the order's id, unique in the run")
-    add.add_argument("--get", type=int, required=True, help="Get station (node id)")
-    add.add_argument("--put", type=int, required=True, help="Put station (node id)")
+    add.add_argument("--get", type=integer, required=True, help="Get station (node id)")
+    add.add_argument("--put", type=integer, required=True, help="Put station (node id)")
     add.add_argument(
-        "--start", type=non_negative, metavar="S", help="earliest pickup, simulated s (default 0)"
+        "--start", type=seconds, metavar="S", help="earliest pickup, simulated s (default 0)"
     )
     add.add_argument(
-        "--end", type=non_negative, metavar="S", help="latest delivery, simulated s (default none)"
+        "--end", type=seconds, metavar="S", help="latest delivery, simulated s (default none)"
     )
-    add.add_argument("--priority", type=int, help="larger is more urgent (default 0)")
-    add.add_argument("--vehicle", type=int, help="the only vehicle that may take the order")
+    add.add_argument("--priority", type=integer, help="larger is more urgent (default 0)")
+    add.add_argument("--vehicle", type=integer, help="the only vehicle that may take the order")
     for parser in (withdraw, show):
         parser.add_argument("id", help="the order's id")
 
@@ -105,9 +132,7 @@ class Api:
     """The controller's API at ``url`` (its root, or the ``/api/v1`` it announces)."""
 
     def __init__(self, url: str, token: str | None) -> None:
-        parts = urlsplit(url)
-        if parts.scheme not in ("http", "https") or not parts.hostname:
-            raise CliError(f"--url {url!r}: expected http://HOST:PORT, e.g. {DEFAULT_URL}")
+        check_url(url)
         self.base = url.rstrip("/").removesuffix(PREFIX)
         where = "--token" if token is not None else TOKEN_ENV
         self.token = token if token is not None else os.environ.get(TOKEN_ENV)
@@ -176,6 +201,28 @@ class Api:
             ) from None
 
 
+def check_url(url: str) -> None:
+    """CliError unless ``url`` can name a controller: http(s), a host, a port 0-65535 in ASCII
+    digits if any. urllib would find a bad port or bracket only when it connects, and raise
+    an exception of its own."""
+    expected = f"expected http://HOST:PORT, e.g. {DEFAULT_URL}"
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # an unclosed "[": "Invalid IPv6 URL"
+        raise CliError(f"--url {url!r}: {exc}; {expected}") from None
+    if parts.scheme not in ("http", "https"):
+        wrong = "not http or https"
+    elif not parts.hostname:
+        wrong = "no host"
+    else:
+        try:
+            _ = parts.port  # raises unless ASCII digits 0-65535 (or none)
+            return
+        except ValueError:
+            wrong = "the port is not a number 0-65535"
+    raise CliError(f"--url {url!r}: {wrong}; {expected}")
+
+
 class _NoRedirect(urllib.request.HTTPRedirectHandler):
     """A redirect is an error: the token must not follow it to another address."""
 
@@ -191,13 +238,19 @@ def _maybe(value: object) -> str:
     return "-" if value is None else str(value)
 
 
+def _row(table: Table, *cells: object) -> None:
+    """A row shown literally: an id like ``[red]x`` or ``[/oops]`` is not rich markup."""
+    table.add_row(*(Text(str(cell)) for cell in cells))
+
+
 def orders_table(orders: list[dict[str, Any]], url: str) -> Table:
-    table = Table(title=f"{len(orders)} orders at {url}")
+    table = Table(title=Text(f"{len(orders)} orders at {url}"))
     for name in ("id", "get", "put", "start s", "end s", "prio", "vehicle", "state", "assigned"):
         table.add_column(name, justify="left" if name in ("id", "state") else "right")
     table.add_column("reason")
     for o in orders:
-        table.add_row(
+        _row(
+            table,
             o["id"],
             str(o["get"]),
             str(o["put"]),
@@ -214,17 +267,17 @@ def orders_table(orders: list[dict[str, Any]], url: str) -> Table:
 
 def order_table(o: dict[str, Any]) -> Table:
     """One order: its fields, then its history and its sections."""
-    table = Table(title=f"order {o['id']!r}", show_header=False)
+    table = Table(title=Text(f"order {o['id']!r}"), show_header=False)
     table.add_column("field")
     table.add_column("value")
     for name in ("get", "put", "priority", "vehicle", "state", "assigned", "reason"):
-        table.add_row(name, _maybe(o[name]))
-    table.add_row("start_s", _time(o["start_s"]))
-    table.add_row("end_s", _time(o["end_s"]))
+        _row(table, name, _maybe(o[name]))
+    _row(table, "start_s", _time(o["start_s"]))
+    _row(table, "end_s", _time(o["end_s"]))
     history = ", ".join(f"{h['time_s']:g} s {h['state']}" for h in o["history"])
-    table.add_row("history", history)
+    _row(table, "history", history)
     for name, times in o["sections"].items():
-        table.add_row(
-            name, " .. ".join(f"{t:g} s" for t in times) + (" .." if len(times) == 1 else "")
+        _row(
+            table, name, " .. ".join(f"{t:g} s" for t in times) + (" .." if len(times) == 1 else "")
         )
     return table

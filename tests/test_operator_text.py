@@ -1,0 +1,65 @@
+"""Texts from users reach the operator's screen literally: an order id ``[/oops]`` or
+``[red]x``, a station name, a reason or a file name is not rich markup (it used to stop a
+live run with a MarkupError, or show ``[red]x`` as a red "x")."""
+
+from __future__ import annotations
+
+import pytest
+from rich.console import Console
+
+from blocks.dispatch.orders import TransportOrder
+from fleet.config import load_config
+from fleet.dashboard import dashboard, final_tables
+from fleet.program import FleetProgram
+from fleet.report import summary
+
+CONFIG = "examples/workshop-orders.toml"
+MARKUP = ("[/oops]", "[red]x")
+
+
+def rendered(renderable: object, width: int) -> str:
+    console = Console(width=width, record=True, force_terminal=False, color_system=None)
+    console.print(renderable)
+    return console.export_text()
+
+
+@pytest.fixture
+def program():
+    """The workshop fleet with the two orders taken by vehicles 1 and 2."""
+    p = FleetProgram(load_config(CONFIG))
+    try:
+        p.rt.start()
+        p.orders.submit(TransportOrder(MARKUP[0], 21, 25, priority=9, vehicle=1))
+        p.orders.submit(TransportOrder(MARKUP[1], 23, 27, priority=9, vehicle=2))
+        for _ in range(100):
+            p.rt.step()
+            if {r["order"] for r in p.vehicle_rows()} >= set(MARKUP):
+                break
+        assert {r["order"] for r in p.vehicle_rows()} >= set(MARKUP)
+        p.events.add(p.rt.clock_time, "replan", 3, "[bold]segment[/bold] [/oops]")
+        yield p
+    finally:
+        p.close()
+
+
+@pytest.mark.parametrize("width", [80, 200])
+def test_the_dashboard_shows_order_ids_and_events_literally(program, width):
+    text = rendered(dashboard(program, None, width=width), width)
+    for oid in MARKUP:
+        assert f" {oid} " in text
+    assert "[bold]segment[/bold] [/oops]" in text
+
+
+def test_the_final_tables_show_names_reasons_and_files_literally(program):
+    result = summary(program, wall_s=1.0)
+    result["station_utilisation"]["[/s]"] = {
+        "assigned": 1,
+        "visits": 1,
+        "busy_s": 5.0,
+        "utilisation": 0.5,
+    }
+    result["fault_reason"] = "block [red]x raised [/oops]"
+    result["files"] = {"summary": "[/out]/summary.json"}
+    text = rendered(final_tables(result), 200)
+    for literal in ("[/s]", "FAULT: block [red]x raised [/oops]", "[/out]/summary.json"):
+        assert literal in text
