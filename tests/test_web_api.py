@@ -27,6 +27,8 @@ from plc_runtime.errors import ConfigError
 API = "/api/v1"
 WAIT_WALL_S = 60.0
 RECIPES_ONLY = ROOT / "examples" / "workshop.toml"
+JSON = {"Content-Type": "application/json"}
+FORM = {"Content-Type": "application/x-www-form-urlencoded"}
 
 
 @pytest.fixture(scope="module")
@@ -245,7 +247,7 @@ def test_a_bad_watch_request_is_a_json_error(ctl, path, status, field):
 
 def test_a_writable_tag_is_written_forced_and_unforced(ctl):
     """agv2.hold: written 1, the vehicle is held; forced 1 and written 0, the force wins;
-    unforced, the value written last takes over again."""
+    unforced, the forced value stays (nobody else writes it) until 0 is written."""
     written = ctl.call("PUT", f"{API}/tags/agv2.hold", {"value": 1}, token=TOKEN)
     assert written.status == 200 and written.body["value"] == 1
     eventually(lambda: ctl.call("GET", f"{API}/vehicles/2").body["held"], "agv2 held")
@@ -259,6 +261,10 @@ def test_a_writable_tag_is_written_forced_and_unforced(ctl):
     assert ctl.call("GET", f"{API}/vehicles/2").body["held"]
     unforced = ctl.call("DELETE", f"{API}/tags/agv2.hold/force", token=TOKEN)
     assert not unforced.body["forced"] and ctl.program.rt.image.forces == {}
+    cycles = ctl.program.rt.ticks
+    eventually(lambda: ctl.program.rt.ticks > cycles + 2, "two more scans")
+    assert ctl.call("GET", f"{API}/tags/agv2.hold").body["value"] == 1
+    assert ctl.call("GET", f"{API}/vehicles/2").body["held"]
     ctl.call("PUT", f"{API}/tags/agv2.hold", {"value": 0}, token=TOKEN)
     eventually(lambda: not ctl.call("GET", f"{API}/vehicles/2").body["held"], "agv2 released")
 
@@ -287,6 +293,28 @@ def test_a_bad_write_is_refused_and_changes_nothing(ctl, method, path, body, tok
     assert ctl.program.rt.image.forces == {}
     after = ctl.call("GET", f"{API}/tags/values?names=agv1.hold").body
     assert after[0]["value"] == before[0]["value"] == 0
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "raw", "headers", "status", "error"),
+    [
+        ("PUT", "tags/agv1.hold", b'{"value": 1, "x": 2}', JSON, 422, "unknown (fields: value)"),
+        ("PUT", "tags/agv1.hold", b"[1]", JSON, 422, "a JSON object with the fields value"),
+        ("PUT", "tags/agv1.hold", b'{"value": 1}', {}, 415, "no Content-Type"),
+        ("PUT", "tags/agv1.hold/force", b'{"value": 1}', FORM, 415, "x-www-form-urlencoded"),
+        ("POST", "orders", b'{"id": "f", "get": 21, "put": 23}', FORM, 415, "Content-Type"),
+    ],
+)
+def test_a_body_not_sent_as_the_routes_json_says_what_the_route_takes(
+    ctl, method, path, raw, headers, status, error
+):
+    """Each route names its own body's fields, and a body sent as a form (``curl -d``
+    alone) is told to send JSON, not that its fields are wrong."""
+    reply = ctl.call(method, f"{API}/{path}", raw=raw, token=TOKEN, headers=headers)
+    assert reply.status == status and error in reply.body["error"], reply.body
+    assert "get" not in reply.body["error"] or path == "orders"
+    assert ctl.program.rt.image.forces == {}
+    assert ctl.call("GET", f"{API}/tags/agv1.hold").body["value"] == 0
 
 
 # ----- statistics and events ----------------------------------------------------------------------

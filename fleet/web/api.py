@@ -86,6 +86,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorOut} for code in (400, 404, 409, 413, 422, 429, 503)
 }
 _WRITE_ERRORS = {**_ERRORS, 401: {"model": ErrorOut}, 403: {"model": ErrorOut}}
+_BODY_ERRORS = {**_WRITE_ERRORS, 415: {"model": ErrorOut}}  # a body sent as other than JSON
 OrderId = Annotated[str, Path(description="the order's id (URL-encoded)")]
 NodeId = Annotated[int, Path(ge=0, le=0xFFFF, description="a node at one end of the segment")]
 TagName = Annotated[str, Path(min_length=1, max_length=100, description="the tag's name")]
@@ -209,7 +210,7 @@ def build_app(
         f"{PREFIX}/orders",
         status_code=201,
         response_model=OrderOut,
-        responses=_WRITE_ERRORS,
+        responses=_BODY_ERRORS,
         dependencies=[Security(_BEARER)],
     )
     async def add_order(new: OrderIn) -> JSONResponse:
@@ -294,7 +295,7 @@ def build_app(
     @app.put(
         f"{PREFIX}/tags/{{name}}",
         response_model=TagOut,
-        responses=_WRITE_ERRORS,
+        responses=_BODY_ERRORS,
         dependencies=[Security(_BEARER)],
     )
     async def write_tag(name: TagName, new: TagValueIn) -> JSONResponse:
@@ -305,7 +306,7 @@ def build_app(
     @app.put(
         f"{PREFIX}/tags/{{name}}/force",
         response_model=TagOut,
-        responses=_WRITE_ERRORS,
+        responses=_BODY_ERRORS,
         dependencies=[Security(_BEARER)],
     )
     async def force_tag(name: TagName, new: TagValueIn) -> JSONResponse:
@@ -320,7 +321,9 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def unforce_tag(name: TagName) -> JSONResponse:
-        """Remove a tag's force. Needs the token."""
+        """Remove a tag's force. The tag keeps the forced value until the program or a
+        write changes it: a command word nobody else writes (a vehicle's hold) stays as
+        forced, so write the value wanted after unforcing. Needs the token."""
         return JSONResponse(await ask(fleet.ask_unforce(name), "unforce"))
 
     # ----- statistics, events, the stream --------------------------------------------------
@@ -380,7 +383,7 @@ def build_app(
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
-        return _invalid(exc)
+        return _invalid(exc, request)
 
     @app.exception_handler(Exception)
     async def failure(request: Request, exc: Exception) -> JSONResponse:
@@ -443,8 +446,9 @@ def _error(exc: OrderError | ControllerStopped, action: str) -> ApiError:
     return ApiError(status, str(exc), field)
 
 
-def _invalid(exc: RequestValidationError) -> JSONResponse:
-    """Pydantic's first complaint, as one line naming the field."""
+def _invalid(exc: RequestValidationError, request: Request) -> JSONResponse:
+    """Pydantic's first complaint, as one line naming the field (and the fields the
+    route's body takes, where the body is not an object of them)."""
     first = exc.errors()[0]
     kind, loc, msg = first.get("type", ""), tuple(first.get("loc", ())), first.get("msg", "")
     if kind == "json_invalid":
@@ -452,20 +456,32 @@ def _invalid(exc: RequestValidationError) -> JSONResponse:
             400, f"request body is not valid JSON: {first.get('ctx', {}).get('error', msg)}"
         )
     where, names = (loc[0] if loc else "body"), [str(p) for p in loc[1:]]
+    fields = ", ".join(_body_fields(request))
     if not names:
         if where == "body":
-            fields = ", ".join(OrderIn.model_fields)
+            sent = request.headers.get("content-type", "")
+            if sent.split(";")[0].strip().lower() != "application/json":
+                return _json(
+                    415,
+                    "request body: send it as JSON with the header Content-Type: "
+                    f"application/json (got {sent or 'no Content-Type'})",
+                )
             return _json(422, f"request body: expected a JSON object with the fields {fields}")
         return _json(422, f"request {where}: {msg}")
     field = ".".join(names)
     if kind == "extra_forbidden":
-        return _json(
-            422, f"field '{field}': unknown (fields: {', '.join(OrderIn.model_fields)})", field
-        )
+        return _json(422, f"field '{field}': unknown (fields: {fields})", field)
     text = f"field '{field}': {msg}"
     if kind != "missing" and "input" in first:
         text += f", got {_short(first['input'])}"
     return _json(422, text, field)
+
+
+def _body_fields(request: Request) -> list[str]:
+    """The fields of the body model of the route ``request`` matched (none: no body)."""
+    body = getattr(request.scope.get("route"), "body_field", None)
+    model = getattr(getattr(body, "field_info", None), "annotation", None)
+    return list(getattr(model, "model_fields", {}))
 
 
 def _short(value: object) -> str:
