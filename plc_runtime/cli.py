@@ -64,6 +64,41 @@ def non_negative(text: str) -> float:
     return value
 
 
+def whole(text: str) -> int:
+    """An argparse type: a whole number >= 0 (a count or a seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0: {text!r}")
+    return value
+
+
+MIN_CYCLE_S, MAX_CYCLE_S = 0.0001, 1.0  # a scan cycle's range, as a configuration's
+
+
+def cycle_seconds(text: str) -> float:
+    """An argparse type: a cycle time in seconds within the range a configuration allows
+    (a value of 50 is almost always 50 ms meant, which in seconds would run no cycle)."""
+    value = positive(float)(text)
+    if not MIN_CYCLE_S <= value <= MAX_CYCLE_S:
+        raise argparse.ArgumentTypeError(
+            f"is in seconds, {MIN_CYCLE_S:g} to {MAX_CYCLE_S:g} (e.g. 0.05 for 50 ms), got {text!r}"
+        )
+    return value
+
+
+def duration_cycles(duration_s: float, cycle_time_s: float) -> int:
+    """The cycles a run of ``duration_s`` takes; CliError if it is shorter than one."""
+    cycles = round(duration_s / cycle_time_s)
+    if cycles < 1:
+        raise CliError(
+            f"--duration {duration_s:g} s is shorter than one cycle ({cycle_time_s:g} s)"
+        )
+    return cycles
+
+
 def add_run_options(run: argparse.ArgumentParser) -> None:
     """The options every program shares: how long, which clock, cycle and watchdog, retain."""
     length = run.add_mutually_exclusive_group()
@@ -86,8 +121,8 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
     )
     run.add_argument(
         "--cycle-time",
-        type=positive(float),
-        help="base cycle time in seconds (default: the program's)",
+        type=cycle_seconds,
+        help="base cycle time in seconds, e.g. 0.05 (default: the program's)",
     )
     run.add_argument(
         "--watchdog",
@@ -135,14 +170,14 @@ def run_program(
         watchdog=(args.watchdog if args.watchdog is not None else watchdog_ms) / 1e3,
         retain_file=args.retain,
     )
-    for driver in drivers:
-        rt.add_driver(driver)
-    rt.start()
     total = (
         args.cycles
         if args.cycles is not None
-        else (round(args.duration / rt.cycle_time) if args.duration is not None else None)
+        else (duration_cycles(args.duration, rt.cycle_time) if args.duration is not None else None)
     )
+    for driver in drivers:
+        rt.add_driver(driver)
+    rt.start()
     live = sys.stdout.isatty() and not args.json
     previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt))
     wall_start = time.monotonic()

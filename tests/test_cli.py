@@ -137,7 +137,20 @@ def test_non_finite_numbers_are_usage_errors(args, capsys):
     assert "Traceback" not in capsys.readouterr().err
 
 
-def test_bad_cycle_time_is_one_line(capsys):
-    assert main(["run", "--program", "demo", "--cycle-time", "1e-320", "--cycles", "1"]) == 2
+@pytest.mark.parametrize("value", ["1e-320", "50", "2"])
+def test_a_cycle_time_outside_the_configurations_range_is_a_usage_error(value, capsys):
+    """50 is 50 ms meant: in seconds it would run no cycle of a 5 s run, silently."""
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--program", "demo", "--cycle-time", value, "--duration", "5"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--cycle-time: is in seconds, 0.0001 to 1 (e.g. 0.05 for 50 ms)" in err
+
+
+@pytest.mark.parametrize("program", ["demo", "fleet"])
+def test_a_run_shorter_than_one_cycle_is_refused(program, tmp_path, capsys):
+    args = ["run", "--program", program, "--cycle-time", "0.5", "--duration", "0.1"]
+    assert main([*args, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "cycle_time must be a number of seconds" in err[0]
+    assert err[-1] == "plc-runtime: error: --duration 0.1 s is shorter than one cycle (0.5 s)"
+    assert not (tmp_path / "out").exists()

@@ -55,6 +55,17 @@ def test_default_job_json_summary_and_output_files(tmp_path, capsys):
     assert (out / "routes.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_traffic_mode_is_overridden_on_the_command_line(tmp_path, capsys):
+    args = ["run", "--duration", "30", "--json", "--out", str(tmp_path / "out")]
+    assert main([*args, "--traffic", "time_windows"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["traffic"]["mode"] == "time_windows" and summary["traffic"]["rounds"] > 0
+    assert summary["head_on_conflicts"] == summary["node_conflicts"] == 0
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--traffic", "timed"])
+    assert exc.value.code == 2 and "invalid choice: 'timed'" in capsys.readouterr().err
+
+
 def test_config_file_on_the_command_line(tmp_path, capsys):
     cfg = tmp_path / "fleet.toml"
     cfg.write_text(

@@ -36,7 +36,7 @@ from typing import Any
 from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
-from plc_runtime.cli import CliError, drive
+from plc_runtime.cli import CliError, drive, duration_cycles
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 
@@ -44,6 +44,7 @@ from .. import liveness
 from ..config import (
     DEFAULT_CONFIG,
     MODBUS,
+    TRAFFIC_MODES,
     FleetConfig,
     first_vehicles,
     load_config,
@@ -93,6 +94,11 @@ def add_options(run: argparse.ArgumentParser) -> None:
         "implies the wall clock)",
     )
     run.add_argument(
+        "--traffic",
+        choices=TRAFFIC_MODES,
+        help="fleet: the traffic mode, overriding [routing] traffic (docs/fleet-config.md)",
+    )
+    run.add_argument(
         "--dispatch",
         choices=STRATEGIES,
         help="fleet: the order allocation strategy, overriding [dispatch] strategy",
@@ -112,10 +118,17 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         cfg.cycle_time = args.cycle_time
     if args.watchdog is not None:
         cfg.watchdog = args.watchdog / 1e3
+    if args.traffic is not None:
+        cfg.traffic = args.traffic
     if args.dispatch is not None:
         cfg.dispatch.strategy = args.dispatch
     if args.vehicles_count is not None:
         first_vehicles(cfg, args.vehicles_count)
+    total = (
+        args.cycles
+        if args.cycles is not None
+        else duration_cycles(args.duration or cfg.duration_s, cfg.cycle_time)
+    )
     setup = plan(args, cfg)
     web_options = web.web_options(args, cfg)
     if setup.spawn and args.vehicles_count is not None:
@@ -144,11 +157,6 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         program.rt.add_driver(modbus(args.modbus))
     if web_options is not None:  # stopped with the runtime, like every driver
         program.rt.add_driver(web.web_server(web_options, program))
-    total = (
-        args.cycles
-        if args.cycles is not None
-        else round((args.duration or cfg.duration_s) / cfg.cycle_time)
-    )
     vehicles_proc, monitor_file = None, None
     if setup.spawn:
         monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
