@@ -254,6 +254,14 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
         raise r.fail(
             "plan_order", f"must be one of {', '.join(PLAN_ORDERS)}, got {cfg.plan_order!r}"
         )
+    if cfg.replan_s >= horizon_s:
+        # a plan is booked horizon_s ahead and made again every replan_s: with a longer
+        # gap the vehicles reach the end of their plans and stand until the next round
+        raise r.fail(
+            "replan_s",
+            f"must be less than horizon_s ({horizon_s:g} s), got {cfg.replan_s:g}: the "
+            "vehicles would stand at the end of their plans between rounds",
+        )
     r.finish()
     return cfg
 
@@ -481,6 +489,11 @@ def first_vehicles(cfg: FleetConfig, n: int) -> None:
             f"--vehicles-count: must be 1..{len(ids)} (the vehicles of {cfg.source}), got {n}"
         )
     keep = set(ids[:n])
+    if cfg.order_vehicles and not keep.intersection(cfg.order_vehicles):
+        raise ConfigError(
+            f"--vehicles-count {n}: the first {n} vehicles of {cfg.source} all run recipes, "
+            f"so nobody would take its transport orders (vehicles {', '.join(map(str, cfg.order_vehicles))} do)"
+        )
     cfg.starts = {v: s for v, s in cfg.starts.items() if v in keep}
     cfg.vehicle_recipes = {v: r for v, r in cfg.vehicle_recipes.items() if v in keep}
     cfg.order_vehicles = [v for v in cfg.order_vehicles if v in keep]

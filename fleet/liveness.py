@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from topology import Plant
 
@@ -55,6 +56,19 @@ def violations(cfg: FleetConfig) -> list[str]:
         )
     if any(b.until_s is None for b in cfg.blockades):
         out.append("a blockade that never reopens")
+    if cfg.order_vehicles and cfg.battery.enabled and not plant.with_role("charger"):
+        out.append(
+            "batteries on and no charger (role 'charger'): a vehicle below the 'good' "
+            "threshold takes no order and cannot recharge"
+        )
+    if cfg.traffic == "time_windows" and cfg.order_vehicles:
+        parking = len(plant.with_role("parking")) if cfg.dispatch.park else 0
+        if parking < len(cfg.order_vehicles):
+            out.append(
+                f"time-window traffic moves no idle vehicle aside, and {parking} parking "
+                f"position(s) for {len(cfg.order_vehicles)} vehicles taking orders: an idle "
+                "vehicle may stand on another's only way"
+            )
     return out
 
 
@@ -92,10 +106,12 @@ def _one_way_segments(plant: Plant) -> list[tuple[int, int]]:
 
 
 def articulation_points(plant: Plant) -> list[int]:
-    """Nodes whose removal disconnects the (undirected) plant graph; iterative Tarjan."""
+    """Nodes whose removal disconnects the (undirected) plant graph; iterative Tarjan.
+    Built from the arcs, not the length matrix, whose sum would drop segments of length 0."""
     n = plant.n
-    csr = plant.csr
-    adj = csr + csr.T
+    src, dst, _ = plant.arcs
+    ones = np.ones(2 * len(src), dtype=np.int8)
+    adj = csr_matrix((ones, (np.concatenate([src, dst]), np.concatenate([dst, src]))), shape=(n, n))
     indptr, indices = adj.indptr, adj.indices
     disc = np.full(n, -1)
     low = np.zeros(n, dtype=np.int64)

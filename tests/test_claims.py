@@ -24,3 +24,15 @@ def test_a_place_someone_stands_on_is_neither_free_nor_given():
     del standing[30]  # vehicle 7 has left
     assert claims.free(30, 2) is False  # vehicle 1 still waits for it
     assert claims.claim(30, 1) and claims.holder[30] == 1
+
+
+def test_a_vehicle_standing_on_a_place_takes_it_over_and_the_holder_is_next():
+    claims = Claims()
+    assert claims.claim(40, 1)  # 1 holds station 40 but is still behind
+    assert not claims.claim(40, 2) and not claims.claim(40, 3)
+    claims.take_over(40, 3)  # 3 was pushed onto the station while it waited
+    assert claims.holder[40] == 3 and claims.waiting[40] == [1, 2]
+    claims.take_over(40, 3)  # again: nothing changes
+    assert claims.holder[40] == 3 and claims.waiting[40] == [1, 2]
+    claims.release(40, 3)
+    assert not claims.claim(40, 2) and claims.claim(40, 1)

@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from fleet_scenarios import make_config, run
 from rich.console import Console
@@ -186,11 +188,34 @@ def test_each_clause_of_the_liveness_condition_is_checked():
     assert "a blockade that never reopens" in liveness.violations(cfg)
 
 
+def test_time_window_traffic_needs_a_parking_position_per_order_vehicle():
+    """That mode pushes nobody aside: an idle vehicle that cannot park may block a way."""
+    cfg = load_config(
+        Path(__file__).resolve().parent.parent / "examples" / "distribution-centre.toml"
+    )
+    parking = len(cfg.plant.with_role("parking"))
+    assert parking >= len(cfg.order_vehicles) > 0
+    assert not any("parking" in v for v in liveness.violations(cfg))  # reactive
+    cfg.traffic = "time_windows"
+    assert not any("parking" in v for v in liveness.violations(cfg))
+    cfg.dispatch.park = False
+    found = [v for v in liveness.violations(cfg) if "parking" in v]
+    assert found == [
+        f"time-window traffic moves no idle vehicle aside, and 0 parking position(s) for "
+        f"{len(cfg.order_vehicles)} vehicles taking orders: an idle vehicle may stand on "
+        "another's only way"
+    ]
+
+
 def test_articulation_points_match_an_independent_count():
     nx = pytest.importorskip("networkx")
-    from topology import model_plant, warehouse
+    from topology import Edge, Node, Plant, model_plant, warehouse
 
-    for plant in (model_plant(), warehouse(), grid(6, 6)):
+    ring = Plant.build(
+        [Node(k, float(k), 0.0) for k in range(12)],
+        [Edge(k, (k + 1) % 12, 0.0 if k in (4, 5, 6) else 1.0) for k in range(12)],
+    )  # segments of length 0 still join their nodes: no cut node in a ring
+    for plant in (model_plant(), warehouse(), grid(6, 6), ring):
         g = nx.Graph()
         g.add_nodes_from(plant.ids.tolist())
         src, dst, _ = plant.arcs

@@ -12,9 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
-from fleet.config import parse_config
+from fleet import liveness
+from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary
+from plc_runtime.errors import ConfigError
 
 WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
 STATIONS = list(range(20, 30))  # the workshop's ten stations
@@ -248,3 +250,147 @@ def test_every_reachable_order_finishes_once_and_no_battery_runs_empty(
         assert p.monitor.head_on == 0 and p.monitor.node == 0
     finally:
         p.close()
+
+
+LOOP = """name = "loop"
+[functions]
+0 = "entry"
+1 = "exit"
+2 = "get"
+3 = "put"
+[[nodes]]
+id = 0
+role = "entry"
+functions = [0]
+[[nodes]]
+id = 1
+x = 1.0
+[[nodes]]
+id = 2
+x = 2.0
+role = "station"
+functions = [2]
+[[nodes]]
+id = 3
+x = 3.0
+[[nodes]]
+id = 4
+x = 3.0
+y = 1.0
+role = "station"
+functions = [3]
+[[nodes]]
+id = 5
+y = 1.0
+role = "exit"
+functions = [1]
+[[nodes]]
+id = 6
+x = 1.0
+y = 1.0
+[[nodes]]
+id = 7
+x = 2.0
+y = 1.0
+[[nodes]]
+id = 9
+x = 2.0
+y = -1.0
+role = "queue"
+queue_for = 2
+""" + "".join(
+    f"[[edges]]\nfrom = {a}\nto = {b}\nlength = 1.0\n"
+    for a, b in ((0, 1), (1, 2), (2, 3), (3, 4), (4, 7), (7, 6), (6, 5), (5, 0), (1, 6), (1, 9))
+)
+
+
+def test_a_vehicle_pushed_onto_a_station_it_waits_for_is_served_there(tmp_path, made):
+    """Put station 4 has no queue place and the loop no parking, so a loaded vehicle
+    refused its claim waits on the lane, where the deadlock resolver may push it on, onto
+    the station. The claim's holder, behind it, can then never get there: the vehicle on
+    the station takes the claim, and the holder is next. Checked after every scan; before,
+    the three stood for good from 75 s on with 2 of the 6 orders done. (The last order may
+    still wait: with nowhere to park, idle vehicles stand on the loop.)"""
+    (tmp_path / "loop.toml").write_text(LOOP, encoding="utf-8")
+    (tmp_path / "orders.csv").write_text(
+        "id,get,put,start_s,end_s\n" + "".join(f"o{k},2,4,0,600\n" for k in range(6)),
+        encoding="utf-8",
+    )
+    cars = "".join(f"[[vehicles]]\nid = {v}\nstart = {s}\n" for v, s in ((1, 0), (2, 6), (3, 3)))
+    text = f"""
+[plant]
+file = "loop.toml"
+[runtime]
+cycle_time_ms = 50
+watchdog_ms = 5000
+[routing]
+traffic = "reactive"
+[orders]
+file = "orders.csv"
+[dispatch]
+get_s = 5
+put_s = 5
+[battery]
+enabled = false
+{cars}"""
+    p = start(parse_config(text, "loop-fleet.toml", tmp_path), made)
+    claims = p.orders.claims
+    for _ in range(round(300 / p.cfg.cycle_time)):
+        p.rt.step()
+        for v, runner in p.orders.runners.items():
+            order = runner.active
+            if runner.phase in ("get_queue", "put_queue") and runner.arrived:
+                station = order.get if runner.phase == "get_queue" else order.put
+                if runner.current == station:
+                    assert claims.holder.get(station) == v, (p.rt.clock.now_ns(), v)
+    states = [p.orders.book.get(f"o{k}").state for k in range(6)]
+    assert states.count(OrderState.FINISHED) >= 5, states
+    s = summary(p, 1.0)
+    assert s["head_on_conflicts"] == s["node_conflicts"] == s["area_conflicts"] == 0
+
+
+def loop_config(tmp_path: Path, battery: str = "", vehicle_1: str = ""):
+    (tmp_path / "loop.toml").write_text(LOOP, encoding="utf-8")
+    (tmp_path / "orders.csv").write_text("id,get,put\no1,2,4\n", encoding="utf-8")
+    text = f"""
+[plant]
+file = "loop.toml"
+[orders]
+file = "orders.csv"
+{battery}
+[[recipes]]
+name = "lap"
+functions = [2, 3]
+[[vehicles]]
+id = 1
+start = 0
+{vehicle_1}
+[[vehicles]]
+id = 2
+start = 6
+"""
+    return parse_config(text, "loop-fleet.toml", tmp_path)
+
+
+def test_a_fleet_cut_down_to_its_recipe_vehicles_is_refused(tmp_path):
+    """Its orders would be dropped without a word: nobody would take them."""
+    cfg = loop_config(tmp_path, vehicle_1='recipes = ["lap"]')
+    assert cfg.order_vehicles == [2]
+    with pytest.raises(ConfigError) as caught:
+        first_vehicles(cfg, 1)
+    assert str(caught.value) == (
+        "--vehicles-count 1: the first 1 vehicles of loop-fleet.toml all run recipes, so "
+        "nobody would take its transport orders (vehicles 2 do)"
+    )
+    assert sorted(cfg.starts) == [1, 2]  # unchanged
+
+
+@pytest.mark.parametrize(("battery", "warned"), [("", True), ("[battery]\nenabled = false", False)])
+def test_order_vehicles_with_batteries_need_a_charger(tmp_path, battery, warned):
+    """Else a vehicle below 'good' takes no order and can never recharge."""
+    found = liveness.violations(loop_config(tmp_path, battery))
+    clause = (
+        "batteries on and no charger (role 'charger'): a vehicle below the 'good' threshold "
+        "takes no order and cannot recharge"
+    )
+    assert (clause in found) is warned

@@ -73,6 +73,7 @@ def test_the_mode_and_its_planner_are_read_from_the_configuration(tmp_path):
         (("wait_occupied_s = 8", 'wait_occupied_s = "x"'), "time_windows.wait_occupied_s"),
         (("replan_s = 1.5", "replan_s = 1.5\nwindow = 3"), "time_windows.window: unknown key"),
         (("window_s = 25", "window_s = 10"), "time_windows.window_s: must be in 15.0.."),
+        (("replan_s = 1.5", "replan_s = 15"), "time_windows.replan_s: must be less than horizon_s"),
     ],
 )
 def test_bad_time_window_settings_name_the_file_and_key(tmp_path, change, message):

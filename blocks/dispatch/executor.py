@@ -22,7 +22,8 @@ released to a vehicle cannot be taken back, and one that drove into a dead-end s
 without the claim would stand face to face with the holder. Refused, it waits at a free
 queue position of the station, else at the free parking position nearest to it, and only
 when there is none, where it stands, but not on hold: the deadlock resolver may push it
-out of the holder's way. A station's claim covers its single-vehicle area (plant key
+out of the holder's way. Pushed onto the very station it waits for, it takes the claim
+over (:meth:`Claims.take_over`) and is served there: the holder cannot get past it. A station's claim covers its single-vehicle area (plant key
 ``area``) and ends only when the vehicle has left that area, so a vehicle leaving a
 station spur never meets the next one in it. Routing and traffic (VehicleControl and the
 reservations) decide how it drives; this block only sets the target and the hold. Without
@@ -112,6 +113,21 @@ class Claims:
         if vehicle not in queue:
             queue.append(vehicle)
         return False
+
+    def take_over(self, place: int, vehicle: int) -> None:
+        """``vehicle`` stands on ``place`` without its claim (pushed onto it while it
+        waited): it takes the claim, and the holder, who cannot get onto the place past it,
+        is first in line again. Otherwise each would wait for the other for ever: the
+        holder for the node, the vehicle on it for the claim."""
+        holder = self.holder.get(place)
+        if holder == vehicle:
+            return
+        queue = self.waiting.setdefault(place, [])
+        if vehicle in queue:
+            queue.remove(vehicle)
+        if holder is not None:
+            queue.insert(0, holder)
+        self.holder[place] = vehicle
 
     def free(self, place: int, vehicle: int) -> bool:
         """Nobody holds or waits for ``place``, and no vehicle but ``vehicle`` is on it."""
@@ -307,6 +323,8 @@ class OrderRunner(FunctionBlock):
             self.target, self.hold = self.entries.get(station, station), False
             return
         early = kind == "Get" and ctx.time < self.active.start_s  # (the load is not ready)
+        if not early and self.arrived and self.current == station:
+            self.claims.take_over(station, self.vehicle)  # pushed onto it: served there
         if not early and self.claims.claim(station, self.vehicle):
             self._forget(station)  # its queue place is free again
             self.target, self.hold = station, False
