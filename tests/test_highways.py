@@ -83,7 +83,10 @@ def test_the_plant_format_reads_and_writes_highways():
         ({"highway": "yes"}, "highway"),
         ({"highway": True, "directed": True}, "highway on a directed edge"),
         ({"highway": True, "routable": False}, "highway on an edge that is not routable"),
-        ({"highway": True, "from": 3, "to": 2}, "highway against another: edges[3]"),
+        ({"highway": True, "from": 3, "to": 2}, "highway undone by edges[3]"),
+        ({"from": 3, "to": 2}, "lets vehicles drive 3 -> 2 at no extra cost"),
+        ({"from": 2, "to": 3}, "highway undone by edges[3]"),
+        ({"from": 3, "to": 2, "directed": True}, "highway undone by edges[3]"),
     ],
 )
 def test_a_bad_highway_names_the_edge_and_what_is_wrong(change, message):
@@ -94,6 +97,17 @@ def test_a_bad_highway_names_the_edge_and_what_is_wrong(change, message):
         from_dict(document, "ring.json")
     text = str(caught.value)
     assert "ring.json" in text and "edges[3]" in text and message in text
+
+
+def test_an_edge_beside_a_highway_that_cannot_undo_it_is_accepted():
+    """A one-way edge the preferred way, or one that is not routable, leaves the way back
+    priced."""
+    for change in ({"from": 2, "to": 3, "directed": True}, {"from": 3, "to": 2, "routable": False}):
+        document = to_dict(ring(highways=False))
+        document["edges"][2]["highway"] = True  # 2 -> 3
+        document["edges"][3].update(change)
+        plant = from_dict(document, "ring.json")
+        assert plant.against_highway.sum() == 1
 
 
 def test_reactive_routes_pay_the_factor_against_a_highway_only():

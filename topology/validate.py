@@ -299,8 +299,9 @@ def _check_edges(plant: Plant, source: str | None) -> None:
             (
                 _not_against_another_highway(edges),
                 lambda i: (
-                    f"highway against another: edges[{_opposite_highway(edges, i)}] "
-                    f"prefers {targets[i]} -> {sources[i]} on the same two nodes"
+                    f"highway undone by edges[{_against(edges, i)}], which joins the same two "
+                    f"nodes and lets vehicles drive {targets[i]} -> {sources[i]} at no extra "
+                    "cost (drop one of them)"
                 ),
             ),
             *port_rules,
@@ -311,24 +312,30 @@ def _check_edges(plant: Plant, source: str | None) -> None:
 
 
 def _not_against_another_highway(edges) -> np.ndarray:
-    """For each edge: False if it is a highway and another highway edge joins the same two
-    nodes preferring the other way (the two would cancel out)."""
+    """For each edge: False if it is a highway and another routable edge joins the same two
+    nodes and lets vehicles drive against it without its price (a highway the other way, or
+    any edge from its target to its source, or a plain two-way edge): routing would take
+    that one, and the highway would prefer nothing."""
     ok = np.ones(len(edges), dtype=bool)
-    ways = {(e.source, e.target) for e in edges if e.highway}
-    if not ways:
+    if not any(e.highway for e in edges):
         return ok
     for i, e in enumerate(edges):
-        if e.highway and (e.target, e.source) in ways:
+        if e.highway and _against(edges, i) is not None:
             ok[i] = False
     return ok
 
 
-def _opposite_highway(edges, i: int) -> int:
-    """The index of the highway edge that prefers the way back of ``edges[i]``."""
+def _against(edges, i: int) -> int | None:
+    """The index of an edge that lets vehicles drive against highway ``edges[i]`` unpriced."""
     e = edges[i]
-    return next(
-        k for k, o in enumerate(edges) if o.highway and (o.source, o.target) == (e.target, e.source)
-    )
+    for k, o in enumerate(edges):
+        if k == i or not o.routable:
+            continue
+        if (o.source, o.target) == (e.target, e.source) or (
+            (o.source, o.target) == (e.source, e.target) and o.bidirectional and not o.highway
+        ):
+            return k
+    return None
 
 
 def _node_indices(plant: Plant, values: list[object]) -> np.ndarray:
