@@ -82,6 +82,7 @@ from blocks.routing.heuristic import distances_to  # noqa: E402
 from blocks.traffic.one_step import OneStepPlanner  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
+from plc_runtime.cli import non_negative, positive, whole  # noqa: E402
 from topology import Plant  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 from topology.samples import KIVA_HEIGHT, KIVA_WIDTH, kiva  # noqa: E402
@@ -126,39 +127,62 @@ class Instance:
 
 
 def read_instance(path: Path) -> Instance:
+    """The instance at ``path``, checked: a bad one stops here with one line naming the
+    file and what is wrong, not with a traceback or a run that cannot end (robots sharing a
+    start cell would make the planner void plans for ever, each waiting for the other)."""
     try:
         spec = json.loads(path.read_text())
+        if not isinstance(spec, dict):
+            raise ValueError("not a JSON object")
+        for key in ("mapFile", "agentFile", "taskFile", "teamSize"):
+            if key not in spec:
+                raise ValueError(f"missing key {key!r}")
         base = path.parent
         passable = read_map(base / spec["mapFile"])
         starts = read_locations(base / spec["agentFile"])
         tasks = read_locations(base / spec["taskFile"])
-        team = int(spec["teamSize"])
-    except (OSError, KeyError, ValueError, TypeError) as e:
+    except (OSError, ValueError, TypeError) as e:
         raise InstanceError(f"{path}: {e}") from e
+    team = spec["teamSize"]
+    if type(team) is not int or team < 1:  # not isinstance: a bool is an int
+        raise InstanceError(f"{path}: teamSize must be a whole number >= 1, got {json.dumps(team)}")
     if spec.get("taskAssignmentStrategy", "roundrobin") != "roundrobin":
         raise InstanceError(f"{path}: only roundrobin task assignment is modelled")
     if len(starts) < team:
-        raise InstanceError(f"{path}: {len(starts)} start locations for a team of {team}")
+        raise InstanceError(
+            f"{path}: teamSize {team}, but {spec['agentFile']} gives {len(starts)} starts"
+        )
+    if not tasks:
+        raise InstanceError(f"{path}: {spec['taskFile']} lists no tasks")
     cells = passable.size
     for what, locations in (("start", starts), ("task", tasks)):
         for k, loc in enumerate(locations):
             if not (0 <= loc < cells and passable.flat[loc]):
                 raise InstanceError(f"{path}: {what} {k} at {loc} is not a free cell of the map")
+    robot_at: dict[int, int] = {}
+    for k, loc in enumerate(starts[:team]):
+        if loc in robot_at:
+            raise InstanceError(f"{path}: start {k} at {loc} is also robot {robot_at[loc]}'s start")
+        robot_at[loc] = k
     return Instance(Path(spec["mapFile"]).stem, passable, starts[:team], tasks, team)
 
 
 def read_map(path: Path) -> np.ndarray:
     lines = path.read_text().splitlines()
-    header = {}
-    for i, line in enumerate(lines):
-        if line.strip() == "map":
-            rows = lines[i + 1 : i + 1 + int(header["height"])]
-            break
-        key, _, value = line.partition(" ")
-        header[key] = value
-    else:
-        raise ValueError(f"{path}: no 'map' line")
-    width = int(header["width"])
+    try:
+        at = [line.strip() for line in lines].index("map")
+    except ValueError:
+        raise ValueError(f"{path}: no 'map' line") from None
+    header = dict(line.partition(" ")[::2] for line in lines[:at])
+    try:
+        height, width = int(header["height"]), int(header["width"])
+    except (KeyError, ValueError):
+        height = width = 0
+    if height < 1 or width < 1:
+        raise ValueError(f"{path}: the header needs lines 'height N' and 'width N', N >= 1")
+    rows = lines[at + 1 : at + 1 + height]
+    if len(rows) < height:
+        raise ValueError(f"{path}: the map is short: {len(rows)} rows for height {height}")
     for y, row in enumerate(rows):
         if len(row) != width or set(row) - set(".ESGT@"):
             raise ValueError(f"{path}: map row {y} is not {width} cells of . E S @ T")
@@ -166,8 +190,11 @@ def read_map(path: Path) -> np.ndarray:
 
 
 def read_locations(path: Path) -> list[int]:
-    values = [int(v) for v in path.read_text().split()]
-    if not values or len(values) - 1 < values[0]:
+    try:
+        values = [int(v) for v in path.read_text().split()]
+    except ValueError:
+        values = []  # not whole numbers: the same error
+    if not values or not 0 <= values[0] <= len(values) - 1:
         raise ValueError(f"{path}: the first number is the count, then that many locations")
     return values[1 : 1 + values[0]]
 
@@ -612,21 +639,18 @@ def summary(result: dict) -> dict:
     }
 
 
-def positive(text: str) -> int:
-    """An argument that must be a whole number of at least 1."""
+def load(path: Path) -> Instance:
+    """:func:`read_instance`, or exit with its one-line error."""
     try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
+        return read_instance(path)
+    except InstanceError as e:
+        sys.exit(f"lorr.py: {e}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("instance", nargs="?", type=Path)
-    ap.add_argument("--steps", type=positive, default=None)
+    ap.add_argument("--steps", type=positive(int), default=None)
     ap.add_argument(
         "--traffic",
         choices=list(TRAFFIC),
@@ -644,18 +668,22 @@ def main() -> None:
     )
     ap.add_argument(
         "--kiva",
-        type=int,
+        type=positive(int),
         nargs="+",
         metavar="ROBOTS",
         help="run RHCR's kiva map with these fleet sizes instead of the instances",
     )
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="--kiva's seeds")
+    ap.add_argument("--seeds", type=whole, nargs="+", default=[0, 1, 2], help="--kiva's seeds")
     ap.add_argument("--out", type=Path)
     ap.add_argument("--data", type=Path, default=DATA, help="the instances' folder (its README)")
-    ap.add_argument("--plan-budget", type=int, default=PLAN_BUDGET)
-    ap.add_argument("--stay-s", type=float, default=3.0)
+    ap.add_argument("--plan-budget", type=positive(int), default=PLAN_BUDGET)
+    ap.add_argument("--stay-s", type=non_negative, default=3.0)
     ap.add_argument("--quick", action="store_true", help="100 robots, 50 steps per instance")
     args = ap.parse_args()
+    if args.kiva and max(args.kiva) > (free := kiva().n):
+        ap.error(
+            f"argument --kiva: {max(args.kiva)} robots, but the kiva map has {free} free cells"
+        )
     if args.traffic is None:
         args.traffic = ["time_windows"] if args.instance is not None else list(TRAFFIC)
     begin = time.perf_counter()
@@ -667,10 +695,7 @@ def main() -> None:
     if args.instance is not None:
         if len(args.traffic) > 1:
             sys.exit("lorr.py: one --traffic mode with an INSTANCE")
-        try:
-            instance = read_instance(args.instance)
-        except InstanceError as e:
-            sys.exit(f"lorr.py: {e}")
+        instance = load(args.instance)
         result = solve(args.traffic[0], instance, args.steps or 500, args)
         stats = result.pop("_stats")
         if args.out:
@@ -709,7 +734,7 @@ def main() -> None:
         if not (data / rel).exists():
             print(f"| {rel} | skipped: not in {data} |")
             continue
-        instance = read_instance(data / rel)
+        instance = load(data / rel)
         if args.quick:
             steps = 50
         steps = args.steps or steps

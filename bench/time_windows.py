@@ -50,6 +50,7 @@ sys.path.insert(0, str(ROOT))
 from blocks.traffic.path_heat import arc_usage, heat_weights  # noqa: E402
 from blocks.traffic.sipp import SafeIntervalSearch, TimedPlan, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable  # noqa: E402
+from plc_runtime.cli import non_negative, positive  # noqa: E402
 from topology import Plant  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 
@@ -315,8 +316,8 @@ def pct(new: float, old: float) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cell-m", type=float, default=6.0)
-    ap.add_argument("--dwell-s", type=float, default=10.0)
+    ap.add_argument("--cell-m", type=positive(float), default=6.0)
+    ap.add_argument("--dwell-s", type=non_negative, default=10.0)
     ap.add_argument("--quick", action="store_true", help="the same tables (they are cheap)")
     args = ap.parse_args()
     begin = time.perf_counter()

@@ -50,6 +50,7 @@ import gc
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fleet_scale import FUNCTION, ScanRecorder, make_program, timestep_s  # noqa: E402
 
 from blocks.traffic.tw_traffic import PLAN_ORDERS  # noqa: E402
+from plc_runtime.cli import positive, whole  # noqa: E402
 from topology import kiva, warehouse  # noqa: E402
 from vehicles.agv import AgvParams  # noqa: E402
 
@@ -141,7 +143,7 @@ def run_size(
         gc.unfreeze()
     rt = program.rt
     simulated = cycles * cycle_time
-    whole, control = recorder.arrays()
+    scans, control = recorder.arrays()
     last: dict[int, float] = dict.fromkeys(program.vehicles, 0.0)
     for run in program.completed:
         if run.finished_s is not None:
@@ -188,7 +190,7 @@ def run_size(
         else None,
         "last_task_s": finished[-1] if finished else None,
         "mean_d": mean_d,
-        "whole_us": [np.percentile(whole, q) / 1e3 for q in (50, 99)] if len(whole) else [0, 0],
+        "whole_us": [np.percentile(scans, q) / 1e3 for q in (50, 99)] if len(scans) else [0, 0],
         "control_us": [np.percentile(control, q) / 1e3 for q in (50, 99)]
         if len(control)
         else [0, 0],
@@ -217,6 +219,23 @@ def single_vehicle_rate(plant_name: str, timesteps: int, cycle: float, watchdog:
     lower, and flatter the fleets that take them."""
     r = run_size(1, timesteps, cycle, watchdog, plant_name, highway_factor=1.0)
     return r["tasks"] / r["timesteps"] if r["timesteps"] else float("nan")
+
+
+def between(low: float, high: float) -> Callable[[str], float]:
+    """An argparse type: a finite number from ``low`` to ``high``, the range the fleet's
+    configuration accepts for the option, so that a bad one stops at the command line
+    with the option named, not after the single vehicle's long run."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not low <= value <= high:  # nan and inf fail it too
+            raise argparse.ArgumentTypeError(f"must be a number from {low:g} to {high:g}: {text!r}")
+        return value
+
+    return parse
 
 
 def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
@@ -252,8 +271,8 @@ def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[60, 100, 140])
-    parser.add_argument("--timesteps", type=int, default=5000)
+    parser.add_argument("--sizes", type=positive(int), nargs="+", default=[60, 100, 140])
+    parser.add_argument("--timesteps", type=positive(int), default=5000)
     parser.add_argument("--plant", nargs="+", choices=sorted(PLANTS), default=["kiva", "warehouse"])
     parser.add_argument(
         "--traffic",
@@ -264,20 +283,20 @@ def main() -> None:
     )
     parser.add_argument(
         "--delay-rate",
-        type=float,
+        type=between(0.0, 1.0),
         nargs="+",
         default=[0.0],
         help="random stops of 1-10 s: the chance per second and vehicle (0: none)",
     )
     parser.add_argument(
         "--plan-budget",
-        type=int,
+        type=positive(int),
         default=None,
         help="time_windows: search expansions per scan (default: the configuration's)",
     )
     parser.add_argument(
         "--highway-factor",
-        type=float,
+        type=between(1.0, 1e6),
         default=None,
         help="cost factor against a highway lane (kiva's long lanes; default: the "
         "configuration's, 3; 1 ignores them)",
@@ -290,15 +309,15 @@ def main() -> None:
     )
     parser.add_argument(
         "--seeds",
-        type=int,
+        type=whole,
         nargs="+",
         default=[0],
         help="seeds of the starts and tasks, one run each (a summary over them follows)",
     )
-    parser.add_argument("--bound-timesteps", type=int, default=BOUND_TIMESTEPS)
+    parser.add_argument("--bound-timesteps", type=positive(int), default=BOUND_TIMESTEPS)
     parser.add_argument("--json", action="store_true", help="one JSON object per run, per line")
-    parser.add_argument("--cycle-ms", type=float, default=50.0)
-    parser.add_argument("--watchdog-ms", type=float, default=1000.0)
+    parser.add_argument("--cycle-ms", type=between(0.1, 1000.0), default=50.0)
+    parser.add_argument("--watchdog-ms", type=between(1.0, 6000.0), default=1000.0)
     parser.add_argument(
         "--quick",
         action="store_true",
@@ -308,6 +327,12 @@ def main() -> None:
     if args.quick:
         parser.set_defaults(**QUICK)
         args = parser.parse_args()
+    for p in args.plant:  # before the single vehicle's run: a bad size fails at once
+        if max(args.sizes) > (nodes := PLANTS[p]().n):
+            parser.error(
+                f"argument --sizes: {max(args.sizes)} vehicles, but {p} has {nodes} nodes "
+                "to start on"
+            )
     timesteps = args.timesteps
     cycle = args.cycle_ms / 1e3
     watchdog = args.watchdog_ms / 1e3
