@@ -54,7 +54,7 @@ def order_summary(system: OrderSystem) -> dict[str, Any]:
     d = system.dispatcher
     return {
         "orders": system.book.counts(),
-        "orders_pending_release": system.feed.pending,
+        "orders_pending_release": len(system.intake.pending),
         "mean_order_time_s": round(mean(times), 3) if times else None,
         "station_wait_s": round(mean(waiting_s(o) for o in finished), 3) if finished else None,
         "makespan_s": round(max(o.finished_s for o in finished), 3) if finished else None,

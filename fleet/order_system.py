@@ -14,7 +14,6 @@ orders due at once is released ``RELEASE_BUDGET`` orders a scan, in the feed's o
 from __future__ import annotations
 
 import queue
-from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Future
 
@@ -116,13 +115,10 @@ class OrderIntake(FunctionBlock):
         # the configured orders not released yet: their ids are taken, and the operator may
         # withdraw them before they are released
         self.pending: dict[str, TransportOrder] = {o.id: o for o in configured}
-        self._due: deque[TransportOrder] = deque()  # released by the feed, not in the book yet
         self.requests: queue.SimpleQueue = queue.SimpleQueue()
 
     def cycle(self, ctx: CycleContext) -> None:
-        self._due.extend(self.feed.due(ctx.time))
-        for _ in range(min(self.budget, len(self._due))):
-            order = self._due.popleft()
+        for order in self.feed.due(ctx.time, self.budget):
             if self.pending.pop(order.id, None) is not None:  # else withdrawn before release
                 self.book.add(_fresh(order), ctx.time)  # checked against the plant at start
         for _ in range(self.budget):

@@ -49,3 +49,12 @@ def no_alarm_left_behind():
     yield
     signal.setitimer(signal.ITIMER_REAL, 0)
     signal.signal(signal.SIGALRM, handler)
+
+
+@pytest.fixture
+def made():
+    """Programs a test makes (it appends each), closed after it whatever the outcome."""
+    programs = []
+    yield programs
+    for p in programs:
+        p.close()

@@ -253,6 +253,15 @@ def test_the_feed_releases_each_order_once_lead_s_before_its_start():
     assert feed.pending == 0 and feed.due(20_000.0) == []
 
 
+def test_the_feed_hands_out_at_most_a_limit_a_call_in_start_order():
+    orders = [TransportOrder(f"o{k}", 1, 10, start_s=float(k)) for k in range(7)]
+    feed = OrderFeed(orders, lead_s=0.0)
+    assert [o.id for o in feed.due(100.0, 3)] == ["o0", "o1", "o2"]
+    assert [o.id for o in feed.due(100.0, 3)] == ["o3", "o4", "o5"]
+    assert [o.id for o in feed.due(4.0, 3)] == []  # o6 is not due before 6 s
+    assert [o.id for o in feed.due(6.0, 3)] == ["o6"] and feed.pending == 0
+
+
 def test_the_feed_keeps_about_70_orders_known_at_420_an_hour():
     orders = generate_orders(SEED_RELATIONS, UNITS, 4 * 3600.0, seed=1, control_station=CONTROL)
     feed = OrderFeed(orders)

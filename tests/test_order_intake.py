@@ -12,6 +12,7 @@ from test_orders_program import config, run, start
 
 from blocks.dispatch.order_file import OrderFileError, load_orders, write_orders
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder, check_order
+from fleet.order_report import order_summary
 from fleet.order_system import RELEASE_BUDGET
 from fleet.web.models import OrderIn
 from plc_runtime.errors import ConfigError
@@ -19,14 +20,6 @@ from plc_runtime.errors import ConfigError
 LATER = "id,get,put,start_s\nlater,20,25,70\n"  # released at 10 s (lead 60 s)
 RECIPES = '[[recipes]]\nname = "drill-inspect"\nfunctions = [5, 6, 1]\n'
 RECIPE_VEHICLE = '[[vehicles]]\nid = 1\nstart = 0\nrecipes = ["drill-inspect"]\n'
-
-
-@pytest.fixture
-def made():
-    programs = []
-    yield programs
-    for p in programs:
-        p.close()
 
 
 def released(book) -> int:
@@ -81,6 +74,7 @@ def test_a_large_order_file_is_released_a_budget_a_scan_in_its_order(tmp_path, m
         run(p, p.cfg.cycle_time)  # one scan; asserts no fault
         assert released(book) - before <= RELEASE_BUDGET, scan
         assert book.counts()["RAW"] == 0, scan
+        assert order_summary(p.orders)["orders_pending_release"] == n - len(book), scan
         if scan == 0:  # already due, not yet in the book: withdrawn, it is never released
             last = p.orders.withdraw(f"o{n - 1}")
     assert last.result(0).state is OrderState.WITHDRAWN

@@ -50,14 +50,6 @@ def run(p: FleetProgram, seconds: float) -> None:
         assert p.rt.state == "RUN", p.rt.fault_reason
 
 
-@pytest.fixture
-def made():
-    programs = []
-    yield programs
-    for p in programs:
-        p.close()
-
-
 def start(cfg, made) -> FleetProgram:
     p = FleetProgram(cfg)
     made.append(p)
@@ -252,56 +244,31 @@ def test_every_reachable_order_finishes_once_and_no_battery_runs_empty(
         p.close()
 
 
-LOOP = """name = "loop"
-[functions]
-0 = "entry"
-1 = "exit"
-2 = "get"
-3 = "put"
-[[nodes]]
-id = 0
-role = "entry"
-functions = [0]
-[[nodes]]
-id = 1
-x = 1.0
-[[nodes]]
-id = 2
-x = 2.0
-role = "station"
-functions = [2]
-[[nodes]]
-id = 3
-x = 3.0
-[[nodes]]
-id = 4
-x = 3.0
-y = 1.0
-role = "station"
-functions = [3]
-[[nodes]]
-id = 5
-y = 1.0
-role = "exit"
-functions = [1]
-[[nodes]]
-id = 6
-x = 1.0
-y = 1.0
-[[nodes]]
-id = 7
-x = 2.0
-y = 1.0
-[[nodes]]
-id = 9
-x = 2.0
-y = -1.0
-role = "queue"
-queue_for = 2
-""" + "".join(
-    f"[[edges]]\nfrom = {a}\nto = {b}\nlength = 1.0\n"
-    for a, b in ((0, 1), (1, 2), (2, 3), (3, 4), (4, 7), (7, 6), (6, 5), (5, 0), (1, 6), (1, 9))
-)
+def _loop() -> str:
+    """A loop of eight nodes: Get station 2 with a queue place (9), Put station 4 without
+    one, no parking."""
+    nodes = [  # id, x, y, extra keys
+        (0, 0, 0, 'role = "entry"\nfunctions = [0]'),
+        (1, 1, 0, ""),
+        (2, 2, 0, 'role = "station"\nfunctions = [2]'),
+        (3, 3, 0, ""),
+        (4, 3, 1, 'role = "station"\nfunctions = [3]'),
+        (5, 0, 1, 'role = "exit"\nfunctions = [1]'),
+        (6, 1, 1, ""),
+        (7, 2, 1, ""),
+        (9, 2, -1, 'role = "queue"\nqueue_for = 2'),
+    ]
+    edges = ((0, 1), (1, 2), (2, 3), (3, 4), (4, 7), (7, 6), (6, 5), (5, 0), (1, 6), (1, 9))
+    return (
+        'name = "loop"\n[functions]\n0 = "entry"\n1 = "exit"\n2 = "get"\n3 = "put"\n'
+        + "".join(
+            f"[[nodes]]\nid = {n}\nx = {x}.0\ny = {y}.0\n{extra}\n" for n, x, y, extra in nodes
+        )
+        + "".join(f"[[edges]]\nfrom = {a}\nto = {b}\nlength = 1.0\n" for a, b in edges)
+    )
+
+
+LOOP = _loop()
 
 
 def test_a_vehicle_pushed_onto_a_station_it_waits_for_is_served_there(tmp_path, made):

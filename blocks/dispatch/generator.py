@@ -198,13 +198,13 @@ class OrderFeed:
         self._orders = sorted(orders, key=lambda o: o.start_s)
         self._next = 0
 
-    def due(self, now_s: float) -> list[TransportOrder]:
-        """The orders released by ``now_s`` and not handed out before, by start time."""
+    def due(self, now_s: float, limit: int | None = None) -> list[TransportOrder]:
+        """The orders released by ``now_s`` and not handed out before, by start time; at
+        most ``limit`` of them (the rest on the next calls), so a call's cost stays bounded
+        however many orders fall due at once."""
         first = self._next
-        while (
-            self._next < len(self._orders)
-            and self._orders[self._next].start_s - self.lead_s <= now_s
-        ):
+        end = len(self._orders) if limit is None else min(len(self._orders), first + limit)
+        while self._next < end and self._orders[self._next].start_s - self.lead_s <= now_s:
             self._next += 1
         return self._orders[first : self._next]
 
