@@ -206,7 +206,7 @@ def test_list_reads_every_page(ctl, capsys, monkeypatch):
         ),
         (
             ["add", "--token", "bad\ntoken", "--id", "e1", "--get", "21", "--put", "23"],
-            "--token: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only)",
+            "--token: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only, and = at its end)",
         ),
     ],
 )
@@ -400,8 +400,8 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
         ([str(CONFIG), "--web", "127.0.0.1:99999"], "expected HOST:PORT"),
         (
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "short"],
-            "--web-token: a bearer token needs 16 characters or more of A-Z a-z 0-9 - . _ ~ + / "
-            "(got 5 characters)",
+            "--web-token: a bearer token needs 16 characters or more of A-Z a-z 0-9 - . _ ~ + /, "
+            "and = only at its end (got 5 characters)",
         ),
         (
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "with spaces in the token"],

@@ -137,7 +137,9 @@ class Api:
         where = "--token" if token is not None else TOKEN_ENV
         self.token = token if token is not None else os.environ.get(TOKEN_ENV)
         if self.token is not None and not bearer_token(self.token):
-            raise CliError(f"{where}: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only)")
+            raise CliError(
+                f"{where}: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only, and = at its end)"
+            )
         self._open = urllib.request.build_opener(urllib.request.ProxyHandler({}), _NoRedirect).open
 
     def all_orders(self) -> list[dict[str, Any]]:

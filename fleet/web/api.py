@@ -34,30 +34,38 @@ is about no field): 400 unreadable JSON, 422 a field is wrong, 404 no such order
 node, segment or tag (or path), 403 a tag that is read-only, 409 the id is in use, the
 order cannot be withdrawn in its state, or no vehicle takes orders, 503 the controller is
 not scanning, the run has ended or every stream place is taken, 500 a bug (its traceback
-is logged); 400/401/403/413/429 from the guard (:mod:`fleet.web.guard`). On every error
-nothing has changed.
+is logged); 400/401/403/408/413/429/503 from the guard (:mod:`fleet.web.guard`). On every
+error nothing has changed.
+
+Integers in paths and query strings are decimal digits only, and a query parameter or a
+key of a JSON body may be given once: what the parsers would read otherwise (``1_0`` as
+10, ``1.0`` as 1, the last of two values) is refused, 422 naming it.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 from concurrent.futures import Future
 from pathlib import Path as FilePath
 from typing import Annotated, Any
 from urllib.parse import quote
 
-from fastapi import FastAPI, Path, Query, Request, Security
+from fastapi import Depends, FastAPI, Path, Query, Request, Security
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from fastapi.security import HTTPBearer
 from fastapi.staticfiles import StaticFiles
+from pydantic import BeforeValidator
+from pydantic_core import PydanticCustomError
 from starlette.exceptions import HTTPException
+from starlette.types import Receive, Scope, Send
 
 from blocks.dispatch.orders import OrderError, check_order
 
 from . import views
 from .desk import MAX_OFFSET, MAX_PAGE, ControllerStopped, OrderDesk
-from .feed import Busy, LiveFeed
+from .feed import Busy, LiveFeed, Stream
 from .fleet_desk import MAX_WATCH, FleetDesk, Refusal
 from .gate import ScanGate
 from .models import (
@@ -86,9 +94,24 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorOut} for code in (400, 404, 409, 413, 422, 429, 503)
 }
 _WRITE_ERRORS = {**_ERRORS, 401: {"model": ErrorOut}, 403: {"model": ErrorOut}}
-_BODY_ERRORS = {**_WRITE_ERRORS, 415: {"model": ErrorOut}}  # a body sent as other than JSON
+# a body sent as other than JSON (415), or too slowly (408)
+_BODY_ERRORS = {**_WRITE_ERRORS, 408: {"model": ErrorOut}, 415: {"model": ErrorOut}}
+
+
+def _digits(value: object) -> object:
+    """An integer in a path or query string must be written in the digits 0-9 only: pydantic
+    (like int()) would also read ``1_0`` as 10, ``+1``, `` 1`` and ``1.0`` as 1, so a typo
+    would name another vehicle or segment instead of being refused."""
+    if isinstance(value, str) and not (value.isascii() and value.isdigit()):
+        raise PydanticCustomError("int_digits", "expected a whole number in the digits 0-9 only")
+    return value
+
+
+Digits = BeforeValidator(_digits)
 OrderId = Annotated[str, Path(description="the order's id (URL-encoded)")]
-NodeId = Annotated[int, Path(ge=0, le=0xFFFF, description="a node at one end of the segment")]
+NodeId = Annotated[
+    int, Path(ge=0, le=0xFFFF, description="a node at one end of the segment"), Digits
+]
 TagName = Annotated[str, Path(min_length=1, max_length=100, description="the tag's name")]
 PAGE_DIR = FilePath(__file__).with_name("page")
 # the page loads nothing from elsewhere, and no other site may frame it
@@ -124,6 +147,7 @@ def build_app(
         docs_url=None,  # the interactive pages load scripts from a CDN; openapi.json is enough
         redoc_url=None,
         redirect_slashes=False,
+        dependencies=[Depends(_given_once)],
     )
     tag_catalogue: list[dict[str, Any]] = []  # the tag table does not change while running
     plant_model: dict[str, Any] = {}  # nor does the plant
@@ -180,7 +204,7 @@ def build_app(
 
     @app.get(f"{PREFIX}/vehicles/{{vehicle}}", response_model=VehicleOut, responses=_ERRORS)
     async def show_vehicle(
-        vehicle: Annotated[int, Path(ge=0, le=0xFFFF, description="the vehicle's id")],
+        vehicle: Annotated[int, Path(ge=0, le=0xFFFF, description="the vehicle's id"), Digits],
     ) -> JSONResponse:
         """One vehicle (404: no such vehicle)."""
         copied = await ask(fleet.ask_vehicle(vehicle), "vehicle")
@@ -189,8 +213,10 @@ def build_app(
     # ----- orders ---------------------------------------------------------------------------
     @app.get(f"{PREFIX}/orders", response_model=OrderPage, responses=_ERRORS)
     async def list_orders(
-        offset: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="first order, from 0")] = 0,
-        limit: Annotated[int, Query(ge=1, le=MAX_PAGE, description="orders at most")] = (
+        offset: Annotated[
+            int, Query(ge=0, le=MAX_OFFSET, description="first order, from 0"), Digits
+        ] = 0,
+        limit: Annotated[int, Query(ge=1, le=MAX_PAGE, description="orders at most"), Digits] = (
             DEFAULT_PAGE
         ),
     ) -> OrderPage:
@@ -336,8 +362,12 @@ def build_app(
 
     @app.get(f"{PREFIX}/events", response_model=EventPage, responses=_ERRORS)
     async def list_events(
-        after: Annotated[int, Query(ge=0, le=MAX_OFFSET, description="the last event seen")] = 0,
-        limit: Annotated[int, Query(ge=1, le=MAX_EVENTS, description="events at most")] = 100,
+        after: Annotated[
+            int, Query(ge=0, le=MAX_OFFSET, description="the last event seen"), Digits
+        ] = 0,
+        limit: Annotated[int, Query(ge=1, le=MAX_EVENTS, description="events at most"), Digits] = (
+            100
+        ),
     ) -> JSONResponse:
         """The event log, oldest first: events numbered after `after`, at most `limit`."""
         return JSONResponse(
@@ -361,14 +391,9 @@ def build_app(
         stays (vehicles, closed segments, the scan's counters, order counts and the
         orders that changed)."""
         try:
-            body = feed.open_stream()
+            return _EventStream(feed.open_stream())
         except Busy as exc:
             raise ApiError(503, f"stream: {exc}; retry later") from None
-        return StreamingResponse(
-            body,
-            media_type="text/event-stream",
-            headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
-        )
 
     # ----- the operator's page ---------------------------------------------------------------
     @app.get("/", include_in_schema=False)
@@ -402,6 +427,60 @@ def openapi_schema() -> dict[str, Any]:
     the routes need their desks only when a request comes."""
     unused: Any = None
     return build_app(unused, unused, unused, unused).openapi()
+
+
+class _EventStream(StreamingResponse):
+    """The live feed's response: it closes its stream however it ends, also when it never
+    started (the client went away first), so the stream's place is always given back."""
+
+    def __init__(self, stream: Stream) -> None:
+        super().__init__(
+            stream.events,
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+        )
+        self._stream = stream
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            await self._stream.close()
+
+
+class _Repeated(Exception):
+    """A key given twice in one JSON object."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """json's ``object_pairs_hook``: the object, or _Repeated naming the first key given twice."""
+    obj: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in obj:
+            raise _Repeated(key)
+        obj[key] = value
+    return obj
+
+
+async def _given_once(request: Request) -> None:
+    """Every route's dependency: a query parameter or a key of the JSON body given twice is
+    refused (422 naming it). The parsers would keep the last value silently, and the client
+    may have meant the first. Runs after FastAPI has read the body (it is cached) and
+    before the route's own checks, so nothing is changed."""
+    seen: set[str] = set()
+    for name, _ in request.query_params.multi_items():
+        if name in seen:
+            raise ApiError(422, f"field '{name}': given more than once in the query", name)
+        seen.add(name)
+    if not _body_fields(request):
+        return
+    try:
+        json.loads(await request.body(), object_pairs_hook=_unique_keys)
+    except _Repeated as exc:
+        key = str(exc)
+        raise ApiError(422, f"field '{key}': given more than once in the JSON", key) from None
+    except ValueError:  # not JSON: the route's body check says so
+        pass
 
 
 class _Static(StaticFiles):

@@ -31,7 +31,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncGenerator
 from typing import Any
 
 from ..program import FleetProgram
@@ -163,30 +163,46 @@ class LiveFeed:
             self._whole = _event(whole)
         return self._whole
 
-    def open_stream(self) -> AsyncIterator[bytes]:
-        """A client's stream (Busy when every place is taken). The place is taken when the
-        stream starts and given back when it ends, however it ends."""
+    def open_stream(self) -> Stream:
+        """A client's stream (Busy when every place is taken). Its place is taken here,
+        where it is checked, so clients that come all at once cannot all pass the check
+        before any stream has started; :meth:`Stream.close` gives it back."""
         if self.streams >= self.max_streams:
             raise Busy(f"{self.streams} clients are streaming already (the limit)")
-        return self._stream()
+        return Stream(self)
 
-    async def _stream(self) -> AsyncIterator[bytes]:
-        self.streams += 1
-        try:
-            yield b"retry: 1000\n\n"
-            seen = 0
-            while True:
-                if self._version != seen:
-                    kept_up = seen and seen == self._version - 1
-                    seen = self._version
-                    yield self._delta if kept_up else self._whole_snapshot()
-                    continue
-                changed = self._changed
-                if changed is None:
-                    return
-                try:
-                    await asyncio.wait_for(changed.wait(), KEEPALIVE_S)
-                except TimeoutError:
-                    yield b": keep-alive\n\n"
-        finally:
-            self.streams -= 1
+    async def _events(self) -> AsyncGenerator[bytes, None]:
+        yield b"retry: 1000\n\n"
+        seen = 0
+        while True:
+            if self._version != seen:
+                kept_up = seen and seen == self._version - 1
+                seen = self._version
+                yield self._delta if kept_up else self._whole_snapshot()
+                continue
+            changed = self._changed
+            if changed is None:
+                return
+            try:
+                await asyncio.wait_for(changed.wait(), KEEPALIVE_S)
+            except TimeoutError:
+                yield b": keep-alive\n\n"
+
+
+class Stream:
+    """A client's place among the streams, and its events (``events``). Whoever opens it
+    closes it, however the response ends: at its end, on an error, or before it has
+    started (a generator never started runs no ``finally``, so it cannot be trusted to
+    give the place back itself)."""
+
+    def __init__(self, feed: LiveFeed) -> None:
+        feed.streams += 1
+        self._feed: LiveFeed | None = feed
+        self.events = feed._events()
+
+    async def close(self) -> None:
+        """Give the place back (once) and end the events."""
+        feed, self._feed = self._feed, None
+        if feed is not None:
+            feed.streams -= 1
+        await self.events.aclose()

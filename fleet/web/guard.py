@@ -3,33 +3,43 @@
 In this order, each refusal one JSON error (``{"error": ..., "field": null}``) and nothing
 changed:
 
-1. **Host** (only when the server listens on loopback): the ``Host`` header must name a
+1. **Rate**: at most ``max_rate`` requests per second from one client address (a token
+   bucket holding one second's worth), else 429 with ``Retry-After``. First, so every
+   refusal below costs a client its rate too, and guessing tokens is as slow as
+   everything else.
+2. **Host** (only when the server listens on loopback): the ``Host`` header must name a
    loopback address or ``localhost``, else 400. A web page that rebinds its own DNS name to
    127.0.0.1 could otherwise read the API from a browser on this machine.
-2. **Rate**: at most ``max_rate`` requests per second from one client address (a token
-   bucket holding one second's worth), else 429 with ``Retry-After``. Before the token, so
-   guessing tokens is as slow as everything else.
 3. **Token** for the methods that change something (POST, PUT, DELETE): ``Authorization: Bearer
    TOKEN``; none (or another scheme) is 401, a wrong one 403. Compared in constant time.
    Checked before the body is read, so no unauthenticated body is even parsed.
 4. **Body size**: at most ``max_body`` bytes (a declared ``Content-Length`` over it is
    refused before reading; a chunked body is counted while it arrives), else 413.
-5. **Requests in flight**: at most ``max_in_flight`` at once (each may wait up to the
-   answer timeout for the scan), else 503. A stream (``unmetered`` paths) lasts as long
-   as its client stays, so it is not counted here; the live feed limits streams itself.
+5. **Body time**: the whole body within ``body_timeout`` seconds of the headers, else 408
+   and the connection is closed: a client that declares a body and sends it slowly (or
+   never) holds nothing but its own connection, and that only for so long.
+6. **Requests in flight**: at most ``max_in_flight`` at once (each may wait up to the
+   answer timeout for the scan), else 503. A request counts only once its body is in,
+   so clients that are still sending cannot take the places of those that have sent. A
+   stream (``unmetered`` paths) lasts as long as its client stays, so it is not counted
+   here; the live feed limits streams itself.
 
 A request that passed waits for the end of the next scan before the application sees it
 (``gate``, :mod:`fleet.web.gate` says why).
 
-Refusals of 1 to 4 are logged, one warning line each (who, what, why), like the Modbus
-server's; a client refused for its rate is logged once per second at most.
+Refusals of 2 to 5 are logged, one warning line each (who, what, why), like the Modbus
+server's; those that a client can repeat without limit, a foreign host, a late body and
+the rate, once per second per client address at most, so a flood of them cannot flood the
+log too.
 """
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import json
 import logging
+import math
 import secrets
 import time
 from collections.abc import Awaitable, Callable, MutableMapping
@@ -49,6 +59,7 @@ WRITE_METHODS = frozenset({"POST", "DELETE", "PUT", "PATCH"})
 MAX_BODY = 16 * 1024
 MAX_IN_FLIGHT = 32
 MAX_RATE = 100.0  # requests per second from one client address
+BODY_TIMEOUT = 5.0  # seconds for the request body to arrive once the headers have
 MAX_CLIENTS = 1024  # addresses whose rate is tracked; the idlest is forgotten beyond
 
 
@@ -63,6 +74,7 @@ class Guard:
         max_body: int = MAX_BODY,
         max_in_flight: int = MAX_IN_FLIGHT,
         max_rate: float = MAX_RATE,
+        body_timeout: float = BODY_TIMEOUT,
         unmetered: tuple[str, ...] = (),
         gate: ScanGate | None = None,
     ) -> None:
@@ -73,32 +85,33 @@ class Guard:
         self.max_body = max_body
         self.max_in_flight = max_in_flight
         self.max_rate = max_rate
+        self.body_timeout = body_timeout
         self.unmetered = frozenset(unmetered)
         self.gate = gate
         self.in_flight = 0  # only touched in the server's event loop
+        self.receiving = 0  # requests whose body is arriving (not in flight yet)
         self.refused = 0  # requests refused, for the statistics
         self.clock: Callable[[], float] = time.monotonic  # seconds, for the rate
-        # client address -> (tokens, monotonic time of the last refill, last rate warning)
+        # client address -> (tokens, monotonic time of the last refill, last throttled warning)
         self._buckets: dict[str, list[float]] = {}
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
-        if self.loopback and not _loopback_host(headers.get("host")):
-            await self._refuse(
-                scope, send, 400, f"Host header {headers.get('host')!r} not accepted"
-            )
-            return
         if not self._admit(scope):
             self.refused += 1
-            await _reply(
+            await reply(
                 send,
                 429,
                 f"too many requests: the limit is {self.max_rate:g} per second per client",
                 [(b"retry-after", b"1")],
             )
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        if self.loopback and not _loopback_host(headers.get("host")):
+            why = f"Host header {headers.get('host')!r} not accepted"
+            await self._refuse(scope, send, 400, why, throttled=True)
             return
         if scope["method"] in WRITE_METHODS:
             scheme, _, given = headers.get("authorization", "").partition(" ")
@@ -119,21 +132,30 @@ class Guard:
                 f"request body of {int(declared):,} bytes: the limit is {self.max_body:,} bytes",
             )
             return
+        self.receiving += 1
+        try:
+            async with asyncio.timeout(self.body_timeout):
+                body = await self._body(receive)
+        except TimeoutError:
+            why = f"request body not received within {self.body_timeout:g} s"
+            await self._refuse(scope, send, 408, why, throttled=True, close=True)
+            return
+        finally:
+            self.receiving -= 1
+        if body is None:
+            await self._refuse(
+                scope, send, 413, f"request body over the limit of {self.max_body:,} bytes"
+            )
+            return
         metered = scope["path"] not in self.unmetered
         if metered and self.in_flight >= self.max_in_flight:
             self.refused += 1
-            await _reply(
+            await reply(
                 send, 503, f"too many requests in flight (the limit is {self.max_in_flight}): retry"
             )
             return
         self.in_flight += metered
         try:
-            body = await self._body(receive)
-            if body is None:
-                await self._refuse(
-                    scope, send, 413, f"request body over the limit of {self.max_body:,} bytes"
-                )
-                return
             if self.gate is not None:
                 await self.gate.wait()
             await self.app(scope, _replay(body, receive), send)
@@ -166,15 +188,14 @@ class Guard:
             if len(self._buckets) >= MAX_CLIENTS:
                 idlest = min(self._buckets, key=lambda a: self._buckets[a][1])
                 del self._buckets[idlest]
-            bucket = self._buckets[address] = [self.max_rate, now, -1.0]
+            bucket = self._buckets[address] = [self.max_rate, now, -math.inf]
         tokens = min(self.max_rate, bucket[0] + (now - bucket[1]) * self.max_rate)
         bucket[1] = now
         if tokens >= 1.0:
             bucket[0] = tokens - 1.0
             return True
         bucket[0] = tokens
-        if now - bucket[2] >= 1.0:
-            bucket[2] = now
+        if self._may_warn(address):
             log.warning(
                 "%s: refused %s %s from %s: 429, over %g requests per second",
                 self.where,
@@ -185,25 +206,49 @@ class Guard:
             )
         return False
 
-    async def _refuse(self, scope: Scope, send: Send, status: int, why: str) -> None:
+    def _may_warn(self, address: str) -> bool:
+        """Whether a throttled warning about ``address`` may be logged now (none in the
+        last second); if so, the time is noted."""
+        bucket = self._buckets.get(address)
+        now = self.clock()
+        if bucket is not None and now - bucket[2] < 1.0:
+            return False
+        if bucket is not None:
+            bucket[2] = now
+        return True
+
+    async def _refuse(
+        self,
+        scope: Scope,
+        send: Send,
+        status: int,
+        why: str,
+        *,
+        throttled: bool = False,
+        close: bool = False,
+    ) -> None:
+        """Answer ``status`` and log it (``throttled``: once a second per client at most);
+        ``close``: the connection is closed after the answer (its request is unfinished)."""
         self.refused += 1
         client = scope.get("client")
-        peer = f"{client[0]}:{client[1]}" if client else "?"
-        log.warning(
-            "%s: refused %s %s from %s: %d, %s",
-            self.where,
-            scope["method"],
-            scope["path"],
-            peer,
-            status,
-            why,
-        )
-        await _reply(send, status, why)
+        if not throttled or self._may_warn(client[0] if client else "?"):
+            peer = f"{client[0]}:{client[1]}" if client else "?"
+            log.warning(
+                "%s: refused %s %s from %s: %d, %s",
+                self.where,
+                scope["method"],
+                scope["path"],
+                peer,
+                status,
+                why,
+            )
+        await reply(send, status, why, [(b"connection", b"close")] if close else None)
 
 
-async def _reply(
+async def reply(
     send: Send, status: int, error: str, extra: list[tuple[bytes, bytes]] | None = None
 ) -> None:
+    """A refusal as the API's other errors are: one JSON line, about no field."""
     body = json.dumps({"error": error, "field": None}, separators=(",", ":")).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
     headers += extra or []

@@ -79,7 +79,7 @@ def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None
     if len(token) < MIN_TOKEN_CHARS or not bearer_token(token):
         raise CliError(
             f"{where}: a bearer token needs {MIN_TOKEN_CHARS} characters or more of "
-            "A-Z a-z 0-9 - . _ ~ + / (got "
+            "A-Z a-z 0-9 - . _ ~ + /, and = only at its end (got "
             f"{len(token)} characters{'' if bearer_token(token) else ', some not allowed'})"
         )
     return WebOptions(host, port, token, False)

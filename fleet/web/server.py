@@ -16,19 +16,27 @@ loopback address warns: the token protects writes, but the API is plain HTTP and
 reaches it can read the order book (docs/security.md). uvicorn is told to leave logging,
 signals and proxies alone: no access log on the operator's terminal, Ctrl-C stays the run's,
 and ``X-Forwarded-For`` from a client is not believed.
+
+Each connection is uvicorn's HTTP/1.1 connection with two limits uvicorn lacks
+(:class:`_Connection`): at most ``max_connections`` at once, and the headers of each
+request within ``header_timeout`` seconds.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import socket
 import threading
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
+from typing import Any, cast
 
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from io_drivers.modbus_server import is_loopback
 from plc_runtime import ConfigError, ProcessImage
@@ -39,7 +47,17 @@ from .desk import OrderDesk
 from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
 from .gate import QuietSelector, ScanGate
-from .guard import MAX_BODY, MAX_IN_FLIGHT, MAX_RATE, Guard
+from .guard import (
+    BODY_TIMEOUT,
+    MAX_BODY,
+    MAX_IN_FLIGHT,
+    MAX_RATE,
+    Guard,
+    Receive,
+    Scope,
+    Send,
+    reply,
+)
 from .views import FleetCopy
 
 START_TIMEOUT = 10.0  # seconds for the server thread to start serving
@@ -49,6 +67,11 @@ GATE_S = 0.5  # a request waits this long at most for a scan to end before it go
 # The server's loop starts no work within this share of the cycle before a scan is due: a
 # burst of work started just before a scan would run into it (Runtime.quiet_lead).
 QUIET_LEAD = 0.1
+MAX_CONNECTIONS = 64  # open at once: every stream and every request in flight, and some
+HEADER_TIMEOUT = 5.0  # seconds for a request's headers, from the connection or last answer
+KEEP_ALIVE_S = 5  # an idle connection is closed after this many seconds
+
+log = logging.getLogger(__name__)
 
 
 class _Server(uvicorn.Server):
@@ -66,11 +89,86 @@ class _Server(uvicorn.Server):
         self.serving.set()
 
 
+@dataclass
+class _Limits:
+    """What every connection of one server shares."""
+
+    max_connections: int
+    header_timeout: float
+    where: str  # "web 127.0.0.1:8080", for the log
+    warned: float = -float("inf")  # loop time of the last warning about the cap
+
+
+async def _too_many(limit: int, scope: Scope, receive: Receive, send: Send) -> None:
+    """The application of a connection beyond the cap: its request is refused."""
+    why = f"too many connections (the limit is {limit}): retry"
+    await reply(send, 503, why, [(b"connection", b"close")])
+
+
+class _Connection(H11Protocol):
+    """uvicorn's HTTP/1.1 connection, with two limits of its own.
+
+    * At most ``max_connections`` at once: the request of one beyond gets 503 (JSON, like
+      every refusal) and its connection is closed; one warning a second at most. uvicorn's
+      ``limit_concurrency`` does the same but answers in plain text and logs every refusal.
+    * A request's headers must arrive within ``header_timeout`` seconds of the connection
+      opening or of the previous answer, else the connection is closed. uvicorn's
+      keep-alive timeout stops at the first byte of a request, and nothing bounds the rest:
+      a client sending a header line now and then would hold its connection for ever.
+    """
+
+    def __init__(self, *args: Any, limits: _Limits, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._limits = limits
+        self._timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        limits = self._limits
+        if len(self.connections) > limits.max_connections:
+            self.app = partial(_too_many, limits.max_connections)
+            if self.loop.time() - limits.warned >= 1.0:
+                limits.warned = self.loop.time()
+                log.warning(
+                    "%s: refused a connection from %s: %d open (the limit)",
+                    limits.where,
+                    f"{self.client[0]}:{self.client[1]}" if self.client else "?",
+                    limits.max_connections,
+                )
+        self._expect_request()
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        self._expect_request()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        super().connection_lost(exc)
+
+    def _expect_request(self) -> None:
+        """A request's headers are due within the timeout (a new request makes a new
+        ``cycle``; the one now, if any, is answered already)."""
+        if self._timer is not None:
+            self._timer.cancel()
+        if not self.transport.is_closing():
+            self._timer = self.loop.call_later(
+                self._limits.header_timeout, self._headers_due, self.cycle
+            )
+
+    def _headers_due(self, cycle: object) -> None:
+        """Close the connection if no request has come since ``cycle`` (and none runs)."""
+        self._timer = None
+        if self.cycle is cycle and (cycle is None or self.cycle.response_complete):
+            self.transport.close()
+
+
 class WebServer:
     """The HTTP API of ``program`` on ``host:port`` (port 0: a free one); writes (POST,
     PUT, DELETE) need ``token``. ``announce(url)`` is called once it listens (the command
     line prints it). ``answer_timeout``, ``max_body``, ``max_in_flight``, ``max_rate``,
-    ``stream_hz`` and ``max_streams``: see api.py, guard.py and feed.py."""
+    ``body_timeout``, ``stream_hz`` and ``max_streams``: see api.py, guard.py and feed.py;
+    ``max_connections`` and ``header_timeout``: :class:`_Connection`."""
 
     def __init__(
         self,
@@ -84,6 +182,9 @@ class WebServer:
         max_body: int = MAX_BODY,
         max_in_flight: int = MAX_IN_FLIGHT,
         max_rate: float = MAX_RATE,
+        body_timeout: float = BODY_TIMEOUT,
+        max_connections: int = MAX_CONNECTIONS,
+        header_timeout: float = HEADER_TIMEOUT,
         stream_hz: float = RATE_HZ,
         max_streams: int = MAX_STREAMS,
         announce: Callable[[str], None] | None = None,
@@ -102,6 +203,9 @@ class WebServer:
         self._max_body = max_body
         self._max_in_flight = max_in_flight
         self._max_rate = max_rate
+        self._body_timeout = body_timeout
+        self._max_connections = max_connections
+        self._header_timeout = header_timeout
         self.guard: Guard | None = None
         self._announce = announce
         self._socket: socket.socket | None = None
@@ -142,28 +246,33 @@ class WebServer:
             self._program, 1.0 / self.feed.period_s, self.feed.max_streams, fleet_copy=shared
         )
         self.gate = ScanGate(min(self._answer_timeout, GATE_S))
+        where = f"{self.name} {self.host}:{self.port}"
         app = self.guard = Guard(
             build_app(self.fleet_desk, self.desk, self.feed, self.gate, self._answer_timeout),
             token=self._token,
-            where=f"{self.name} {self.host}:{self.port}",
+            where=where,
             loopback=loopback,
             max_body=self._max_body,
             max_in_flight=self._max_in_flight,
             max_rate=self._max_rate,
+            body_timeout=self._body_timeout,
             unmetered=(f"{PREFIX}/stream",),
             gate=self.gate,
         )
+        limits = _Limits(self._max_connections, self._header_timeout, where)
         config = uvicorn.Config(
             app,
             log_config=None,
             log_level="warning",
             access_log=False,
             lifespan="off",
-            http="h11",
+            # uvicorn calls it as it would the class
+            http=cast(type[asyncio.Protocol], partial(_Connection, limits=limits)),
             ws="none",
             loop="asyncio",
             proxy_headers=False,
             server_header=False,
+            timeout_keep_alive=KEEP_ALIVE_S,
             timeout_graceful_shutdown=GRACEFUL_S,
         )
         self._server = _Server(config)
