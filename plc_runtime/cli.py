@@ -89,13 +89,12 @@ def cycle_seconds(text: str) -> float:
     return value
 
 
-def duration_cycles(duration_s: float, cycle_time_s: float) -> int:
-    """The cycles a run of ``duration_s`` takes; CliError if it is shorter than one."""
+def duration_cycles(duration_s: float, cycle_time_s: float, source: str = "--duration") -> int:
+    """The cycles a run of ``duration_s`` takes; CliError naming ``source`` (where the
+    duration came from) if it is shorter than one."""
     cycles = round(duration_s / cycle_time_s)
     if cycles < 1:
-        raise CliError(
-            f"--duration {duration_s:g} s is shorter than one cycle ({cycle_time_s:g} s)"
-        )
+        raise CliError(f"{source} {duration_s:g} s is shorter than one cycle ({cycle_time_s:g} s)")
     return cycles
 
 

@@ -36,3 +36,14 @@ def test_a_vehicle_standing_on_a_place_takes_it_over_and_the_holder_is_next():
     assert claims.holder[40] == 3 and claims.waiting[40] == [1, 2]
     claims.release(40, 3)
     assert not claims.claim(40, 2) and claims.claim(40, 1)
+
+
+def test_a_holder_that_leaves_after_a_take_over_holds_up_nobody():
+    claims = Claims()
+    assert claims.claim(40, 1)  # 1 was served and is driving out of the station's area
+    assert not claims.claim(40, 2)
+    claims.take_over(40, 3)  # 3 was pushed onto the station meanwhile
+    assert claims.waiting[40] == [1, 2]
+    claims.leave(40, 1)  # 1 is out of the area
+    claims.release(40, 3)
+    assert claims.claim(40, 2)  # not stuck behind 1

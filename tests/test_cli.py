@@ -154,3 +154,15 @@ def test_a_run_shorter_than_one_cycle_is_refused(program, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == "plc-runtime: error: --duration 0.1 s is shorter than one cycle (0.5 s)"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_configured_run_shorter_than_one_cycle_names_the_key(tmp_path, capsys):
+    cfg = tmp_path / "short.toml"
+    cfg.write_text(
+        '[plant]\nsample = "model-plant"\n[runtime]\ncycle_time_ms = 50\nduration_s = 0.01\n'
+        '[[recipes]]\nname = "r"\nfunctions = [2, 1]\n[[vehicles]]\nid = 1\nstart = 0\n'
+    )
+    assert main(["run", str(cfg), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"plc-runtime: error: {cfg}: runtime.duration_s 0.01 s is shorter than one cycle (0.05 s)"
+    )

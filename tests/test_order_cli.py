@@ -407,6 +407,10 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "with spaces in the token"],
             "some not allowed",
         ),
+        (
+            [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "a" + "=" * 15],
+            "and = only at its end (got 1 characters)",
+        ),
         ([str(CONFIG), "--web-token", TOKEN], "--web-token is the token of the HTTP API"),
         (
             ["--program", "demo", "--web", "127.0.0.1:0"],

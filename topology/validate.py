@@ -317,25 +317,30 @@ def _not_against_another_highway(edges) -> np.ndarray:
     any edge from its target to its source, or a plain two-way edge): routing would take
     that one, and the highway would prefer nothing."""
     ok = np.ones(len(edges), dtype=bool)
-    if not any(e.highway for e in edges):
-        return ok
-    for i, e in enumerate(edges):
-        if e.highway and _against(edges, i) is not None:
-            ok[i] = False
+    if any(e.highway for e in edges):
+        against = _against_index(edges)
+        for i, e in enumerate(edges):
+            ok[i] = not (e.highway and _against(edges, i, against) is not None)
     return ok
 
 
-def _against(edges, i: int) -> int | None:
+def _against_index(edges) -> dict[tuple, list[int]]:
+    """Routable edges by the (from, to) they let vehicles drive unpriced: one lookup per
+    highway, not a walk over every edge (plants have hundreds of thousands)."""
+    index: dict[tuple, list[int]] = {}
+    for k, o in enumerate(edges):
+        if o.routable:
+            index.setdefault((o.source, o.target), []).append(k)
+            if o.bidirectional and not o.highway:
+                index.setdefault((o.target, o.source), []).append(k)
+    return index
+
+
+def _against(edges, i: int, index: dict[tuple, list[int]] | None = None) -> int | None:
     """The index of an edge that lets vehicles drive against highway ``edges[i]`` unpriced."""
     e = edges[i]
-    for k, o in enumerate(edges):
-        if k == i or not o.routable:
-            continue
-        if (o.source, o.target) == (e.target, e.source) or (
-            (o.source, o.target) == (e.source, e.target) and o.bidirectional and not o.highway
-        ):
-            return k
-    return None
+    index = _against_index(edges) if index is None else index
+    return next((k for k in index.get((e.target, e.source), ()) if k != i), None)
 
 
 def _node_indices(plant: Plant, values: list[object]) -> np.ndarray:

@@ -141,6 +141,15 @@ class Claims:
         if self.holder.get(place) == vehicle:
             del self.holder[place]
 
+    def leave(self, place: int, vehicle: int) -> None:
+        """``vehicle`` has left ``place`` for good: it neither holds it nor waits for it (a
+        holder the place was taken over from waits first in line, and one that was only
+        driving out would otherwise keep everybody behind it waiting)."""
+        self.release(place, vehicle)
+        queue = self.waiting.get(place)
+        if queue and vehicle in queue:
+            queue.remove(vehicle)
+
     def forget(self, vehicle: int, keep: frozenset[int] = frozenset()) -> None:
         """``vehicle`` holds and waits for nothing any more (but the places in ``keep``)."""
         for place in [p for p, v in self.holder.items() if v == vehicle and p not in keep]:
@@ -274,7 +283,7 @@ class OrderRunner(FunctionBlock):
             self.min_battery = min(self.min_battery, self.battery)
         if self.leaving is not None and self.current not in self._area(self.leaving):
             # it has left the station and its single-vehicle area: the next may come
-            self.claims.release(self.leaving, self.vehicle)
+            self.claims.leave(self.leaving, self.vehicle)
             self.leaving = None
         if self.vacating is not None and self.current != self.vacating:
             if self.target != self.vacating:  # (unless it took the same place again)

@@ -127,7 +127,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     total = (
         args.cycles
         if args.cycles is not None
-        else duration_cycles(args.duration or cfg.duration_s, cfg.cycle_time)
+        else duration_cycles(args.duration, cfg.cycle_time)
+        if args.duration is not None
+        else duration_cycles(cfg.duration_s, cfg.cycle_time, f"{cfg.source}: runtime.duration_s")
     )
     setup = plan(args, cfg)
     web_options = web.web_options(args, cfg)
@@ -153,10 +155,14 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         bus=setup.bus,
         retain_file=args.retain,
     )
-    if args.modbus:
-        program.rt.add_driver(modbus(args.modbus))
-    if web_options is not None:  # stopped with the runtime, like every driver
-        program.rt.add_driver(web.web_server(web_options, program))
+    try:
+        if args.modbus:
+            program.rt.add_driver(modbus(args.modbus))
+        if web_options is not None:  # stopped with the runtime, like every driver
+            program.rt.add_driver(web.web_server(web_options, program))
+    except BaseException:
+        program.close()  # a bad --modbus address: nothing of the program stays open
+        raise
     vehicles_proc, monitor_file = None, None
     if setup.spawn:
         monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])

@@ -76,11 +76,12 @@ def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None
         token, where = os.environ.get(TOKEN_ENV), TOKEN_ENV
     if token is None:
         return WebOptions(host, port, new_token(), True)
-    if len(token) < MIN_TOKEN_CHARS or not bearer_token(token):
+    counted = len(token.rstrip("="))  # padding adds nothing to guess
+    if counted < MIN_TOKEN_CHARS or not bearer_token(token):
         raise CliError(
             f"{where}: a bearer token needs {MIN_TOKEN_CHARS} characters or more of "
             "A-Z a-z 0-9 - . _ ~ + /, and = only at its end (got "
-            f"{len(token)} characters{'' if bearer_token(token) else ', some not allowed'})"
+            f"{counted} characters{'' if bearer_token(token) else ', some not allowed'})"
         )
     return WebOptions(host, port, token, False)
 

@@ -67,7 +67,9 @@ GATE_S = 0.5  # a request waits this long at most for a scan to end before it go
 # The server's loop starts no work within this share of the cycle before a scan is due: a
 # burst of work started just before a scan would run into it (Runtime.quiet_lead).
 QUIET_LEAD = 0.1
-MAX_CONNECTIONS = 64  # open at once: every stream and every request in flight, and some
+# connections open at once beyond the streams and requests in flight: a browser keeps a
+# few idle keep-alive connections per tab, and bodies still arriving hold no request place
+SPARE_CONNECTIONS = 32
 HEADER_TIMEOUT = 5.0  # seconds for a request's headers, from the connection or last answer
 KEEP_ALIVE_S = 5  # an idle connection is closed after this many seconds
 
@@ -168,7 +170,8 @@ class WebServer:
     PUT, DELETE) need ``token``. ``announce(url)`` is called once it listens (the command
     line prints it). ``answer_timeout``, ``max_body``, ``max_in_flight``, ``max_rate``,
     ``body_timeout``, ``stream_hz`` and ``max_streams``: see api.py, guard.py and feed.py;
-    ``max_connections`` and ``header_timeout``: :class:`_Connection`."""
+    ``max_connections`` (None: every stream and request in flight and
+    :data:`SPARE_CONNECTIONS` more) and ``header_timeout``: :class:`_Connection`."""
 
     def __init__(
         self,
@@ -183,7 +186,7 @@ class WebServer:
         max_in_flight: int = MAX_IN_FLIGHT,
         max_rate: float = MAX_RATE,
         body_timeout: float = BODY_TIMEOUT,
-        max_connections: int = MAX_CONNECTIONS,
+        max_connections: int | None = None,
         header_timeout: float = HEADER_TIMEOUT,
         stream_hz: float = RATE_HZ,
         max_streams: int = MAX_STREAMS,
@@ -204,7 +207,11 @@ class WebServer:
         self._max_in_flight = max_in_flight
         self._max_rate = max_rate
         self._body_timeout = body_timeout
-        self._max_connections = max_connections
+        self._max_connections = (
+            max_streams + max_in_flight + SPARE_CONNECTIONS
+            if max_connections is None
+            else max_connections
+        )
         self._header_timeout = header_timeout
         self.guard: Guard | None = None
         self._announce = announce
