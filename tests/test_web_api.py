@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from web_controller import ROOT, TOKEN, Controller
+from web_controller import ROOT, TOKEN, WAIT_WALL_S, Controller, eventually
 
 from fleet.config import load_config, parse_config
 from fleet.web.feed import LiveFeed
@@ -25,7 +25,6 @@ from fleet.web.options import web_options
 from plc_runtime.errors import ConfigError
 
 API = "/api/v1"
-WAIT_WALL_S = 60.0
 RECIPES_ONLY = ROOT / "examples" / "workshop.toml"
 JSON = {"Content-Type": "application/json"}
 FORM = {"Content-Type": "application/x-www-form-urlencoded"}
@@ -35,17 +34,6 @@ FORM = {"Content-Type": "application/x-www-form-urlencoded"}
 def ctl():
     with Controller() as controller:
         yield controller
-
-
-def eventually(check, what: str, wall_s: float = WAIT_WALL_S):
-    """Poll ``check()`` until it returns something truthy; fail naming ``what``."""
-    deadline = time.monotonic() + wall_s
-    while time.monotonic() < deadline:
-        result = check()
-        if result:
-            return result
-        time.sleep(0.05)
-    pytest.fail(f"{what}: not seen within {wall_s:g} s of wall time")
 
 
 def segment_of(ctl: Controller) -> tuple[int, int]:

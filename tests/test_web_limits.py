@@ -14,19 +14,16 @@ import http.client
 import json
 import logging
 import socket
-import time
-from collections.abc import Callable
 from typing import Any
 
 import pytest
-from web_controller import ROOT, TOKEN, Controller
+from web_controller import ROOT, TOKEN, WAIT_WALL_S, Controller, eventually
 
 from fleet.config import load_config
 from fleet.program import FleetProgram
 from fleet.web.feed import Busy, LiveFeed
 
 API = "/api/v1"
-WAIT_WALL_S = 60.0
 JSON = {"Content-Type": "application/json"}
 HOLD = f"{API}/tags/agv1.hold"
 
@@ -35,17 +32,6 @@ HOLD = f"{API}/tags/agv1.hold"
 def ctl():
     with Controller() as controller:
         yield controller
-
-
-def eventually(check: Callable[[], Any], what: str) -> Any:
-    """Poll ``check()`` until it returns something truthy; fail naming ``what``."""
-    deadline = time.monotonic() + WAIT_WALL_S
-    while time.monotonic() < deadline:
-        result = check()
-        if result:
-            return result
-        time.sleep(0.05)
-    pytest.fail(f"{what}: not seen within {WAIT_WALL_S:g} s of wall time")
 
 
 def connect(port: int, data: bytes = b"") -> socket.socket:

@@ -17,9 +17,13 @@ import http.client
 import json
 import socket
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 from fleet.config import load_config
 from fleet.program import FleetProgram
@@ -146,3 +150,18 @@ def assert_server_gone(port: int | None, before: set[threading.Thread] = frozens
 def assert_port_closed(port: int) -> None:
     with socket.socket() as s:
         assert s.connect_ex(("127.0.0.1", port)) != 0, f"port {port} still accepts connections"
+
+
+WAIT_WALL_S = 60.0  # a wait for the running scan: far beyond what the simulated time needs
+
+
+def eventually(check: Callable[[], Any], what: str, wall_s: float = WAIT_WALL_S) -> Any:
+    """Poll ``check()`` until it returns something truthy; fail naming ``what``. A wall-clock
+    deadline, never a duration asserted: the server answers on its own thread."""
+    deadline = time.monotonic() + wall_s
+    while time.monotonic() < deadline:
+        result = check()
+        if result:
+            return result
+        time.sleep(0.05)
+    pytest.fail(f"{what}: not seen within {wall_s:g} s of wall time")
