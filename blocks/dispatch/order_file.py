@@ -21,12 +21,18 @@ import csv
 import io
 import json
 import math
-import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from topology.formats.numbers import MAX_DIGITS, parse_float, parse_int, shown
+from topology.formats.numbers import (
+    MAX_DIGITS,
+    TOO_LONG,
+    not_an_integer,
+    parse_float,
+    parse_int,
+    shown,
+)
 
 from .orders import SECTIONS, OrderError, TransportOrder, check_order
 
@@ -155,15 +161,10 @@ def _csv_order(cells: dict[str, str], where: str) -> TransportOrder:
         else:
             number = parse_int(text)
             if number is None:
-                problem = _TOO_LONG if _DIGITS.fullmatch(text) else "not an integer"
+                problem = not_an_integer(text)
                 raise OrderFileError(f"{where}: field {name!r}: {problem}: {shown(text)}")
             values[name] = number
     return _checked(TransportOrder(**values), where)
-
-
-_DIGITS = re.compile(r"[+-]?[0-9]+", re.ASCII)
-# an integer beyond what parse_int reads (an int64 still), worded alike for CSV and JSON
-_TOO_LONG = f"not an integer of at most {MAX_DIGITS} digits"
 
 
 class _NonStandard:
@@ -270,7 +271,7 @@ def _json_field(name: str, value: Any, where: str) -> Any:
         if not isinstance(value, int) or isinstance(value, bool):
             raise OrderFileError(f"{where}: {_INTEGERS[name]}, got {got}")
         if len(str(abs(value))) > MAX_DIGITS:
-            raise OrderFileError(f"{where}: {_TOO_LONG}: {shown(str(value))}")
+            raise OrderFileError(f"{where}: {TOO_LONG}: {shown(str(value))}")
         return value
     number = None
     if isinstance(value, int | float) and not isinstance(value, bool):

@@ -31,7 +31,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from topology.formats.numbers import MAX_DIGITS, shown
+from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
 MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
@@ -406,7 +406,7 @@ def _check_int(oid: object, name: str, value: object, kind: str, low: int | None
         raise OrderError(oid, name, f"{kind}, got {_brief(value)}")
     if abs(value) > MAX_INT:
         text = shown(str(value)) if abs(value) < 10**40 else _brief(value)
-        raise OrderError(oid, name, f"not an integer of at most {MAX_DIGITS} digits: {text}")
+        raise OrderError(oid, name, f"{TOO_LONG}: {text}")
 
 
 def _seconds(value: object) -> float | None:

@@ -29,7 +29,7 @@ from rich.table import Table
 from rich.text import Text
 
 from plc_runtime.cli import CliError
-from topology.formats.numbers import MAX_DIGITS, parse_float, parse_int, shown
+from topology.formats.numbers import not_an_integer, parse_float, parse_int, shown
 
 from ..web.options import TOKEN_ENV, bearer_token
 
@@ -44,10 +44,7 @@ def integer(text: str) -> int:
     ``1_0`` and other scripts' digits, which an order file refuses)."""
     value = parse_int(text)
     if value is None:
-        digits = text[1:] if text[:1] in ("+", "-") else text
-        long = digits.isascii() and digits.isdigit()
-        what = f"not an integer of at most {MAX_DIGITS} digits" if long else "not an integer"
-        raise argparse.ArgumentTypeError(f"{what}: {shown(text)}")
+        raise argparse.ArgumentTypeError(f"{not_an_integer(text)}: {shown(text)}")
     return value
 
 

@@ -21,6 +21,15 @@ def parse_int(text: str) -> int | None:
     return int(text) if INTEGER.fullmatch(text) else None
 
 
+TOO_LONG = f"not an integer of at most {MAX_DIGITS} digits"  # the wording for a longer one
+_DIGITS = re.compile(r"[+-]?[0-9]+", re.ASCII)
+
+
+def not_an_integer(text: str) -> str:
+    """Why :func:`parse_int` refused ``text``: too many digits, or not an integer at all."""
+    return TOO_LONG if _DIGITS.fullmatch(text) else "not an integer"
+
+
 def parse_float(text: str) -> float | None:
     """The finite number ``text`` spells in ASCII decimal notation, None if it is not one
     (``nan``, ``inf`` and ``1e999``, which overflows to infinity, are not)."""
