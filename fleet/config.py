@@ -92,6 +92,8 @@ class FleetConfig:
     watchdog: float = 0.150
     # the collector's young-generation threshold while running; None: Python's own
     gc_threshold: int | None = DEFAULT_YOUNG_THRESHOLD
+    # full collections between scans, not in them; False: Python's own
+    gc_full_between_scans: bool = True
     duration_s: float = 600.0
     astar_budget: int = 4
     lookahead: int = 2
@@ -191,6 +193,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         cycle_time=runtime.number("cycle_time_ms", 10.0, 0.1, 1000.0) / 1e3,
         watchdog=runtime.number("watchdog_ms", 150.0, 1.0, 6000.0) / 1e3,
         gc_threshold=runtime.integer("gc_threshold", DEFAULT_YOUNG_THRESHOLD, 0, 10**9) or None,
+        gc_full_between_scans=runtime.get("gc_full_between_scans", bool, True),
         duration_s=runtime.number("duration_s", 600.0, 0.001, 1e7),
         astar_budget=routing.integer("astar_budget", 4, 1, 10**6),
         lookahead=routing.integer("lookahead", 2, 1, 3),

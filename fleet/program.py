@@ -161,6 +161,7 @@ class FleetProgram:
             clock=clock,
             watchdog=cfg.watchdog,
             gc_threshold=cfg.gc_threshold,
+            gc_full_between_scans=cfg.gc_full_between_scans,
             retain_file=retain_file,
             image_sizes={
                 "I": AREA_BYTES * (n_buses + 1),

@@ -24,7 +24,7 @@ from pathlib import Path
 from time import perf_counter_ns
 
 from .clock import VirtualClock, WallClock
-from .collector import DEFAULT_YOUNG_THRESHOLD, YoungThreshold
+from .collector import DEFAULT_YOUNG_THRESHOLD, FullCollections, YoungThreshold
 from .context import CycleContext
 from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
@@ -80,6 +80,9 @@ class Runtime:
     ``gc_threshold``: the garbage collector's generation-0 threshold while the cyclic phase
     runs (raised, never lowered; None: Python's own), so that young collections do not run
     in the middle of scans and full collections stay rare (:mod:`plc_runtime.collector`).
+    ``gc_full_between_scans``: no automatic full collection while the cyclic phase runs; the
+    runtime makes one after a scan, outside its time and watchdog, once the heap has grown
+    by a quarter (False: Python's own, which lands in whichever scan allocates then).
     """
 
     def __init__(
@@ -96,6 +99,7 @@ class Runtime:
         retain_interval: float | None = None,
         watchdog_interrupt: bool = True,
         gc_threshold: int | None = DEFAULT_YOUNG_THRESHOLD,
+        gc_full_between_scans: bool = True,
     ) -> None:
         self.cycle_time = _seconds(cycle_time, "cycle_time", low=MIN_CYCLE_TIME)
         self.watchdog = _seconds(watchdog, "watchdog", low=0.0, low_ok=False)
@@ -117,6 +121,11 @@ class Runtime:
         self.retain_interval = retain_interval
         self.watchdog_interrupt = watchdog_interrupt
         self._young = YoungThreshold(gc_threshold)
+        if not isinstance(gc_full_between_scans, bool):
+            raise ConfigError(
+                f"gc_full_between_scans must be True or False, got {gc_full_between_scans!r}"
+            )
+        self._full = FullCollections(gc_full_between_scans)
         self._drivers_open = False  # every driver opened (they get the safe state at stop)
         self.tasks: list[Task] = []
         self.drivers: list[IoDriver] = []
@@ -274,6 +283,7 @@ class Runtime:
             self._check_layout_after_startup()
             self._young.enter()
             self.clock.enter_run()  # before t0: rt mode's initial full collection must not make tick 0 late
+            self._full.enter()  # (after: rt mode's collector in idle time makes its own)
             self._t0 = self.clock.now_ns()
             self._last_tick_start = None
             self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
@@ -326,6 +336,7 @@ class Runtime:
                 return
             was_running = self.state in (RUN, FAULT)
             self.clock.exit_run()
+            self._full.exit()  # (first: the young threshold restores only what it set)
             self._young.exit()
             self._alarm.uninstall()
             retained = self._collect_retain() if was_running else None
@@ -444,6 +455,7 @@ class Runtime:
                     self.between_scans.set()
                 if self.state == RUN:
                     self._after_scan()
+                    self._full.after_scan()  # (it costs lateness, not scan time)
         finally:
             self.between_scans.set()
 

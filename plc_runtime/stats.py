@@ -163,6 +163,7 @@ class RuntimeStats:
             "gc": {
                 "thresholds": list(gc.get_threshold()),
                 "collections": [g["collections"] for g in gc.get_stats()],
+                "full_between_scans": rt._full.collections,
             },
             "scan": self.scan.to_dict(),
             "tasks": {name: s.to_dict() for name, s in self.tasks.items()},

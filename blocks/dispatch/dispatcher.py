@@ -23,7 +23,6 @@ either, and a charging one only once its charge is sufficient.
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Callable, Mapping
 
@@ -44,6 +43,11 @@ from .strategies import (
     nearest_idle,
     two_stage,
 )
+from .urgent_orders import UrgentOrders
+
+# orders whose start time came made startable per scan (dhht, nearest_idle): each costs two
+# heap operations, so 1000 stay within a few milliseconds even on a pool of 100,000
+STARTABLE_BUDGET = 1000
 
 
 class Dispatcher(FunctionBlock):
@@ -98,6 +102,9 @@ class Dispatcher(FunctionBlock):
         self._last_round_ns: int | None = None
         self._checked: set[str] = set()
         self._revision = 0  # the book's revision when the routes were last checked
+        # the waiting orders by urgency (two_stage also plans orders whose start is to come)
+        self._urgent = UrgentOrders(startable_only=strategy != "two_stage")
+        self._urgent_revision = 0  # the book's revision the index has seen
         self._epoch: int | None = None
         self._deviated: set[tuple[str, str]] = set()
         self._origin: dict[str, int] = {}  # order id -> the node its vehicle took it at
@@ -105,6 +112,8 @@ class Dispatcher(FunctionBlock):
     # ----- the scan --------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
         self._check_routes(ctx)
+        self._index_changes(ctx)
+        self._urgent.advance(ctx.time, STARTABLE_BUDGET)
         if self.strategy == "two_stage":
             self._check_deviations(ctx)
         if self._round is None and self._due(ctx):
@@ -226,14 +235,22 @@ class Dispatcher(FunctionBlock):
                 out.append(Candidate(v, r.active.put, finish.get(v, ctx.time), "next"))
         return out
 
+    def _index_changes(self, ctx: CycleContext) -> None:
+        """Bring the urgency index up to date with the orders that changed state since it
+        last looked (a few; all of them only if the book's journal overran)."""
+        changed = self.book.changed_since(self._urgent_revision)
+        if changed is None:
+            self._urgent.rebuild(self.book.dispatchable(), ctx.time)
+        else:
+            for order in changed:
+                self._urgent.update(order, ctx.time)
+        self._urgent_revision = self.book.revision
+
     def _pool(self, ctx: CycleContext) -> list[TransportOrder]:
-        orders = self.book.dispatchable()
-        if self.strategy != "two_stage":
-            orders = [o for o in orders if o.start_s <= ctx.time]
-        # the most urgent pool_limit, as sorting all would (without sorting 100,000 orders)
-        return heapq.nsmallest(
-            self.pool_limit, orders, key=lambda o: (-o.priority, o.end_s, o.start_s, o.id)
-        )
+        """The ``pool_limit`` most urgent waiting orders, as sorting them all would give
+        (orders given back earlier in this scan included)."""
+        self._index_changes(ctx)
+        return self._urgent.most_urgent(self.pool_limit)
 
     def _start_round(self, ctx: CycleContext) -> None:
         self._last_round_ns = ctx.time_ns

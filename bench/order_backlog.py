@@ -1,0 +1,276 @@
+"""A backlog of orders: what a large order file costs the scan.
+
+A warehouse system may hand the fleet tens of thousands of orders at once. The fleet
+program then releases them into the order book a bounded number per scan
+(``fleet.order_system.RELEASE_BUDGET``), and each allocation round takes its pool, the
+``pool_limit`` most urgent waiting orders, from an urgency index
+(``blocks/dispatch/urgent_orders.py``) instead of sorting every waiting order.
+
+Each run is the whole fleet program on the virtual clock on the sample distribution
+centre (``examples/distribution-centre.toml``, 17 shuttles), its generator replaced by an
+order file of ``N`` orders all due at the first scan (seeded stations, latest delivery
+times spread over the hour), for ``--after-s`` simulated seconds after the last order is
+released. Measured, in wall time:
+
+* every scan while the orders are released, and every scan afterwards (p50 / p99 / max,
+  the time the watchdog measures), beside the cycle time;
+* the interpreter's full garbage collections during the run: their number and the
+  longest. They take as long as the objects alive are many (a backlog of 100,000 orders
+  is about 700,000), whatever the scan does; the runtime makes them between scans
+  (``Runtime(gc_full_between_scans=True)``, the default; ``--python-gc``: Python's own,
+  which lands in a scan). The watchdog is 5 s here, as in the other fleet benches, so
+  that a run with Python's collections goes on to be measured;
+* every pool a round takes, from the index (ours) and, at the same moment on the same
+  book, as the plain definition gives it: sort the waiting orders (the startable ones for
+  dhht) by urgency and take the first ``pool_limit`` (the baseline). The two must be the
+  same orders in the same order; the bench stops if they differ.
+
+    .venv/bin/python bench/order_backlog.py [--orders 1000 10000 100000]
+        [--strategies two_stage dhht] [--after-s 300] [--python-gc] [--quick]
+
+``--quick``: 1,000 and 10,000 orders, 10 s after the release: a check that it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import heapq
+import random
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from rich.console import Console  # noqa: E402
+from rich.table import Table  # noqa: E402
+
+from blocks.dispatch.dispatcher import Dispatcher  # noqa: E402
+from blocks.dispatch.order_file import write_orders  # noqa: E402
+from blocks.dispatch.orders import TransportOrder  # noqa: E402
+from blocks.dispatch.urgent_orders import urgency  # noqa: E402
+from fleet.config import load_config  # noqa: E402
+from fleet.order_system import RELEASE_BUDGET, order_stations  # noqa: E402
+from fleet.program import FleetProgram  # noqa: E402
+from plc_runtime.cli import positive  # noqa: E402
+
+CONFIG = ROOT / "examples" / "distribution-centre.toml"
+SEED = 1
+
+
+@dataclass
+class Result:
+    orders: int
+    strategy: str
+    release_scans: int
+    release_ms: list[float]
+    after_ms: list[float]
+    pool_ms: list[float]  # ours, per round
+    sort_ms: list[float]  # the baseline, per round
+    cycle_ms: float
+    full_gc_ms: list[float]
+    faults: int
+
+
+def backlog(cfg, n: int) -> list[TransportOrder]:
+    """``n`` orders due at once between the plant's Get/Put stations, seeded."""
+    rng = random.Random(SEED)
+    stations = sorted(order_stations(cfg.plant))
+    out = []
+    for k in range(n):
+        get, put = rng.sample(stations, 2)
+        out.append(TransportOrder(f"b{k}", get, put, 0.0, rng.uniform(900.0, 3600.0)))
+    return out
+
+
+def timed_pools(
+    dispatcher: Dispatcher, ours: list[float], sort: list[float], in_scan: list[float]
+) -> None:
+    """Time every pool the dispatcher takes, and the plain sort at the same moment (added
+    to ``in_scan[0]``, which the scan's time leaves out)."""
+    take = dispatcher._pool
+
+    def pool(ctx):
+        begin = time.perf_counter()
+        waiting = dispatcher.book.dispatchable()
+        if dispatcher.strategy != "two_stage":
+            waiting = [o for o in waiting if o.start_s <= ctx.time]
+        plain = heapq.nsmallest(dispatcher.pool_limit, waiting, key=urgency)
+        middle = time.perf_counter()
+        got = take(ctx)
+        end = time.perf_counter()
+        if [o.id for o in got] != [o.id for o in plain]:
+            raise SystemExit(
+                f"order_backlog.py: the index's pool differs from the sort at {ctx.time} s"
+            )
+        sort.append((middle - begin) * 1e3)
+        in_scan[0] += sort[-1]
+        ours.append((end - middle) * 1e3)
+        return got
+
+    dispatcher._pool = pool
+
+
+def run(n: int, strategy: str, after_s: float, python_gc: bool = False) -> Result:
+    cfg = load_config(CONFIG)
+    cfg.gc_full_between_scans = not python_gc
+    cfg.dispatch.strategy = strategy
+    cfg.battery.enabled = False
+    cfg.watchdog = 5.0  # a busy machine, or the collector, slows the wall clock only
+    orders = backlog(cfg, n)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "orders.csv"
+        write_orders(path, orders)
+        cfg.orders.file, cfg.orders.generator = path, None
+        program = FleetProgram(cfg)
+        try:
+            return _run(program, n, strategy, after_s)
+        finally:
+            program.close()
+
+
+def _run(program: FleetProgram, n: int, strategy: str, after_s: float) -> Result:
+    rt = program.rt
+    ours: list[float] = []
+    sort: list[float] = []
+    baseline_in_scan = [0.0]
+    timed_pools(program.orders.dispatcher, ours, sort, baseline_in_scan)
+    full_gc: list[float] = []
+    started: list[float] = []
+
+    def collector(phase: str, info: dict) -> None:
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            started.append(time.perf_counter())
+        elif started:
+            full_gc.append((time.perf_counter() - started.pop()) * 1e3)
+
+    gc.callbacks.append(collector)
+    try:
+        rt.start()
+        release, after, faults = _scans(program, n, after_s, baseline_in_scan)
+    finally:
+        gc.callbacks.remove(collector)
+    return Result(
+        n,
+        strategy,
+        len(release),
+        release,
+        after,
+        ours,
+        sort,
+        program.cfg.cycle_time * 1e3,
+        full_gc,
+        faults,
+    )
+
+
+def _scans(program: FleetProgram, n: int, after_s: float, baseline: list[float]):
+    """Step the scans; the wall ms of each while releasing and after (the baseline's sort
+    left out), and faults."""
+    rt, book = program.rt, program.orders.book
+    release: list[float] = []
+    after: list[float] = []
+    faults = 0
+    after_scans = round(after_s / program.cfg.cycle_time)
+    while len(after) < after_scans:
+        releasing = len(book) < n
+        baseline[0] = 0.0
+        rt.step()
+        # the scan under the watchdog (a collection after it is not in it)
+        took = rt.stats.scan.exec_last_ns / 1e6 - baseline[0]
+        (release if releasing else after).append(took)
+        if rt.state != "RUN":
+            faults += 1
+            break
+    return release, after, faults
+
+
+def quantiles(values: list[float]) -> str:
+    if not values:
+        return "-"
+    ordered = sorted(values)
+    p99 = ordered[min(len(ordered) - 1, round(0.99 * (len(ordered) - 1)))]
+    return f"{statistics.median(ordered):.2f} / {p99:.2f} / {ordered[-1]:.2f}"
+
+
+def report(results: list[Result], console: Console) -> None:
+    table = Table(title="A backlog of orders on the distribution centre, 17 shuttles (wall ms)")
+    for name in (
+        "orders",
+        "strategy",
+        "release scans",
+        "scan while releasing p50 / p99 / max",
+        "scan after p50 / p99 / max",
+        "rounds",
+        "pool: ours mean / max",
+        "pool: plain sort mean / max",
+        "sort / ours",
+        "cycle",
+        "full collections: n / longest",
+        "faults",
+    ):
+        table.add_column(name, justify="right")
+    for r in results:
+        ratio = statistics.mean(r.sort_ms) / statistics.mean(r.pool_ms) if r.pool_ms else None
+        table.add_row(
+            f"{r.orders:,}",
+            r.strategy,
+            f"{r.release_scans}",
+            quantiles(r.release_ms),
+            quantiles(r.after_ms),
+            f"{len(r.pool_ms)}",
+            f"{statistics.mean(r.pool_ms):.3f} / {max(r.pool_ms):.3f}" if r.pool_ms else "-",
+            f"{statistics.mean(r.sort_ms):.3f} / {max(r.sort_ms):.3f}" if r.sort_ms else "-",
+            f"{ratio:.0f}x" if ratio is not None else "-",
+            f"{r.cycle_ms:.0f}",
+            f"{len(r.full_gc_ms)} / {max(r.full_gc_ms, default=0.0):.1f}",
+            f"{r.faults}",
+        )
+    console.print(table)
+    console.print(
+        f"release budget: {RELEASE_BUDGET} orders a scan; every pool from the index matched the sort"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--orders", type=positive(int), nargs="+", default=[1_000, 10_000, 100_000])
+    parser.add_argument(
+        "--strategies",
+        nargs="+",
+        choices=("two_stage", "dhht", "nearest_idle"),
+        default=["two_stage", "dhht"],
+    )
+    parser.add_argument(
+        "--after-s", type=positive(float), default=300.0, help="simulated s after the release"
+    )
+    parser.add_argument(
+        "--python-gc",
+        action="store_true",
+        help="Python's own full collections, in whichever scan (not between scans)",
+    )
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.orders, args.after_s = [1_000, 10_000], 10.0
+    console = Console(width=250)
+    begin = time.perf_counter()
+    results = []
+    for n in args.orders:
+        for strategy in args.strategies:
+            results.append(run(n, strategy, args.after_s, args.python_gc))
+            console.print(f"  {n:,} orders, {strategy}: done")
+    report(results, console)
+    console.print(f"wall time {time.perf_counter() - begin:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
