@@ -47,9 +47,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rich.console import Console  # noqa: E402
-from rich.table import Table  # noqa: E402
-
 from blocks.dispatch.dispatcher import Dispatcher  # noqa: E402
 from blocks.dispatch.order_file import write_orders  # noqa: E402
 from blocks.dispatch.orders import TransportOrder  # noqa: E402
@@ -200,26 +197,30 @@ def quantiles(values: list[float]) -> str:
     return f"{statistics.median(ordered):.2f} / {p99:.2f} / {ordered[-1]:.2f}"
 
 
-def report(results: list[Result], console: Console) -> None:
-    table = Table(title="A backlog of orders on the distribution centre, 17 shuttles (wall ms)")
-    for name in (
-        "orders",
-        "strategy",
-        "release scans",
-        "scan while releasing p50 / p99 / max",
-        "scan after p50 / p99 / max",
-        "rounds",
-        "pool: ours mean / max",
-        "pool: plain sort mean / max",
-        "sort / ours",
-        "cycle",
-        "full collections: n / longest",
-        "faults",
-    ):
-        table.add_column(name, justify="right")
+COLUMNS = (
+    "orders",
+    "strategy",
+    "release scans",
+    "scan while releasing p50 / p99 / max",
+    "scan after p50 / p99 / max",
+    "rounds",
+    "pool: ours mean / max",
+    "pool: plain sort mean / max",
+    "sort / ours",
+    "cycle",
+    "full collections: n / longest",
+    "faults",
+)
+
+
+def report(results: list[Result]) -> None:
+    print("A backlog of orders on the distribution centre, 17 shuttles (wall ms)")
+    print()
+    print("| " + " | ".join(COLUMNS) + " |")
+    print("|" + "|".join("---:" for _ in COLUMNS) + "|")
     for r in results:
         ratio = statistics.mean(r.sort_ms) / statistics.mean(r.pool_ms) if r.pool_ms else None
-        table.add_row(
+        cells = (
             f"{r.orders:,}",
             r.strategy,
             f"{r.release_scans}",
@@ -228,15 +229,14 @@ def report(results: list[Result], console: Console) -> None:
             f"{len(r.pool_ms)}",
             f"{statistics.mean(r.pool_ms):.3f} / {max(r.pool_ms):.3f}" if r.pool_ms else "-",
             f"{statistics.mean(r.sort_ms):.3f} / {max(r.sort_ms):.3f}" if r.sort_ms else "-",
-            f"{ratio:.0f}x" if ratio is not None else "-",
+            f"{ratio:.0f}" if ratio is not None else "-",
             f"{r.cycle_ms:.0f}",
             f"{len(r.full_gc_ms)} / {max(r.full_gc_ms, default=0.0):.1f}",
             f"{r.faults}",
         )
-    console.print(table)
-    console.print(
-        f"release budget: {RELEASE_BUDGET} orders a scan; every pool from the index matched the sort"
-    )
+        print("| " + " | ".join(cells) + " |")
+    print()
+    print(f"release budget: {RELEASE_BUDGET} orders a scan; every pool matched the sort's")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -260,15 +260,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.orders, args.after_s = [1_000, 10_000], 10.0
-    console = Console(width=250)
     begin = time.perf_counter()
     results = []
     for n in args.orders:
         for strategy in args.strategies:
             results.append(run(n, strategy, args.after_s, args.python_gc))
-            console.print(f"  {n:,} orders, {strategy}: done")
-    report(results, console)
-    console.print(f"wall time {time.perf_counter() - begin:.0f} s")
+            print(f"  {n:,} orders, {strategy}: done", flush=True)
+    report(results)
+    print(f"wall time {time.perf_counter() - begin:.0f} s")
     return 0
 
 

@@ -16,6 +16,7 @@ from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
+from plc_runtime.files import FileProblem, read_limited
 from topology import SAMPLES, Plant, TopologyError, load
 from vehicles.agv import AgvParams
 from vehicles.fleet import Faults
@@ -34,6 +35,9 @@ from .orders_config import (
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
 VEHICLES_PER_BUS = 126
 MODBUS = "modbus"  # the bus "interface" that means one Modbus TCP server per vehicle
+
+# a configuration is a few kilobytes; this is far above any, and bounds what a wrong path costs
+MAX_CONFIG_BYTES = 4 * 2**20
 
 
 def modbus_endpoint(channel: str) -> tuple[str, int]:
@@ -139,7 +143,9 @@ def load_config(path: str | Path | None = None) -> FleetConfig:
     path = Path(path) if path is not None else DEFAULT_CONFIG
     source = path.name if path == DEFAULT_CONFIG else str(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")
+    except FileProblem as exc:
+        raise ConfigError(f"{source}: {exc}, not a fleet configuration") from None
     except OSError as exc:
         raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError:

@@ -192,6 +192,7 @@ class FleetProgram:
             occupied_penalty=cfg.occupied_penalty,
             contraflow_penalty=cfg.contraflow_penalty,
             highway_factor=cfg.highway_factor,
+            starts={v: cfg.starts[v] for v in vehicles if v in cfg.starts},
         )
         self.chooser = StationChooser(plant, cfg.clusters, cfg.strategy, self.table, cfg.seed)
         self.completed: list[RecipeRun] = []

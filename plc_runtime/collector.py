@@ -15,10 +15,11 @@ full collections become rare. Each young collection traverses more objects, but 
 work falls, since it no longer copies the same temporaries scan after scan.
 
 A program that holds many objects makes a full collection long whatever it allocates: a
-fleet with 100,000 orders in its book holds some 700,000 container objects, and one full
-pass over them takes 0.1-0.4 s, more than a 150 ms watchdog allows. CPython runs one
+program that keeps 700,000 container objects (100,000 records of some seven objects each)
+makes one full pass take 0.1-0.4 s, more than a 150 ms watchdog allows. CPython runs one
 whenever the objects that survived into the oldest generation have grown by a quarter
-since the last (a large order file being released grows them so, again and again).
+since the last (a program taking in a large file of records grows them so, again and
+again).
 ``FullCollections`` takes that decision out of the scans: automatic full collections are
 off while the cyclic phase runs, and the runtime makes one after a scan, outside its time
 and watchdog, once the interpreter's allocated memory blocks have grown by a quarter since
@@ -97,11 +98,13 @@ class FullCollections:
         self._saved: tuple[int, ...] | None = None
         self._set: tuple[int, ...] | None = None
         self._baseline = 0
+        self._promotions = 0
 
     def enter(self) -> None:
         if not self.enabled or not gc.isenabled():
             return  # (disabled: whoever disabled it collects)
         self._baseline = self.blocks()
+        self._promotions = gc.get_count()[2]
         current = gc.get_threshold()
         if current[2] >= SUSPENDED:
             return  # (another runtime suspended them: it puts them back)
@@ -110,14 +113,22 @@ class FullCollections:
         gc.set_threshold(*self._set)
 
     def after_scan(self) -> bool:
-        """Between two scans: a full collection if the heap has grown enough; True if so."""
+        """Between two scans: a full collection if the heap has grown enough; True if so.
+
+        Objects reach the oldest generation only in a generation-1 collection, so the heap
+        is measured (which walks the interpreter's memory arenas) only after one ran."""
         if not self.enabled or not gc.isenabled() or gc.get_threshold()[2] < SUSPENDED:
             return False
+        promotions = gc.get_count()[2]  # generation-1 collections since the last full one
+        if promotions == self._promotions:
+            return False
+        self._promotions = promotions
         if self.blocks() < self._baseline * GROWTH:
             return False
         gc.collect()
         self.collections += 1
         self._baseline = self.blocks()
+        self._promotions = gc.get_count()[2]
         return True
 
     def exit(self) -> None:

@@ -18,9 +18,12 @@ import zlib
 from pathlib import Path
 
 from .errors import RetainError
+from .files import FileProblem, is_special, read_limited
 
 MAGIC = "PLCRETAIN"
 VERSION = 1
+# far above any program's retentive values; a larger file is not one of ours
+MAX_RETAIN_BYTES = 64 * 2**20
 
 
 def _unstorable(value: object) -> str | None:
@@ -57,6 +60,9 @@ class RetainFile:
             problem = _unstorable(value)
             if problem:
                 raise RetainError(f"retain value {key} cannot be stored: {problem}")
+        what = is_special(self.path)
+        if what is not None:  # (the rename below would replace the node: a device, a pipe)
+            raise RetainError(f"{self.path}: cannot write retain file: it is {what}")
         body = json.dumps(values, sort_keys=True, allow_nan=True).encode()
         header = f"{MAGIC} {VERSION} {layout} {zlib.crc32(body):08x} {len(body)}\n".encode()
         try:
@@ -79,9 +85,11 @@ class RetainFile:
     def load(self, layout: str) -> dict[str, object] | None:
         """The stored values, None if there is no file; RetainError if it cannot be trusted."""
         try:
-            raw = self.path.read_bytes()
+            raw = read_limited(self.path, MAX_RETAIN_BYTES)
         except FileNotFoundError:
             return None
+        except FileProblem as exc:
+            raise RetainError(f"{self.path}: not a retain file: {exc}") from None
         except OSError as exc:
             raise RetainError(
                 f"{self.path}: cannot read retain file: {exc.strerror or exc}"
@@ -129,6 +137,9 @@ class RetainFile:
         the next save would otherwise overwrite values that may still be wanted (a file of
         another program version, one damaged in a way a person can repair). OSError if the
         rename fails."""
+        what = is_special(self.path)
+        if what is not None:  # (renaming a device node would take it from the system)
+            raise OSError(f"it is {what}")
         aside = self.path.with_name(self.path.name + ".rejected")
         number = 0
         while aside.exists():

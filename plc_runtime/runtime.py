@@ -28,6 +28,7 @@ from .collector import DEFAULT_YOUNG_THRESHOLD, FullCollections, YoungThreshold
 from .context import CycleContext
 from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
+from .files import is_special
 from .image import ProcessImage, ProgramImage
 from .io import IoDriver
 from .retain import RetainStore, layout_hash
@@ -136,6 +137,8 @@ class Runtime:
         self.stats = RuntimeStats(self)
         if retain_file is not None and Path(retain_file).is_dir():
             raise ConfigError(f"retain file {retain_file} is a directory; give a file path")
+        if retain_file is not None and (what := is_special(retain_file)) is not None:
+            raise ConfigError(f"retain file {retain_file} is {what}, not a file; give a file path")
         self._retain = RetainStore(retain_file)
         self._tick_ns = round(self.cycle_time * 1e9)
         self._watchdog_ns = round(self.watchdog * 1e9)

@@ -22,8 +22,11 @@ from pathlib import Path
 from .address import Address, parse_address
 from .datatypes import TYPES, DataType
 from .errors import AddressError, ConfigError
+from .files import FileProblem, read_limited
 
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
+
+MAX_TAG_FILE_BYTES = 4 * 2**20  # far above any tag table
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,7 +109,9 @@ class TagTable:
         """Load ``[tags.<name>]`` tables with keys address, type, retain, writable, comment."""
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
+            data = tomllib.loads(read_limited(path, MAX_TAG_FILE_BYTES).decode("utf-8"))
+        except FileProblem as exc:
+            raise ConfigError(f"{path}: {exc}, not a tag file") from None
         except OSError as exc:
             raise ConfigError(f"{path}: cannot read tag file: {exc.strerror}") from None
         except UnicodeDecodeError:

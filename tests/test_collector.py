@@ -173,10 +173,14 @@ def test_a_full_collection_once_the_heap_has_grown_by_a_quarter(python_threshold
     full.enter()
     assert gc.get_threshold() == (700, 10, SUSPENDED)
     heap[0] = 1249
+    gc.collect(1)  # (a young collection that may have promoted objects: the heap is measured)
     assert not full.after_scan()
     heap[0] = 1250
+    assert not full.after_scan()  # (no young collection since: not measured)
+    gc.collect(1)
     assert full.after_scan() and full.collections == 1
     heap[0] = 1300  # the new baseline is 1250
+    gc.collect(1)
     assert not full.after_scan()
     full.exit()
     assert gc.get_threshold() == (700, 10, 10)

@@ -5,6 +5,7 @@ the history CSV has the seed's columns."""
 import csv
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -311,7 +312,11 @@ def test_csv_and_json_take_and_refuse_the_same_integers_alike(tmp_path, field, v
 def test_unreadable_files_are_one_line_errors(tmp_path):
     assert "cannot read order file" in error_of(tmp_path / "missing.csv")
     (tmp_path / "dir.json").mkdir()
-    assert "cannot read order file" in error_of(tmp_path / "dir.json")
+    assert "not a regular file (a directory)" in error_of(tmp_path / "dir.json")
+    os.mkfifo(tmp_path / "pipe.csv")  # (opening it would wait for a writer for ever)
+    assert "not a regular file (a named pipe)" in error_of(tmp_path / "pipe.csv")
+    (tmp_path / "zero.csv").symlink_to("/dev/zero")  # (it never ends)
+    assert "not a regular file (a device)" in error_of(tmp_path / "zero.csv")
     assert "binary data" in error_of(write(tmp_path, "b.csv", b"id,get,put\n\0\n"))
     assert "not UTF-8 text (byte 11)" in error_of(write(tmp_path, "u.csv", b"id,get,put\n\xff\n"))
     assert "unknown order file format '.xlsx'" in error_of(write(tmp_path, "o.xlsx", "id"))

@@ -1,7 +1,8 @@
 """The order intake of the running fleet program (fleet/order_system.py): whatever is
 submitted, the Future gets the answer and the scan goes on; a large order file is released a
-bounded number of orders per scan, in its order; an order for a vehicle that runs recipes is
-refused; a configured order not released yet can be withdrawn."""
+bounded number of orders per scan, in its order, and a blockade over it is checked a bounded
+number per scan; an order for a vehicle that runs recipes is refused; a configured order not
+released yet can be withdrawn."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import math
 import pytest
 from test_orders_program import config, run, start
 
+from blocks.dispatch import dispatcher
 from blocks.dispatch.order_file import OrderFileError, load_orders, write_orders
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder, check_order
 from fleet.order_report import order_summary
@@ -152,3 +154,38 @@ def test_priority_is_bounded_alike_in_files_over_http_and_at_submit(tmp_path):
         check_order(over_http.order())
     words = "field 'priority': not an integer of at most 18 digits: '10000000000000000000'"
     assert str(in_file.value).endswith(words) and str(checked.value).endswith(words)
+
+
+def test_a_blockade_over_a_large_backlog_is_checked_a_budget_a_scan_and_gives_out_nothing_cut(
+    tmp_path, made, monkeypatch
+):
+    """Station 20 cut off (no way in) with 6,000 orders waiting, half of them to it: while
+    their routes are not checked again, the rounds give none of those to the free vehicles;
+    then they are checked ROUTE_BUDGET a scan (all at once stretched one scan by a second)
+    and every order to or from station 20 ends UNROUTABLE."""
+    n = 6_000
+    rows = "".join(f"o{k},{21 + k % 9},{20 if k % 2 else 21 + (k + 4) % 9}\n" for k in range(n))
+    p = start(config("id,get,put\n" + rows, tmp_path), made)
+    book = p.orders.book
+    run(p, p.cfg.cycle_time * (n // RELEASE_BUDGET + 2))
+    assert len(book) == n
+    taken = [o.id for o in book if o.assigned is not None]
+    p.orders.withdraw(taken)  # the vehicles are free again
+    for a, b in sorted(p.cfg.plant.arc_index):
+        if b == 20:
+            p.blockades.block(a, b, both_ways=False)
+    cut = {o.id for o in book if 20 in (o.get, o.put) and o.id not in taken}
+    monkeypatch.setattr(dispatcher, "ROUTE_BUDGET", 0)  # not checked again for a while
+    rounds = p.orders.dispatcher.rounds
+    for scan in range(round(30 / p.cfg.cycle_time)):
+        run(p, p.cfg.cycle_time)
+        assert not {o.id for o in book if o.assigned is not None} & cut, scan
+    assert p.orders.dispatcher.rounds >= rounds + 3  # rounds ran over the unchecked orders
+    assert book.counts()["UNROUTABLE"] == 0
+    budget = 100
+    monkeypatch.setattr(dispatcher, "ROUTE_BUDGET", budget)
+    for scan in range(math.ceil(n / budget) + 2):
+        before = book.counts()["UNROUTABLE"]
+        run(p, p.cfg.cycle_time)
+        assert book.counts()["UNROUTABLE"] - before <= budget, scan
+    assert {o.id for o in book if o.state is OrderState.UNROUTABLE} == cut

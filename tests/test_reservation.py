@@ -144,3 +144,19 @@ def test_planned_routes_make_the_opposite_direction_cost_more():
     res.plan(2, [idx[8]])  # it has arrived: its share of the flow is gone
     res.penalties_for(1, out)
     assert out[against] == 3.0 and out[plant.arc_index[(8, 7)][0]] == 0.0
+
+
+def test_a_configured_start_is_held_before_the_first_report_and_a_forged_one_refused():
+    """A vehicle's start node is its own before it reports: it is never released to
+    another vehicle, and a first report elsewhere (a forged frame) is implausible, where
+    without starts a vehicle holding nothing may report any free node."""
+    plant = model_plant()
+    i = plant.index
+    res = ReservationMatrix(plant, [1, 2], starts={1: 0, 2: 10})
+    assert res.holds == {1: [i[0]], 2: [i[10]]}
+    assert res.holder[i[0]] == 1 and not res.may_enter(2, i[0])[0]
+    assert "never released" in res.plausible(1, i[24])
+    assert not res.report(1, i[24]) and res.holds[1] == [i[0]]
+    assert res.report(1, i[0]) and res.holds[1] == [i[0]]
+    free = ReservationMatrix(plant, [1, 2])
+    assert free.report(1, i[24]) and free.holds[1] == [i[24]]

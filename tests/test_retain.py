@@ -2,11 +2,15 @@
 
 import os
 import re
+from pathlib import Path
 
 import pytest
 
 from blocks.standard import CTU
+from fleet.config import load_config
 from plc_runtime import FunctionBlock, RetainError, Runtime, Static, TagTable, VirtualClock
+from plc_runtime.errors import ConfigError
+from topology import TopologyError, load
 
 
 class Machine(FunctionBlock):
@@ -306,3 +310,21 @@ def test_blocks_created_in_startup_are_reported_not_silently_dropped():
     with pytest.warns(RuntimeWarning, match="blocks created in startup\\(\\) are not kept"):
         rt.start()
     rt.stop()
+
+
+def test_a_device_or_pipe_is_never_read_renamed_or_replaced(tmp_path):
+    """A retain path naming a named pipe (opening it would wait for ever) or a device
+    (renaming it would take it from the system) is refused before anything touches it;
+    the same for a fleet configuration or a plant file named so."""
+    pipe = tmp_path / "pipe.toml"
+    os.mkfifo(pipe)
+    for special, what in ((pipe, "a named pipe"), (Path("/dev/null"), "a device")):
+        with pytest.raises(ConfigError, match=f"is {what}, not a file"):
+            Runtime(cycle_time=0.01, retain_file=special)
+    assert pipe.exists() and Path("/dev/null").is_char_device()
+    with pytest.raises(ConfigError, match=r"not a regular file \(a named pipe\)"):
+        load_config(pipe)
+    with pytest.raises(ConfigError, match=r"not a regular file \(a device\)"):
+        load_config("/dev/zero")
+    with pytest.raises(TopologyError, match="not a regular file"):
+        load(pipe)

@@ -3,18 +3,21 @@
 The dispatcher decides *what* a vehicle does; routing and traffic decide *how* it drives
 (openTCS's split of dispatcher, router and scheduler). Every scan it
 
-1. checks new orders, and all orders again when the blockades changed: an order whose Put
-   station cannot be reached from its Get station over open segments, or whose Get station
-   no vehicle can reach, is UNROUTABLE; an order whose vehicle can no longer reach its next
-   station goes back to the pool (before the pickup) or FAILS (the load is on board);
+1. checks new orders, and all waiting orders again when the blockades changed (at most
+   ``ROUTE_BUDGET`` a scan): an order whose Put station cannot be reached from its Get
+   station over open segments, or whose Get station no vehicle can reach, is UNROUTABLE;
+   an order whose vehicle can no longer reach its next station goes back to the pool
+   (before the pickup) or FAILS (the load is on board);
 2. with ``two_stage``, notices a running section that took more than ``1 + deviation``
    times its estimate, and then takes every vehicle's next order back for a new round;
 3. starts an allocation round when a vehicle could take an order and orders wait (not more
-   often than every ``interval_s``), and advances the running round by at most ``budget``
-   (vehicle, order) evaluations; a complete round is applied at once, after checking each
-   assignment still holds (the order still waits, the vehicle is still free). A two_stage
-   round starts from the station reservation lists as the vehicles stand
-   (:func:`live_schedule`), so a late vehicle or a queue in front of a station is priced in.
+   often than every ``interval_s``) over the ``pool_limit`` most urgent waiting orders
+   (from an index, :class:`UrgentOrders`, not a sort of them all), and advances the
+   running round by at most ``budget`` (vehicle, order) evaluations; a complete round is
+   applied at once, after checking each assignment still holds (the order still waits,
+   the vehicle is still free). A two_stage round starts from the station reservation
+   lists as the vehicles stand (:func:`live_schedule`), so a late vehicle or a queue in
+   front of a station is priced in.
 
 Vehicles that are offline, stale, faulty or suspect take nothing (``available``); a vehicle
 whose battery would end an order below the ChargePolicy's ``good`` level takes nothing
@@ -24,6 +27,7 @@ either, and a charging one only once its charge is sufficient.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Mapping
 
 from plc_runtime import CycleContext, FunctionBlock, Output
@@ -45,6 +49,8 @@ from .strategies import (
 )
 from .urgent_orders import UrgentOrders
 
+# route checks of waiting orders per scan after the blockades changed (each a few lookups)
+ROUTE_BUDGET = 1000
 # orders whose start time came made startable per scan (dhht, nearest_idle): each costs two
 # heap operations, so 1000 stay within a few milliseconds even on a pool of 100,000
 STARTABLE_BUDGET = 1000
@@ -100,7 +106,10 @@ class Dispatcher(FunctionBlock):
         self._round = None
         self._working: StationSchedule | None = None
         self._last_round_ns: int | None = None
+        # orders whose routes were checked since the blockades changed, and the waiting
+        # orders still to check again after a change
         self._checked: set[str] = set()
+        self._recheck: deque[TransportOrder] = deque()
         self._revision = 0  # the book's revision when the routes were last checked
         # the waiting orders by urgency (two_stage also plans orders whose start is to come)
         self._urgent = UrgentOrders(startable_only=strategy != "two_stage")
@@ -136,17 +145,23 @@ class Dispatcher(FunctionBlock):
     def _check_routes(self, ctx: CycleContext) -> None:
         blockades_changed = self._epoch != self.reach.blockades.epoch
         self._epoch = self.reach.blockades.epoch
-        # only the orders that changed state since the last check can be new to it (a few
-        # per scan); all of them after a blockade change, or if the book's journal overran
-        changed = None if blockades_changed else self.book.changed_since(self._revision)
+        if blockades_changed:
+            # every waiting order again, ROUTE_BUDGET a scan (a backlog may hold 100,000);
+            # meanwhile a round checks its own pool (_start_round)
+            self._checked.clear()
+            self._recheck = deque(self.book.dispatchable())
+        # the orders that changed state since the last check can be new to it (a few per
+        # scan); if the book's journal overran, every waiting order again
+        changed = self.book.changed_since(self._revision)
         if changed is None:
-            fresh = self.book.dispatchable()
-        else:
-            fresh = [
-                o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None
-            ]
+            self._checked.clear()
+            self._recheck = deque(self.book.dispatchable())
+            changed = []
+        fresh = [o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None]
+        for _ in range(min(ROUTE_BUDGET, len(self._recheck))):
+            fresh.append(self._recheck.popleft())
         for order in fresh:
-            if order.id in self._checked and not blockades_changed:
+            if order.id in self._checked or order.state is not OrderState.DISPATCHABLE:
                 continue
             self._checked.add(order.id)
             why = self._unroutable(order)
@@ -260,7 +275,13 @@ class Dispatcher(FunctionBlock):
                 self.runners, self.estimates, self.schedule.buffer_s, ctx.time
             )
         vehicles, orders = self._candidates(ctx, finish), self._pool(ctx)
-        orders = [o for o in orders if any(self.reach.reaches(c.node, o.get) for c in vehicles)]
+        # (an order not rechecked since the blockades changed may be cut off: not given out)
+        orders = [
+            o
+            for o in orders
+            if self.reach.reaches(o.get, o.put)
+            and any(self.reach.reaches(c.node, o.get) for c in vehicles)
+        ]
         if not vehicles or not orders:
             self._working = None
             return

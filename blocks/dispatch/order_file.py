@@ -25,6 +25,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from plc_runtime.files import FileProblem, read_limited
 from topology.formats.numbers import (
     MAX_DIGITS,
     TOO_LONG,
@@ -73,14 +74,14 @@ def load_orders(path: str | Path) -> list[TransportOrder]:
 
 def _read_text(path: Path) -> str:
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_FILE_BYTES + 1)  # bounded: a huge file or a device never ends
+        raw = read_limited(path, MAX_FILE_BYTES)  # bounded: a huge file or a device never ends
+    except FileProblem as exc:
+        limit = (
+            f", the limit for order files ({LIMITS_DOC})" if str(exc).startswith("larger") else ""
+        )
+        raise OrderFileError(f"{path}: {exc}{limit}") from None
     except OSError as exc:
         raise OrderFileError(f"{path}: cannot read order file: {exc.strerror or exc}") from None
-    if len(raw) > MAX_FILE_BYTES:
-        raise OrderFileError(
-            f"{path}: larger than {MAX_FILE_BYTES:,} bytes, the limit for order files ({LIMITS_DOC})"
-        )
     if b"\0" in raw:
         raise OrderFileError(f"{path}: binary data, not an order file")
     try:

@@ -39,7 +39,7 @@ really are); both may then move on inside it, and nobody else enters until both 
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -63,7 +63,12 @@ class ReservationMatrix(FunctionBlock):
         oncoming_penalty: float | None = None,
         contraflow_penalty: float = 0.0,
         highway_factor: float = 1.0,
+        starts: Mapping[int, int] | None = None,
     ) -> None:
+        """``starts``: vehicle -> the node id it is configured to start on, held for it
+        from the start, so that the node it may stand on is never released to another
+        vehicle before its first report (nor after a forged first report elsewhere,
+        which is then implausible)."""
         super().__init__()
         self.plant = plant
         self.vehicles = sorted(vehicles)
@@ -85,6 +90,11 @@ class ReservationMatrix(FunctionBlock):
                 self.area_of[plant.index[n]] = a
         self.occupants: list[set[int]] = [set() for _ in self.area_names]
         self._presence: dict[int, frozenset[int]] = {v: frozenset() for v in self.vehicles}
+        for v, node_id in sorted((starts or {}).items()):
+            node = plant.index[node_id]
+            if v in self.holds and self.holder[node] == FREE:
+                self.holds[v].append(node)
+                self.holder[node] = v
         self._awaited_area: dict[int, int] = {}  # area index -> the standing vehicle awaiting it
         src, dst, length = plant.arcs
         longest = float(length.max()) if len(length) else 1.0

@@ -29,6 +29,8 @@ routable = true          # default true; false = a lane routing ignores (return 
 from __future__ import annotations
 
 import json
+import os
+import stat
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -44,6 +46,9 @@ TOP_KEYS = {"name", "functions", "nodes", "edges"}
 
 def read_text(path: Path) -> str:
     try:
+        mode = os.stat(path).st_mode
+        if not stat.S_ISREG(mode):  # a device never ends, a named pipe waits for a writer
+            raise TopologyError("not a regular file (a device, a pipe or a socket)", str(path))
         with open(path, "rb") as fh:
             raw = fh.read(MAX_FILE_BYTES + 1)  # bounded: a huge file or a device never ends
     except OSError as exc:

@@ -1,0 +1,58 @@
+"""Reading a file a user named, without trusting what the name leads to.
+
+A path given on a command line or in a configuration may name a device (``/dev/zero``
+never ends), a named pipe (opening it waits for a writer for ever) or a file far larger
+than any the reader expects. ``read_limited`` refuses anything but a regular file before
+opening it and reads at most ``limit`` bytes, so such a name gets a one-line error instead
+of a hang or a process that eats the machine's memory.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+
+class FileProblem(ValueError):
+    """The path names no regular file, or one larger than the reader's limit."""
+
+
+def read_limited(path: str | os.PathLike[str], limit: int) -> bytes:
+    """The bytes of the regular file ``path`` (symbolic links followed), at most ``limit``.
+
+    FileProblem if it is no regular file or is larger; OSError if it cannot be read
+    (FileNotFoundError when there is none)."""
+    path = Path(path)
+    mode = os.stat(path).st_mode
+    if not stat.S_ISREG(mode):
+        raise FileProblem(f"not a regular file ({kind(mode)})")
+    with open(path, "rb") as fh:
+        raw = fh.read(limit + 1)
+    if len(raw) > limit:
+        raise FileProblem(f"larger than {limit:,} bytes")
+    return raw
+
+
+def is_special(path: str | os.PathLike[str]) -> str | None:
+    """What ``path`` is if it exists and is no regular file or directory (a device, a pipe,
+    a socket), else None: a file this program would write must not replace such a node."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    return kind(mode)
+
+
+def kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a directory"
+    if stat.S_ISFIFO(mode):
+        return "a named pipe"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a file"
