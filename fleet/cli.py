@@ -110,7 +110,12 @@ def _run(args: argparse.Namespace) -> int:
 def modbus_server(spec: str, writable: str | None = None) -> ModbusServer:
     """The Modbus TCP server of ``--modbus HOST:PORT`` (``--modbus-writable NAMES``)."""
     host, sep, port = spec.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+    if (
+        not sep
+        or not host
+        or not (port.isascii() and port.isdigit())
+        or not 0 <= int(port) <= 65535
+    ):
         raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
     extra = [] if writable is None else [name.strip() for name in writable.split(",")]
     return ModbusServer(host=host, port=int(port), writable_extra=extra)

@@ -43,7 +43,12 @@ MAX_CONFIG_BYTES = 4 * 2**20
 def modbus_endpoint(channel: str) -> tuple[str, int]:
     """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v."""
     host, sep, port = channel.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535 - VEHICLES_PER_BUS:
+    if (
+        not sep
+        or not host
+        or not (port.isascii() and port.isdigit())
+        or not 1 <= int(port) <= 65535 - VEHICLES_PER_BUS
+    ):
         raise ConfigError(
             f"modbus vehicle link {channel!r}: expected HOST:BASE_PORT with a base port in "
             f"1..{65535 - VEHICLES_PER_BUS}, e.g. 127.0.0.1:5100 (vehicle v serves on BASE_PORT + v)"
@@ -291,7 +296,12 @@ def host_port(text: str) -> tuple[str, int]:
     wrong."""
     host, sep, port = text.rpartition(":")
     host = host.removeprefix("[").removesuffix("]")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+    if (
+        not sep
+        or not host
+        or not (port.isascii() and port.isdigit())
+        or not 0 <= int(port) <= 65535
+    ):
         raise ValueError(f"expected HOST:PORT, e.g. 127.0.0.1:8080, got {text!r}")
     return host, int(port)
 
@@ -354,7 +364,7 @@ def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
             clusters.setdefault(f, []).append(node.id)
     given = reader.get("clusters", dict, {})
     for key, stations in given.items():
-        if not key.isdigit():
+        if not (key.isascii() and key.isdigit()):
             raise reader.fail(f"clusters.{key}", "function ids are integers >= 0")
         if (
             not isinstance(stations, list)
@@ -412,6 +422,8 @@ def _vehicles(
         if own is None:
             # every vehicle runs all recipes, each starting at a different one (level 4)
             own = names[len(starts) % len(names) :] + names[: len(starts) % len(names)]
+        if not own or not all(isinstance(name, str) for name in own):
+            raise r.fail("recipes", "must be a non-empty list of recipe names")
         for name in own:
             if name not in recipes:
                 raise r.fail("recipes", f"unknown recipe {name!r} (defined: {', '.join(names)})")

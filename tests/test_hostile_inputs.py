@@ -570,3 +570,36 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
     assert rt.retain_error is None
     assert (tmp_path / "plc.retain.rejected").read_bytes() == stored
     assert run_and_stop(path, 0, name="new").scans == 3
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (
+            "[stations]",
+            '[stations.clusters]\n"²" = [15]\n[stations]',
+            r"stations\.clusters\.²: function ids",
+        ),
+        (
+            "start = 0",
+            "start = 0\nrecipes = []",
+            r"vehicles\[0\]\.recipes: must be a non-empty list",
+        ),
+        (
+            "start = 0",
+            'start = 0\nrecipes = [["a"]]',
+            r"vehicles\[0\]\.recipes: must be a non-empty list",
+        ),
+    ],
+    ids=["superscript-function-id", "no-recipes", "nested-recipes"],
+)
+def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old, new, message):
+    """Digits that str.isdigit() takes but int() does not, and recipe lists that are not
+    lists of names: a ConfigError naming the key, not a ValueError or TypeError."""
+    from fleet.config import DEFAULT_CONFIG, parse_config
+    from plc_runtime.errors import ConfigError
+
+    text = DEFAULT_CONFIG.read_text()
+    assert old in text
+    with pytest.raises(ConfigError, match=message):
+        parse_config(text.replace(old, new, 1), "d.toml")

@@ -277,7 +277,12 @@ def test_fingerprint_changes_with_routing_relevant_edits(pairs, directed):
         (
             "big.json",
             '{"nodes": [{"id": 0, "x": 1' + "0" * 400 + '}], "edges": []}',
-            "x must be a finite number, got 1000",
+            r"x must be a finite number within ±1e\+12 m, got 1000",
+        ),
+        (  # (finite, but the plant's extent 2e308 is not: its drawing failed at a run's end)
+            "far.json",
+            '{"nodes": [{"id": 0, "x": 1e308}, {"id": 1, "x": -1e308}], "edges": []}',
+            r"x must be a finite number within ±1e\+12 m, got 1e\+308",
         ),
         ("digits.json", '{"nodes": [{"id": 1' + "0" * 5000 + '}], "edges": []}', "unreadable JSON"),
         ("deep.json", "[" * 100_000, "unreadable JSON"),

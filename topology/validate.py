@@ -86,12 +86,16 @@ def _floats(values: list[object]) -> np.ndarray | None:
     return None
 
 
-def _finite_mask(values: list[object]) -> np.ndarray:
-    """Which values pass ``_finite``."""
+def _coordinate_mask(values: list[object]) -> np.ndarray:
+    """Which values are coordinates: finite and within MAX_LENGTH of the origin, so that
+    differences of two stay finite (a length, a drawing's extent)."""
     as_floats = _floats(values)
-    if as_floats is not None:
-        return np.isfinite(as_floats)
-    return np.fromiter(map(_finite, values), bool, len(values))
+    if as_floats is None:
+        finite = [_finite(v) for v in values]
+        as_floats = np.array(
+            [float(v) if ok else np.inf for v, ok in zip(values, finite, strict=True)]
+        )
+    return np.abs(as_floats) <= MAX_LENGTH  # False for NaN and infinities
 
 
 def _length_mask(values: list[object]) -> np.ndarray:
@@ -142,8 +146,18 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
                 _role_mask(roles),
                 lambda i: f"unknown role {roles[i]!r} (one of {', '.join(ROLES)})",
             ),
-            (_finite_mask(xs), lambda i: f"x must be a finite number, got {_short(xs[i])}"),
-            (_finite_mask(ys), lambda i: f"y must be a finite number, got {_short(ys[i])}"),
+            (
+                _coordinate_mask(xs),
+                lambda i: (
+                    f"x must be a finite number within ±{MAX_LENGTH:g} m, got {_short(xs[i])}"
+                ),
+            ),
+            (
+                _coordinate_mask(ys),
+                lambda i: (
+                    f"y must be a finite number within ±{MAX_LENGTH:g} m, got {_short(ys[i])}"
+                ),
+            ),
             (functions_ok, bad_function),
             (
                 may_provide,

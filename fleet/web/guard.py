@@ -124,7 +124,7 @@ class Guard:
                 await self._refuse(scope, send, 403, "wrong token")
                 return
         declared = headers.get("content-length", "")
-        if declared.isdigit() and int(declared) > self.max_body:
+        if declared.isascii() and declared.isdigit() and int(declared) > self.max_body:
             await self._refuse(
                 scope,
                 send,
