@@ -14,6 +14,11 @@
    bus, so 1000 vehicles are 8 buses and 8 drivers), every vehicle reporting every 100 ms;
    the fleet is simulated between scans, outside the measured time. Baseline: the same
    runtime and program without drivers.
+5. A flood of valid status frames (each passes the CRC and counter checks): the time one
+   tick's ``read_inputs`` takes with the per-tick cap a fleet program sets
+   (``frames_per_tick``: what a 1 Mbit/s bus carries in a cycle) against the driver's
+   fixed default of 2,000 frames, for the default job's 4 vehicles at 10 ms and a full
+   bus of 126 at 50 ms.
 
 The full run takes about 1 minute. ``--quick`` sends a tenth of the frames, requests and
 scans and leaves out the 1000-vehicle row (whose fleet alone takes ~10 s to set up and
@@ -39,7 +44,7 @@ import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from io_drivers.can_driver import CanDriver  # noqa: E402
+from io_drivers.can_driver import CanDriver, frames_per_tick  # noqa: E402
 from io_drivers.e2e import CounterCheck  # noqa: E402
 from io_drivers.protocol import (  # noqa: E402
     DBC_PATH,
@@ -167,6 +172,27 @@ class Touch(FunctionBlock):
         read = ctx.image.read
         for ref in self.refs:
             read(ref)
+
+
+def flood_read_ms(vehicles: int, max_frames: int, ticks: int) -> float:
+    """Mean ms of one tick's ``read_inputs`` while more valid frames wait than it may read."""
+    channel = f"io-flood-{next(_channels)}"
+    sender = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    image = ProcessImage({"I": 4096, "Q": 4096})
+    driver = CanDriver(range(1, vehicles + 1), channel=channel, max_frames=max_frames)
+    driver.open(image)
+    try:
+        for msg in status_frames(max_frames * ticks + 1, vehicles):
+            sender.send(msg)
+        begin = time.perf_counter()
+        for _ in range(ticks):
+            driver.read_inputs(image, 0)
+        elapsed = time.perf_counter() - begin
+        assert driver.counters["deferred"] == ticks  # every tick left frames waiting
+        return elapsed / ticks * 1e3
+    finally:
+        driver.close()
+        sender.shutdown()
 
 
 def scan_times(vehicles: int, scans: int) -> tuple[float, float, float, float]:
@@ -375,6 +401,23 @@ def main() -> None:
         p50, p99, b50, b99 = scan_times(n, args.scans)
         print(
             f"| {n} | {(n + 124) // 125} | {p50:,.1f} | {p99:,.1f} | {b50:,.1f} | {b99:,.1f} | {p50 / b50:.1f} |"
+        )
+    print()
+    print("### A flood of valid frames: one tick's input phase")
+    print()
+    print(
+        "| vehicles | cycle ms | frames read per tick | ms per tick | fixed 2,000: ms "
+        "| / fixed | / cycle |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    ticks = max(2, args.frames // 2000)
+    for vehicles, cycle in ((4, 0.010), (126, 0.050)):
+        cap = frames_per_tick(cycle, vehicles, 0.1)
+        capped = flood_read_ms(vehicles, cap, ticks)
+        fixed = flood_read_ms(vehicles, 2000, ticks)
+        print(
+            f"| {vehicles} | {cycle * 1e3:g} | {cap} | {capped:.2f} | {fixed:.2f} "
+            f"| {capped / fixed:.2f} | {capped / (cycle * 1e3):.2f} |"
         )
     print()
     print(f"wall time {time.perf_counter() - begin:.1f} s")

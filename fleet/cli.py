@@ -103,6 +103,13 @@ def _run(args: argparse.Namespace) -> int:
         raise CliError(f"--bus and --vehicles are for the fleet program, not {args.program!r}")
     if args.web or args.web_token:
         raise CliError(f"--web serves the fleet program's API and page, not {args.program!r}")
+    given = [
+        "--" + name.replace("_", "-")
+        for name in ("traffic", "dispatch", "vehicles_count")
+        if getattr(args, name) is not None
+    ]
+    if given:
+        raise CliError(f"{', '.join(given)}: for the fleet program, not {args.program!r}")
     drivers = [modbus_server(args.modbus, args.modbus_writable)] if args.modbus else []
     return run_program(args, args.program, PROGRAMS[args.program], drivers)
 

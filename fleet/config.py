@@ -112,6 +112,7 @@ class FleetConfig:
     highway_factor: float = HIGHWAY_FACTOR  # cost factor against a highway lane's direction
     traffic: str = "reactive"  # or "time_windows" (TRAFFIC_MODES)
     time_windows: TimeWindowsConfig = field(default_factory=TimeWindowsConfig)
+    time_windows_given: bool = False  # the configuration has a [time_windows] table
     bus_interface: str = "virtual"
     bus_channel: str = "agv"
     status_period_s: float = 0.1
@@ -226,9 +227,8 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     cfg.battery.start = charges
     cfg.agv = _simulation(TableReader(source, top.get("simulation", dict, {}), "simulation."))
     cfg.faults = _faults(TableReader(source, top.get("faults", dict, {}), "faults."), cfg.starts)
-    cfg.time_windows = _time_windows(
-        TableReader(source, top.get("time_windows", dict, {}), "time_windows.")
-    )
+    time_windows = top.get("time_windows", dict, None)
+    cfg.time_windows = _time_windows(TableReader(source, time_windows or {}, "time_windows."))
     cfg.web_address = _web(TableReader(source, top.get("web", dict, {}), "web."))
     if cfg.traffic not in TRAFFIC_MODES:
         raise routing.fail(
@@ -237,6 +237,14 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     if cfg.strategy not in STRATEGIES:
         raise stations.fail(
             "strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}"
+        )
+    cfg.time_windows_given = time_windows is not None
+    if cfg.status_period_s >= cfg.stale_after_s:
+        # a vehicle reporting this seldom would read as stale between two of its reports
+        raise bus.fail(
+            "status_period_s",
+            f"must be less than stale_after_s ({cfg.stale_after_s:g} s), got "
+            f"{cfg.status_period_s:g}: every vehicle would turn stale between its reports",
         )
     for reader in (runtime, routing, stations, sequencer, bus, top):
         reader.finish()
@@ -249,6 +257,18 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     if problems:
         raise ConfigError(f"{source}: vehicles: {problems[0]}")
     return cfg
+
+
+def idle_settings(cfg: FleetConfig) -> list[str]:
+    """Settings of the configuration that the run as configured (after any command-line
+    overrides) does not use: the operator would believe something tuned that does not run.
+    Not an error, since one configuration serves both traffic modes (``--traffic``)."""
+    if cfg.time_windows_given and cfg.traffic != "time_windows":
+        return [
+            f"{cfg.source}: [time_windows] is given but traffic is {cfg.traffic!r}: its "
+            'settings apply only with traffic = "time_windows"'
+        ]
+    return []
 
 
 def _time_windows(r: TableReader) -> TimeWindowsConfig:
@@ -267,6 +287,13 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
     if cfg.plan_order not in PLAN_ORDERS:
         raise r.fail(
             "plan_order", f"must be one of {', '.join(PLAN_ORDERS)}, got {cfg.plan_order!r}"
+        )
+    if cfg.wait_free_s > cfg.wait_occupied_s:
+        # T_w1 is the patience with a vehicle still on its way, T_w2 with one standing on
+        # the node: waiting longer for one that moves than for one that stands is backwards
+        raise r.fail(
+            "wait_free_s",
+            f"must not exceed wait_occupied_s ({cfg.wait_occupied_s:g} s), got {cfg.wait_free_s:g}",
         )
     if cfg.replan_s >= horizon_s:
         # a plan is booked horizon_s ahead and made again every replan_s: with a longer
@@ -444,6 +471,7 @@ def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
     if not any(rates.values()) and not items:
         return {}
     faults = {v: Faults(**rates) for v in starts}
+    given: dict[int, int] = {}  # vehicle id -> the entry that gave it
     for k, item in enumerate(items):
         if not isinstance(item, dict):
             raise ConfigError(f"{reader.source}: faults.vehicles[{k}]: expected a table")
@@ -451,6 +479,9 @@ def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
         vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
         if vid not in starts:
             raise r.fail("id", f"no vehicle {vid} in [[vehicles]]")
+        if vid in given:  # the later entry would replace the earlier one without a word
+            raise r.fail("id", f"vehicle {vid} is already given in faults.vehicles[{given[vid]}]")
+        given[vid] = k
         own = {key: r.number(key, rates[key], 0.0, 1.0) for key in rates}
         times = {
             name: r.get(key, float, None)

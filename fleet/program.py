@@ -40,7 +40,7 @@ from blocks.traffic.reservation import ReservationMatrix
 from blocks.traffic.sipp import TurnTimes
 from blocks.traffic.tw_traffic import TimeWindowTraffic
 from blocks.traffic.vehicle_control import VehicleControl
-from io_drivers.can_driver import CanDriver
+from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
@@ -324,6 +324,7 @@ class FleetProgram:
             input_base=base,
             output_base=base,
             stale_after=self.cfg.stale_after_s,
+            max_frames=frames_per_tick(self.cfg.cycle_time, len(local), self.cfg.status_period_s),
             name=f"can{suffix}",
         )
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -265,17 +266,45 @@ def check_out_dir(out_dir: Path) -> None:
 
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:
     """Write summary.json, recipes.csv, routes.png and, with transport orders, orders.csv
-    (every order's history) into ``out_dir`` (created)."""
+    (every order's history) into ``out_dir`` (created).
+
+    The data comes first and the drawing last: drawing a plant can fail where writing data
+    does not (matplotlib refusing a text, memory, a Ctrl-C during a drawing of seconds), and
+    a run's numbers must not be lost with its picture. summary.json is written before the
+    drawing and again after it, then naming routes.png under ``files`` or, if the drawing
+    failed, the reason under ``routes_error``; the failure is also a warning (one line,
+    naming routes.png and the reason)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    files = {
-        "summary": out_dir / "summary.json",
-        "recipes": out_dir / "recipes.csv",
-        "routes": out_dir / "routes.png",
-    }
+    files = {"summary": out_dir / "summary.json", "recipes": out_dir / "recipes.csv"}
     write_csv(program, files["recipes"])
     if program.orders is not None:
         files["orders"] = write_orders_csv(program.orders, out_dir / "orders.csv")
-    write_drawing(program, files["routes"])
+    _write_summary(result, files)
+    routes = out_dir / "routes.png"
+    try:
+        files["routes"] = write_drawing(program, routes)
+    except Exception as exc:  # any failure of the drawing: the data is written already
+        result["routes_error"] = _reason(exc)
+        warnings.warn(
+            f"{routes}: routes drawing not written: {result['routes_error']}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    _write_summary(result, files)
+    return result["files"]
+
+
+def _write_summary(result: dict[str, Any], files: dict[str, Path]) -> None:
+    """summary.json, its ``files`` naming the files written so far."""
     result["files"] = {k: str(p) for k, p in files.items()}
     files["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    return result["files"]
+
+
+def _reason(exc: Exception) -> str:
+    """One short line saying why: the OS's words for a file error, else the exception's
+    first line (matplotlib's can run to dozens of lines)."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    lines = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return text if len(text) <= 200 else text[:197] + "..."

@@ -151,7 +151,12 @@ VEHICLE_FIELDS = tuple(
     Field(name, type_, comment, writable, word=i)
     for i, (name, type_, comment, writable) in enumerate(
         (
-            ("node", "UINT", "node last reported (65535: none yet)", False),
+            (
+                "node",
+                "UINT",
+                "node last reported (65535: none yet, or one not in the plant: see suspect)",
+                False,
+            ),
             ("state", "UINT", f"control state: {_codes(STATE_CODES)}", False),
             ("battery", "UINT", "battery charge in %", False),
             ("speed", "UINT", "speed in cm/s", False),
@@ -418,7 +423,7 @@ class FleetStatus(FunctionBlock):
             command = outputs[o]
             is_held = c.vehicle in held
             values = (  # in the order of VEHICLE_FIELDS
-                current if known else NO_NODE,
+                current if known and current in c.index else NO_NODE,
                 STATE_CODES.get(c.state, UNKNOWN_STATE),
                 battery,
                 speed,

@@ -30,11 +30,16 @@ out-of-sequence counter (``repeated``, ``out_of_sequence``; ``lost`` counts the 
 counter step skipped, ``resyncs`` the senders whose counter jumped). What passes goes to
 the vehicle records, which confirm positions (``unconfirmed``: positions never repeated).
 Nothing a frame contains can raise out of the scan. Per tick at most ``max_frames`` frames
-are read, so a flooded bus cannot stretch the scan (the rest waits for the next tick).
+are read (the rest waits for the next tick, counted as ``deferred``), so a flooded bus
+cannot stretch the scan by more than reading that many costs: some 40 us a frame through
+python-can's virtual bus, so the 2,000 of the default are 80 ms, and a program sizes it
+to its cycle with :func:`frames_per_tick`. A sustained flood then delays the vehicles' own
+frames behind it until they are stale, which stops them where they are.
 """
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Iterable
 from typing import Any
@@ -71,6 +76,22 @@ from .vehicle_records import (  # noqa: F401 - the record API
     STALE,
     VehicleRecords,
 )
+
+# A classic CAN bus at 1 Mbit/s carries about 9,000 frames of 8 data bytes a second (some
+# 111 bits each with stuffing): more than that in a cycle cannot come from a real bus.
+CAN_FRAMES_PER_S = 10_000
+MIN_FRAMES_PER_TICK = 32
+
+
+def frames_per_tick(cycle_s: float, vehicles: int, status_period_s: float) -> int:
+    """The frames one tick should read at most: what a 1 Mbit/s bus carries in a cycle, or
+    four times the statuses the vehicles send in one (one each per ``status_period_s``; the
+    factor leaves room for their less frequent infos and for bursts), whichever is more, so
+    that the vehicles' own traffic is never deferred and a flood costs the scan no more than
+    a bus's worth."""
+    carried = cycle_s * CAN_FRAMES_PER_S
+    sent = 4 * vehicles * cycle_s / status_period_s
+    return max(MIN_FRAMES_PER_TICK, math.ceil(max(carried, sent)))
 
 
 class CanDriver:

@@ -15,6 +15,13 @@ never mid-scan. Addresses beyond the map get exception 2, function codes other t
 eight above exception 1, a failing callback exception 4; the read-only areas have no write
 function at all. Binds 127.0.0.1 unless told otherwise. Any unit id is answered.
 
+Requests are framed here, not by pymodbus (``_Connection``): requests pipelined on one
+connection are answered one by one, in order. A header that is not Modbus/TCP's (protocol
+id other than 0, a length outside 2..254) closes the connection at once; a request with a
+function code of 128..255, which mark exception responses, gets exception 1. A client that
+sends faster than it reads its answers is held back by TCP flow control: the server stops
+reading while its answers back up or more than MAX_BACKLOG bytes of its requests wait.
+
 Modbus/TCP has no authentication (docs/security.md), so the server is closed by default:
 
 - Writes go through an allow-list. The input and output images (coils and holding
@@ -28,6 +35,7 @@ Modbus/TCP has no authentication (docs/security.md), so the server is closed by 
   2 (illegal data address) and nothing of it is applied.
 - At most ``max_connections`` clients (16) at once, the next one is closed at once; a
   connection that sends no request for ``idle_timeout`` seconds (60) is closed.
+- A frame that is not Modbus/TCP's closes its connection at once.
 - Every refused request or connection is one log line (a warning), never a traceback.
 - Listening on anything but a loopback address warns (a RuntimeWarning, on stderr).
 
@@ -80,6 +88,9 @@ REGISTER_BYTES = 2 * N_INPUT_REGS  # bytes of %I, %Q and %M served as registers 
 BIT_BYTES = N_COILS // 8  # bytes of %I and %Q also served bit by bit (8192 bits each)
 MAX_CONNECTIONS = 16
 IDLE_TIMEOUT = 60.0  # seconds without a request before a connection is closed
+MBAP_HEADER = 7  # transaction id (2), protocol id (2), length (2), unit id (1)
+MBAP_LENGTHS = range(2, 255)  # the length field: unit id + a PDU of 1..253 bytes
+MAX_BACKLOG = 16 * 1024  # bytes of requests waiting on one connection before reading stops
 _DEFAULT_REASONS = {
     ExcCodes.ILLEGAL_FUNCTION: "function code not served",
     ExcCodes.ILLEGAL_ADDRESS: "address outside the served map",
@@ -164,6 +175,22 @@ def _make_unsupported_pdu(fc: int) -> type[ModbusPDU]:
 _UNSUPPORTED_PDUS = [_make_unsupported_pdu(fc) for fc in range(1, 128) if fc not in SUPPORTED_FCS]
 
 
+def mbap_error(head: bytes | bytearray) -> str | None:
+    """What is wrong with the start of an MBAP frame (as far as it has arrived), or None.
+
+    Only protocol id 0 is Modbus/TCP, and the length counts the unit id and a PDU of 1..253
+    bytes (a 260-byte ADU at most). A length outside that cannot be skipped safely: the
+    next frame would start at a guessed offset, so the connection is closed instead."""
+    if len(head) >= 4 and (pid := int.from_bytes(head[2:4], "big")) != 0:
+        return f"protocol id {pid}, not Modbus/TCP's 0"
+    if len(head) >= 6 and (length := int.from_bytes(head[4:6], "big")) not in MBAP_LENGTHS:
+        return (
+            f"MBAP length {length} outside {MBAP_LENGTHS.start}..{MBAP_LENGTHS.stop - 1} "
+            "(unit id + a PDU of 1..253 bytes)"
+        )
+    return None
+
+
 def check_limits(name: str, max_connections: int, idle_timeout: float | None) -> None:
     """The connection cap and the idle timeout must make sense (ConfigError naming them)."""
     if isinstance(max_connections, bool) or not isinstance(max_connections, int):
@@ -209,17 +236,27 @@ logging.getLogger("pymodbus.logging").addFilter(_QuietWhileServing())
 
 
 class _Connection(ServerRequestHandler):
-    """One client connection: counted against the cap, closed when idle, refusals logged."""
+    """One client connection: counted against the cap, closed when idle, refusals logged.
+
+    It also frames the byte stream itself: pymodbus decodes one frame per receive and drops
+    a receive over 516 bytes, so of requests pipelined in one TCP segment (legal in
+    Modbus/TCP: each has its own transaction id) it would answer one or none. Here the bytes
+    are buffered, cut into MBAP frames and handed to pymodbus one at a time, the next once
+    the previous one is answered: answers go out in request order, and the per-request
+    state below always belongs to the frame being handled."""
 
     def __init__(self, owner: ModbusTcpServer, guard: _ModbusThread) -> None:
         super().__init__(owner, self._trace, None, None)
         self.guard = guard
         self.peer = "?"
-        self.rx_fc = 0  # function code of the last request received
+        self.rx_fc = 0  # function code of the request being handled
         self.bad_coil_value = False  # that request is an FC5 with a value other than on/off
         self.reason: str | None = None  # why the request being handled is refused
         self._last_request = 0.0
         self._idle: asyncio.TimerHandle | None = None
+        self._rx = bytearray()  # received, not yet handed to pymodbus
+        self._in_flight = False  # a request is with pymodbus, its answer not yet sent
+        self._writing_paused = False  # the client does not read its answers fast enough
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         peer = transport.get_extra_info("peername")
@@ -241,6 +278,7 @@ class _Connection(ServerRequestHandler):
         if self._idle is not None:
             self._idle.cancel()
             self._idle = None
+        self._rx.clear()
         super().connection_lost(exc)
 
     def _check_idle(self, timeout: float) -> None:
@@ -252,13 +290,109 @@ class _Connection(ServerRequestHandler):
         self.guard.idle_closed(self)
         self.close()
 
+    # ----- framing -------------------------------------------------------------------
+    def _taking_requests(self) -> bool:
+        """Whether the connection still takes requests (admitted, not closed)."""
+        return self.transport is not None and not self.is_closing
+
+    def data_received(self, data: bytes) -> None:
+        """asyncio: bytes from the client, buffered here rather than in pymodbus (see the
+        class docstring)."""
+        if not self._taking_requests():
+            return
+        self._rx += data
+        self._pump()
+
+    def _pump(self) -> None:
+        """Hand the complete frames waiting to pymodbus, one at a time, then decide whether
+        to read on."""
+        while self._taking_requests() and not (self._in_flight or self._writing_paused):
+            frame = self._next_frame()
+            if frame is None:
+                break
+            self._serve(frame)
+        self._throttle()
+
+    def _next_frame(self) -> bytes | None:
+        """The first frame, taken out of the buffer; None while it is incomplete. A header
+        that is not Modbus/TCP's closes the connection (``mbap_error``)."""
+        if (why := mbap_error(self._rx[:MBAP_HEADER])) is not None:
+            self._drop(why)
+            return None
+        if len(self._rx) < MBAP_HEADER:
+            return None
+        size = 6 + int.from_bytes(self._rx[4:6], "big")  # the length counts from the unit id
+        if len(self._rx) < size:
+            return None
+        frame = bytes(self._rx[:size])
+        del self._rx[:size]
+        return frame
+
+    def _drop(self, why: str) -> None:
+        """Close the connection at once for a framing error, with one log line."""
+        self.guard.dropped(self, why)
+        self._rx.clear()
+        self.close()
+
+    def _throttle(self) -> None:
+        """Read from the client only while it is not too far ahead.
+
+        Reading stops while its answers back up (it does not read them) or while more than
+        MAX_BACKLOG bytes of its requests wait, and resumes once both have cleared (the
+        backlog at half): TCP then holds the rest on the client's side, so a client that
+        sends faster than it reads costs a bounded amount of memory and loses nothing."""
+        if not self._taking_requests():
+            return
+        transport: asyncio.Transport = self.transport  # type: ignore[assignment]
+        if self._writing_paused or len(self._rx) > MAX_BACKLOG:
+            if transport.is_reading():
+                transport.pause_reading()
+        elif len(self._rx) <= MAX_BACKLOG // 2 and not transport.is_reading():
+            transport.resume_reading()
+
+    def pause_writing(self) -> None:
+        """asyncio: the transport's send buffer is full; take no request until it drains."""
+        self._writing_paused = True
+        self._throttle()
+
+    def resume_writing(self) -> None:
+        """asyncio: the send buffer has drained; go on with the requests waiting."""
+        self._writing_paused = False
+        self._pump()
+
+    # ----- one request ---------------------------------------------------------------
+    def _serve(self, frame: bytes) -> None:
+        """One complete frame: answered by pymodbus, or here if it cannot be a request."""
+        self.rx_fc = frame[7]
+        # FC5 allows only 0xFF00 (on) and 0x0000 (off); pymodbus takes any other value as
+        # "on": remember it so the action can refuse the write with exception 3.
+        self.bad_coil_value = (
+            frame[7] == 5 and len(frame) >= 12 and frame[10:12] not in (b"\xff\x00", b"\x00\x00")
+        )
+        if frame[7] & 0x80:
+            self._not_a_request(frame)
+            return
+        self._in_flight = True
+        self.callback_data(frame)
+        # no request scheduled: pymodbus could not decode it and has answered already
+        self._in_flight = self.last_pdu is not None
+
+    def _not_a_request(self, frame: bytes) -> None:
+        """Answer a request with function code 128..255 with exception 01.
+
+        The Modbus application protocol reserves these codes for exception responses, so
+        such a frame is no request of any function: ILLEGAL FUNCTION is the answer the spec
+        gives for a function code the server does not serve, and it keeps the client's
+        transaction from waiting for a timeout. The exception response's function code is
+        the request's with bit 7 set, i.e. the request's own code here (pymodbus would
+        answer 04, as if it had failed serving it)."""
+        self.reason = "function codes 128..255 are reserved for exception responses, not requests"
+        tid, unit = int.from_bytes(frame[0:2], "big"), frame[6]
+        answer = ExceptionResponse(frame[7], ExcCodes.ILLEGAL_FUNCTION, unit, tid)
+        self.server_send(answer, None)
+
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        if len(data) >= 4 and data[2:4] != b"\x00\x00":
-            # pymodbus would keep the frame, unanswered, in front of every later one
-            pid = int.from_bytes(data[2:4], "big")
-            self.guard.dropped(self, f"protocol id {pid}, not Modbus/TCP's 0")
-            self.close()
-            return len(data)
+        """One complete frame (from ``_serve``) to pymodbus."""
         token = _CONNECTION.set(self)  # also inherited by the request task it schedules
         try:
             return super().callback_data(data, addr)
@@ -267,23 +401,20 @@ class _Connection(ServerRequestHandler):
 
     async def handle_request(self) -> None:
         _CONNECTION.set(self)  # this request's task only
-        await super().handle_request()
+        try:
+            await super().handle_request()
+        finally:
+            self._in_flight = False  # answered: the next frame may go
+            self._pump()
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
-        """pymodbus' packet hook: note what arrives; fix, time and log what is sent.
+        """pymodbus' packet hook: fix, time and log what is sent.
 
         pymodbus 3.16 answers a request it cannot decode (count out of range, e.g. FC1
         count=0/2001, FC3 count=126) with function code 0x80 + code 01 instead of
-        (fc | 0x80) + code 03. That reply is sent inside the receive callback, so the
-        function code received last on this connection is the request's."""
+        (fc | 0x80) + code 03. Frames are handled one at a time, so the request answered is
+        always the last one received (``rx_fc``)."""
         if not sending:
-            if len(data) >= 8:
-                self.rx_fc = data[7]  # MBAP (7 bytes) + function code
-            # FC5 allows only 0xFF00 (on) and 0x0000 (off); pymodbus takes any other value
-            # as "on": remember it so the action can refuse the write with exception 3.
-            self.bad_coil_value = (
-                len(data) >= 12 and data[7] == 5 and data[10:12] not in (b"\xff\x00", b"\x00\x00")
-            )
             return data
         if len(data) == 9 and data[7] == 0x80 and 0 < self.rx_fc < 0x80:
             fc = self.rx_fc
@@ -291,7 +422,7 @@ class _Connection(ServerRequestHandler):
             data = data[:7] + bytes((fc | 0x80, code))
         self._last_request = self.loop.time()  # a request was answered: not idle
         if len(data) >= 9 and data[7] & 0x80:
-            self.guard.refused(self, data[7] & 0x7F, data[8])
+            self.guard.refused(self, self.rx_fc, data[8])
         return data
 
 

@@ -38,8 +38,15 @@ class CliError(Exception):
     """A usage error to report as one line."""
 
 
-def positive(kind: type) -> Any:
-    """An argparse type: a finite number of ``kind`` greater than 0."""
+MAX_DURATION_S = 1e7  # some 116 days, as a configuration's duration_s
+MAX_CYCLES = 10**10
+MIN_SPEED, MAX_SPEED = 1e-3, 1e6  # simulated seconds per wall second
+
+
+def positive(kind: type, least: float | None = None, most: float | None = None) -> Any:
+    """An argparse type: a finite number of ``kind`` greater than 0, and within
+    ``least``..``most`` where given (a typo of a few digits must not ask for a run of
+    centuries, or a pace at which no cycle ever ends)."""
 
     def parse(text: str) -> Any:
         try:
@@ -48,6 +55,10 @@ def positive(kind: type) -> Any:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
         if not (math.isfinite(value) and value > 0):
             raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text!r}")
+        if least is not None and value < least:
+            raise argparse.ArgumentTypeError(f"must be at least {least:g}: {text!r}")
+        if most is not None and value > most:
+            raise argparse.ArgumentTypeError(f"must be at most {most:g}: {text!r}")
         return value
 
     return parse
@@ -101,10 +112,12 @@ def duration_cycles(duration_s: float, cycle_time_s: float, source: str = "--dur
 def add_run_options(run: argparse.ArgumentParser) -> None:
     """The options every program shares: how long, which clock, cycle and watchdog, retain."""
     length = run.add_mutually_exclusive_group()
-    length.add_argument("--cycles", type=positive(int), help="number of base cycles to run")
+    length.add_argument(
+        "--cycles", type=positive(int, most=MAX_CYCLES), help="number of base cycles to run"
+    )
     length.add_argument(
         "--duration",
-        type=positive(float),
+        type=positive(float, most=MAX_DURATION_S),
         help="seconds to run (simulated; wall-clock with --realtime)",
     )
     clock = run.add_mutually_exclusive_group()
@@ -113,7 +126,7 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
     )
     clock.add_argument(
         "--speed",
-        type=positive(float),
+        type=positive(float, least=MIN_SPEED, most=MAX_SPEED),
         metavar="X",
         help="simulate at X simulated seconds per wall second (1 = real time) instead of as "
         "fast as possible; the run is the same as on the virtual clock, only paced",

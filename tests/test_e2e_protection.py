@@ -11,7 +11,15 @@ import cantools
 import pytest
 from fleet_helpers import Dispatcher, record
 
-from io_drivers.can_driver import CLEAR, FAULT, LINK_JUMP_SHIFT, ONLINE, STALE, CanDriver
+from io_drivers.can_driver import (
+    CLEAR,
+    FAULT,
+    LINK_JUMP_SHIFT,
+    ONLINE,
+    STALE,
+    CanDriver,
+    frames_per_tick,
+)
 from io_drivers.e2e import (
     ACCEPTED,
     OUT_OF_SEQUENCE,
@@ -518,3 +526,60 @@ def test_an_empty_route_command_cancels_the_route_aboard():
     for _ in range(300):
         fleet.step(0.01)
     assert agv.driven == [0]
+
+
+# ----- a flooded bus ---------------------------------------------------------------------------
+def test_a_flood_of_valid_frames_is_read_a_bounded_number_per_tick_in_order():
+    """More frames than the cap: each tick reads exactly the cap, the rest waits (deferred),
+    and nothing is lost or reordered, so the last position is the last one sent."""
+    channel = f"flood-{next(_channels)}"
+    sender = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    image = ProcessImage({"I": 4096, "Q": 4096})
+    driver = CanDriver([1, 2], channel=channel, max_frames=40)
+    driver.open(image)
+    codec = Codec()
+    try:
+        for k in range(100):  # vehicle 1 and 2 in turn, each counter in sequence
+            v = 1 + k % 2
+            frame_id, data = codec.encode(Status(v, k, NO_NODE, "IDLE", 0.0, (k // 2 + 1) % 16))
+            sender.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+        for tick, (read, deferred) in enumerate(((40, 1), (80, 2), (100, 2))):
+            driver.read_inputs(image, tick)
+            assert driver.counters["frames_in"] == read and driver.counters["deferred"] == deferred
+        assert driver.checks.counters["out_of_sequence"] == 0
+        assert driver.counters["crc_errors"] == 0
+        # the newest status of each vehicle is the last one sent
+        assert driver.records.status[1].current_node == 98
+        assert driver.records.status[2].current_node == 99
+    finally:
+        driver.close()
+        sender.shutdown()
+
+
+@pytest.mark.parametrize(
+    ("cycle_s", "vehicles", "period_s", "frames"),
+    [
+        (0.010, 4, 0.1, 100),  # the default job: what a 1 Mbit/s bus carries in 10 ms
+        (0.050, 126, 0.1, 500),  # a full bus at 50 ms
+        (0.010, 126, 0.001, 5040),  # vehicles reporting every ms: their own traffic first
+        (0.001, 1, 0.1, 32),  # never fewer than the floor
+    ],
+)
+def test_the_per_tick_cap_is_what_a_bus_carries_or_the_fleet_sends(
+    cycle_s, vehicles, period_s, frames
+):
+    assert frames_per_tick(cycle_s, vehicles, period_s) == frames
+
+
+def test_the_fleet_program_caps_each_bus_by_its_cycle():
+    from fleet.config import load_config
+    from fleet.program import FleetProgram
+
+    cfg = load_config()
+    program = FleetProgram(cfg)
+    try:
+        (driver,) = [d for d in program.rt.drivers if isinstance(d, CanDriver)]
+        assert driver.max_frames == frames_per_tick(cfg.cycle_time, 4, cfg.status_period_s)
+        assert driver.max_frames == 100  # 10 ms cycle
+    finally:
+        program.close()

@@ -394,7 +394,7 @@ def test_tags_command_prints_the_table_and_json(capsys, tmp_path):
         "writable": False,
         "retain": False,
         "modbus": {"table": "holding register", "first": 1088, "count": 1, "bits": None},
-        "comment": "node last reported (65535: none yet)",
+        "comment": "node last reported (65535: none yet, or one not in the plant: see suspect)",
     }
     assert rows["agv4.hold"]["writable"] and rows["fleet.total.recipes"]["retain"]
     assert rows["fleet.recipes_completed"]["modbus"]["count"] == 2

@@ -590,8 +590,31 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             'start = 0\nrecipes = [["a"]]',
             r"vehicles\[0\]\.recipes: must be a non-empty list",
         ),
+        (
+            "[bus]",
+            "[[faults.vehicles]]\nid = 2\nspoof_rate = 0.1\n"
+            "[[faults.vehicles]]\nid = 2\ndead_after_s = 5\n[bus]",
+            r"faults\.vehicles\[1\]\.id: vehicle 2 is already given in faults\.vehicles\[0\]",
+        ),
+        (
+            'channel = "agv"',
+            'channel = "agv"\nstatus_period_s = 1.0\nstale_after_s = 0.5',
+            r"bus\.status_period_s: must be less than stale_after_s \(0\.5 s\), got 1",
+        ),
+        (
+            "[bus]",
+            "[time_windows]\nwait_free_s = 40\n[bus]",
+            r"time_windows\.wait_free_s: must not exceed wait_occupied_s \(30 s\), got 40",
+        ),
     ],
-    ids=["superscript-function-id", "no-recipes", "nested-recipes"],
+    ids=[
+        "superscript-function-id",
+        "no-recipes",
+        "nested-recipes",
+        "faults-vehicle-twice",
+        "status-slower-than-stale",
+        "wait-thresholds-backwards",
+    ],
 )
 def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old, new, message):
     """Digits that str.isdigit() takes but int() does not, and recipe lists that are not
@@ -603,3 +626,67 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
     assert old in text
     with pytest.raises(ConfigError, match=message):
         parse_config(text.replace(old, new, 1), "d.toml")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--speed", "1e-300"], "--speed: must be at least 0.001"),
+        (["run", "--duration", "1e300"], "--duration: must be at most 1e+07"),
+        (["run", "--cycles", "100000000000"], "--cycles: must be at most 1e+10"),
+        (["vehicles", "--plant", "model-plant", "--period", "5"], "--period: must be at most 1"),
+        (["vehicles", "--plant", "model-plant", "--duration", "1e9"], "must be at most 1e+07"),
+    ],
+    ids=["speed", "duration", "cycles", "vehicles-period", "vehicles-duration"],
+)
+def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
+    """A pace at which no cycle ends (it overflowed the sleep), a run of centuries, a
+    simulation step in which vehicles jump segments: refused before anything starts."""
+    from fleet.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_retain_file_may_not_be_the_configuration(tmp_path, capsys):
+    """It would be moved aside at start as retain data it cannot read."""
+    from fleet.cli import main
+    from fleet.config import DEFAULT_CONFIG
+
+    config = tmp_path / "fleet.toml"
+    config.write_text(DEFAULT_CONFIG.read_text())
+    alias = tmp_path / "sub" / ".." / "fleet.toml"
+    (tmp_path / "sub").mkdir()
+    assert main(["run", str(config), "--retain", str(alias), "--cycles", "2"]) == 2
+    assert "that is the configuration file" in capsys.readouterr().err
+    assert config.read_text() == DEFAULT_CONFIG.read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fleet.toml", "sub"]
+
+
+def test_fleet_options_are_refused_for_another_program(capsys):
+    from fleet.cli import main
+
+    args = ["run", "--program", "demo", "--traffic", "time_windows", "--vehicles-count", "2"]
+    assert main([*args, "--cycles", "3"]) == 2
+    assert "--traffic, --vehicles-count: for the fleet program, not 'demo'" in (
+        capsys.readouterr().err
+    )
+
+
+def test_time_window_settings_under_reactive_traffic_are_named(tmp_path, capsys):
+    """One configuration serves both modes (--traffic), so the table is no error; but a run
+    that does not use it says so, and one that does says nothing."""
+    from fleet.cli import main
+    from fleet.config import DEFAULT_CONFIG
+
+    config = tmp_path / "fleet.toml"
+    config.write_text(DEFAULT_CONFIG.read_text() + "\n[time_windows]\ngap_s = 0.4\n")
+    out = str(tmp_path / "out")
+    assert main(["run", str(config), "--cycles", "2", "--out", out]) == 0
+    err = capsys.readouterr().err
+    assert "[time_windows] is given but traffic is 'reactive'" in err
+    assert (
+        main(["run", str(config), "--cycles", "2", "--out", out, "--traffic", "time_windows"]) == 0
+    )
+    assert "[time_windows]" not in capsys.readouterr().err

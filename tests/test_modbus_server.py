@@ -620,3 +620,177 @@ def test_invalid_single_coil_value_is_refused(served):
         reply = sock.recv(64)
     assert reply[7:9] == bytes([0x85, 3])  # exception 3: illegal data value
     assert rt.image.pending_writes == 0
+
+
+# ----- framing ------------------------------------------------------------------------------
+def frame(tid: int, pdu: bytes, unit: int = 1) -> bytes:
+    """An MBAP frame: header (transaction id, protocol id 0, length, unit id) + PDU."""
+    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+
+def receive_frames(sock: socket.socket, count: int) -> list[bytes]:
+    """The next ``count`` answers on ``sock``, cut at their MBAP lengths; nothing more."""
+    sock.settimeout(WAIT_S)
+    data, frames = b"", []
+    while len(frames) < count:
+        size = 6 + struct.unpack(">H", data[4:6])[0] if len(data) >= 6 else None
+        if size is not None and len(data) >= size:
+            frames.append(data[:size])
+            data = data[size:]
+            continue
+        chunk = sock.recv(65536)
+        assert chunk, f"closed after {len(frames)} of {count} answers"
+        data += chunk
+    assert not data, "more bytes than answers"
+    return frames
+
+
+def warnings_logged(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+
+
+def answers_request(sock: socket.socket, tid: int) -> bool:
+    sock.sendall(read_request(tid))
+    return receive_frames(sock, 1)[0][:2] == struct.pack(">H", tid)
+
+
+# request i of a pipeline: what it asks, what its answer's PDU must be
+PIPELINE = [
+    (struct.pack(">BHH", 3, 1026, 1), struct.pack(">BBH", 3, 2, 42)),  # speed (%MW2)
+    (struct.pack(">BHH", 6, 516, 1), bytes((0x86, 2))),  # %QW516: refused
+    (struct.pack(">BHH", 3, 1027, 1), struct.pack(">BBH", 3, 2, 4242)),  # %MW3
+]
+
+
+@pytest.mark.parametrize("count", [2, 10, 60])
+def test_pipelined_requests_get_every_answer_in_order(served, caplog, count):
+    """Requests sent back to back in one segment, each with its own transaction id: one
+    answer each, in request order, each the answer to its own request (a refused write
+    among reads does not shift or break the others)."""
+    rt, server, _client = served
+    rt.image.write("%MW3", 4242)
+    rt.step()
+    caplog.set_level(logging.INFO, logger=LOGGER)
+    cases = [PIPELINE[i % len(PIPELINE)] for i in range(count)]
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.sendall(b"".join(frame(1000 + i, pdu) for i, (pdu, _) in enumerate(cases)))
+        answers = receive_frames(sock, count)
+        assert answers == [frame(1000 + i, want) for i, (_, want) in enumerate(cases)]
+        assert answers_request(sock, 7)  # the connection goes on
+    refused = warnings_logged(caplog)
+    assert len(refused) == sum(want[0] == 0x86 for _, want in cases)
+    assert all("refused FC6 " in line and "%QW516" in line for line in refused)
+
+
+def test_a_burst_beyond_the_backlog_bound_is_answered_in_full(served):
+    """3000 requests (36 kB) in one go: the server stops reading while too many wait (TCP
+    holds them on the client's side) and answers every one, in order."""
+    _rt, server, _client = served
+    count = 3000
+    requests = b"".join(read_request(i) for i in range(count))
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sender = threading.Thread(target=sock.sendall, args=(requests,))
+        sender.start()  # sent while the answers are read: neither side waits on the other
+        try:
+            answers = receive_frames(sock, count)
+        finally:
+            sender.join(WAIT_S)
+        assert [a[:2] for a in answers] == [struct.pack(">H", i) for i in range(count)]
+        assert all(a[7] == 3 for a in answers)
+
+
+def test_a_client_that_does_not_read_its_answers_is_held_back():
+    """It sends requests for 125 registers and reads nothing: once the answers fill the
+    transport's send buffer the server takes no more requests and stops reading (the
+    client's sends then wait in TCP), instead of buffering answers without bound. Every
+    answer arrives once it reads. Both sockets' kernel buffers are made small, so the
+    2000 answers (0.5 MB) back up whatever the machine's TCP buffer sizes."""
+    server = _ModbusThread(lambda area, address, count: [0] * count, lambda *args: None, port=0)
+    server.start()
+    count, size = 2000, 9 + 2 * 125
+    requests = b"".join(struct.pack(">HHHBBHH", i, 0, 6, 1, 3, 0, 125) for i in range(count))
+    sock = socket.socket()
+    sender = threading.Thread(target=sock.sendall, args=(requests,))
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(("127.0.0.1", server.port))
+        wait_until(lambda: server.connections == 1, "the connection was not counted")
+        (conn,) = server._open
+        conn.transport.get_extra_info("socket").setsockopt(
+            socket.SOL_SOCKET, socket.SO_SNDBUF, 4096
+        )
+        sender.start()
+        wait_until(lambda: conn._writing_paused, "the answers never backed up")
+        assert not conn.transport.is_reading()
+        assert conn.transport.get_write_buffer_size() <= 64 * 1024 + size  # asyncio's mark
+        answers = receive_frames(sock, count)
+        assert [a[:2] for a in answers] == [struct.pack(">H", i) for i in range(count)]
+        assert all(len(a) == size for a in answers)
+    finally:
+        sock.close()
+        if sender.ident is not None:  # started
+            sender.join(WAIT_S)
+        server.stop()
+
+
+@pytest.mark.parametrize("cut", [3, 7, 9])  # inside the header, after it, inside the PDU
+def test_a_request_split_over_two_sends_is_answered(served, cut):
+    """The first send carries a whole request and the start of the next: the first answer
+    shows the server has read that segment, the rest of the second request completes it."""
+    _rt, server, _client = served
+    second = read_request(2)
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.sendall(read_request(1) + second[:cut])
+        assert receive_frames(sock, 1)[0][:2] == struct.pack(">H", 1)
+        sock.sendall(second[cut:])
+        assert receive_frames(sock, 1)[0][:2] == struct.pack(">H", 2)
+
+
+@pytest.mark.parametrize("behind", [False, True], ids=["first", "behind-a-request"])
+@pytest.mark.parametrize(
+    ("header", "why"),
+    [
+        (struct.pack(">HHHB", 1, 0, 0, 1), "MBAP length 0 outside 2..254"),
+        (struct.pack(">HHHB", 1, 0, 1, 1), "MBAP length 1 outside 2..254"),
+        (struct.pack(">HHHB", 1, 0, 255, 1) + b"\x03", "MBAP length 255 outside 2..254"),
+        (struct.pack(">HHHB", 1, 0, 65535, 1), "MBAP length 65535 outside 2..254"),
+        (struct.pack(">HHHB", 1, 1, 6, 1), "protocol id 1, not Modbus/TCP's 0"),
+    ],
+    ids=["length-0", "length-1", "length-255", "length-65535", "protocol-id-1"],
+)
+def test_a_bad_mbap_header_closes_the_connection_at_once(served, caplog, header, why, behind):
+    """Nothing after a bad header can be framed: the connection is closed at once (long
+    before the idle timeout) with one line naming the client, and the valid request sent
+    behind the header is not answered; a request before it is. Other connections go on."""
+    _rt, server, client = served
+    caplog.set_level(logging.INFO, logger=LOGGER)
+    before = read_request(1) if behind else b""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        peer = f"127.0.0.1:{sock.getsockname()[1]}"
+        sock.sendall(before + header + read_request(2))
+        if behind:
+            assert receive_frames(sock, 1)[0][:2] == struct.pack(">H", 1)
+        assert closed_by_server(sock)
+    detail = " (unit id + a PDU of 1..253 bytes)" if "length" in why else ""
+    assert warnings_logged(caplog) == [
+        f"modbus 127.0.0.1:{server.port}: closed connection from {peer}: {why}{detail}"
+    ]
+    assert client.read_holding_registers(1024, count=1).registers == [0]
+
+
+@pytest.mark.parametrize("fc", [0x80, 0xC8, 0xFF])
+def test_function_codes_128_to_255_get_illegal_function(served, caplog, fc):
+    """A request cannot have a code of 128..255 (they mark exception responses): exception
+    01, whose function code (fc | 0x80) is the request's own; the line names that code."""
+    _rt, server, _client = served
+    caplog.set_level(logging.INFO, logger=LOGGER)
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.sendall(frame(9, bytes((fc, 0, 0, 0, 1)), unit=5))
+        assert receive_frames(sock, 1) == [frame(9, bytes((fc, 1)), unit=5)]
+        assert answers_request(sock, 10)  # the connection goes on
+    (line,) = warnings_logged(caplog)
+    assert f": refused FC{fc} from 127.0.0.1:" in line
+    assert line.endswith(
+        "exception 01, function codes 128..255 are reserved for exception responses, not requests"
+    )

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import can
 import pytest
 
 from blocks.traffic.vehicle_control import RECOVER_S
@@ -15,7 +16,7 @@ from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
 from fleet.report import summary
 from fleet.tags import ACK_DONE, ACK_REFUSED
-from io_drivers.protocol import STATUS
+from io_drivers.protocol import NO_NODE, STATUS, Codec, Status
 
 
 @pytest.fixture
@@ -238,4 +239,39 @@ def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program):
     p.rt.run(duration=30)
     assert p.rt.image.read(f"agv{v}.ack_result") == ACK_DONE
     assert c.suspect_events == 1, c.suspect_reason  # it never drove what it was not given
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program):
+    """A status that passes the link's checks (a forged frame with the right CRC and
+    counter, or a vehicle configured for another plant) names node 60000: nothing in it can
+    be checked, so the vehicle is stopped as suspect with the reason, the image shows no
+    node rather than the forged one, and it returns to service only by the usual rule."""
+    p = program
+    p.rt.run(duration=20)
+    standing(p, 2)
+    before = p.reservation.held_by(2)
+    codec = Codec()
+    forger = can.Bus(interface="virtual", channel=p.cfg.bus_channel)
+    try:
+        counter = p.fleet._counter[STATUS + 2] + 1  # the counter of its last frame, and on
+        for k in range(2):  # two consecutive statuses agree: the link takes the position
+            fid, data = codec.encode(Status(2, 60000, NO_NODE, "DRIVING", 0.0, (counter + k) % 16))
+            forger.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
+        p.fleet._counter[STATUS + 2] = (counter + 1) % 16  # the real vehicle goes on after them
+        c = p.controls[2]
+        assert p.rt.run_until(lambda: c.suspect, max_cycles=20)
+    finally:
+        forger.shutdown()
+    assert c.state == "suspect" and c.suspect_reason == "reports node 60000, not in the plant"
+    assert p.reservation.held_by(2) == before
+    assert p.rt.image.read("agv2.node") == NO_NODE and p.rt.image.read("agv2.suspect") is True
+    p.rt.step()
+    assert p.fleet.vehicles[2].go is False  # stopped
+    # the true reports resume: back in service by the rule, and on with its recipes
+    assert p.rt.run_until(lambda: not c.suspect, max_cycles=round(3 * RECOVER_S / p.cfg.cycle_time))
+    assert p.rt.image.read("agv2.node") == p.fleet.vehicles[2].node
+    visited = p.sequencers[2].stations_visited
+    p.rt.run(duration=120)
+    assert p.sequencers[2].stations_visited > visited
     assert p.monitor.head_on == 0 and p.monitor.node == 0

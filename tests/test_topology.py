@@ -1,5 +1,7 @@
 """Plant model, file formats and validation."""
 
+import copy
+import json
 import math
 from pathlib import Path
 
@@ -322,3 +324,164 @@ def test_drawing_must_be_png(tmp_path):
 
     with pytest.raises(TopologyError, match="give a file name ending in .png"):
         draw(model_plant(), tmp_path / "plant.svg")
+
+
+SMALL_PLANT = {
+    "name": "line",
+    "functions": {"0": "entry", "1": "exit"},
+    "nodes": [
+        {"id": 0, "role": "entry", "functions": [0]},
+        {"id": 1, "role": "exit", "functions": [1], "x": 1.0},
+    ],
+    "edges": [{"from": 0, "to": 1, "length": 1.0}],
+}
+
+
+def small_plant(**changes) -> dict:
+    """SMALL_PLANT with top-level keys replaced, and node keys given as ``node_<key>``
+    (set on node 1)."""
+    plant = copy.deepcopy(SMALL_PLANT)
+    for key, value in changes.items():
+        if key.startswith("node_"):
+            plant["nodes"][1][key.removeprefix("node_")] = value
+        else:
+            plant[key] = value
+    return plant
+
+
+@pytest.mark.parametrize(
+    "changes,where,message",
+    [
+        ({"name": "\ud800"}, ": name: ", r"'\\ud800': character 1 \(U\+D800\) is a lone surrogate"),
+        (
+            {"name": "a\x00b\x1b[31mred"},
+            ": name: ",
+            r"character 2 \(U\+0000\) is a control character",
+        ),
+        ({"node_name": "drill\ud83d"}, ": nodes[1] (id 1): ", r"\(U\+D83D\) is a lone surrogate"),
+        ({"node_name": "\x1b[2J"}, ": nodes[1] (id 1): ", r"name '\\x1b\[2J': character 1"),
+        ({"node_name": "ab\ncd"}, ": nodes[1] (id 1): ", r"\(U\+000A\) is a control character"),
+        (
+            {"node_area": "dr\u202eill"},
+            ": nodes[1] (id 1): ",
+            r"area .* invisible format character",
+        ),
+        ({"node_name": "a\u2028b"}, ": nodes[1] (id 1): ", r"\(U\+2028\) is a line separator"),
+        (
+            {"functions": {"0": "entry", "1": "ex\x9bit"}},
+            ": functions: ",
+            r"name of function 1 'ex\\x9bit': character 3 \(U\+009B\) is a control character",
+        ),
+    ],
+    ids=[
+        "surrogate-plant-name",
+        "nul-and-escape-plant-name",
+        "surrogate-node-name",
+        "escape-node-name",
+        "newline-node-name",
+        "bidi-override-area",
+        "line-separator-node-name",
+        "c1-csi-function-name",
+    ],
+)
+def test_names_must_be_printable_text(tmp_path, changes, where, message):
+    """A name reaches terminals, drawings and the operator page: no escape sequence, no
+    text reordered or hidden, nothing that cannot be written as UTF-8."""
+    path = tmp_path / "plant.json"
+    path.write_text(json.dumps(small_plant(**changes)), encoding="ascii")  # \u escapes
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    text = str(err.value)
+    assert text.startswith(f"{path}{where}")
+    assert text.isprintable() and text.encode("utf-8")  # safe to print: every character escaped
+
+
+def test_names_in_any_script_are_fine_but_not_control_characters(tmp_path):
+    """Letters of any script, spaces and emoji (with the zero-width joiner) are names; the
+    same check refuses an escape sequence in a .nodes file and in a plant built in code."""
+    name = "Bohrstation Süd 北 ‍🧑‍🔧 می‌خواهم"
+    assert load_json_plant(tmp_path, small_plant(name=name, node_name=name)).name == name
+    path = tmp_path / "thesis.nodes"
+    path.write_text(
+        "0 -1 0 1 1.0 -1 0 -1 0 role=entry functions=0\n"
+        "1 -1 0 -1 0 -1 0 0 1.0 role=exit functions=1 name=\x1b]0;pwned\x07\n"
+    )
+    with pytest.raises(TopologyError, match=r"line 2: name '\\x1b\]0;pwned\\x07'"):
+        load(path)
+    with pytest.raises(TopologyError, match=r"nodes\[0\] \(id 4\): name must be a string, got 7"):
+        Plant.build([Node(4, name=7)], [])
+    with pytest.raises(TopologyError, match="name: the plant's name 'x\\\\ty'"):
+        Plant.build([Node(4)], [], name="x\ty")
+
+
+def load_json_plant(tmp_path: Path, plant: dict) -> Plant:
+    path = tmp_path / "plant.json"
+    path.write_text(json.dumps(plant))
+    return load(path)
+
+
+@pytest.mark.parametrize(
+    "name,content",
+    [
+        ("keys.json", '{"nodes": [{"id": 0, "\\u001b[31m": 1}], "edges": []}'),
+        ("keys.toml", 'edges = []\n"\\u001b[2J" = 1\n[[nodes]]\nid = 0\n'),
+    ],
+    ids=["json-node-key", "toml-top-level-key"],
+)
+def test_unknown_keys_are_shown_escaped(tmp_path, name, content):
+    path = tmp_path / name
+    path.write_text(content)
+    with pytest.raises(TopologyError, match=r"unknown (top-level )?key\(s\): '\\x1b\[") as err:
+        load(path)
+    assert "\x1b" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "content,where,message",
+    [
+        (
+            '{"name":"x","name":"y","nodes":[],"edges":[]}',
+            "line 1, column 13",
+            "duplicate key 'name' in one object \\(first on line 1, column 2\\)",
+        ),
+        (
+            '{\n "nodes": [\n  {"id": 0, "role": "entry"},\n  {"id": 1,\n   "id": 5}\n ],\n'
+            ' "edges": []\n}\n',
+            "line 5, column 4",
+            "duplicate key 'id' in one object \\(first on line 4, column 4\\)",
+        ),
+        (  # a key spelled with an escape is the same key
+            '{"nodes": [], "edges": [], "n\\u006fdes": [{"id": 1}]}',
+            "line 1, column 28",
+            "duplicate key 'nodes' in one object \\(first on line 1, column 2\\)",
+        ),
+        (  # deeper than the locating reader's stack: the key is still named
+            '{"nodes": [], "edges": ' + "[" * 600 + '{"a": 1, "a": 2}' + "]" * 600 + "}",
+            None,
+            "duplicate key 'a' in one object$",
+        ),
+    ],
+    ids=["top-level", "node-on-another-line", "escaped-spelling", "nested-600-deep"],
+)
+def test_json_duplicate_keys_are_refused(tmp_path, content, where, message):
+    """JSON readers keep the last of two equal keys without a word; a plant file says one
+    thing once."""
+    path = tmp_path / "plant.json"
+    path.write_text(content)
+    with pytest.raises(TopologyError, match=message) as err:
+        load(path)
+    prefix = f"{path}: {where}: " if where else f"{path}: "
+    assert str(err.value).startswith(prefix)
+
+
+def test_movingai_only_blank_lines_follow_the_rows(tmp_path):
+    path = tmp_path / "junk.map"
+    path.write_text("type octile\nheight 1\nwidth 3\nmap\n...\n\nthis is junk text!!\n@@@@\n")
+    with pytest.raises(TopologyError) as err:
+        load(path)
+    assert str(err.value) == (
+        f"{path}: line 7: text after the 1 row(s) that 'height 1' declares: "
+        "'this is junk text!!'; only blank lines may follow the map"
+    )
+    path.write_text("type octile\nheight 1\nwidth 3\nmap\n...\n\n  \n")
+    assert load(path).n == 3

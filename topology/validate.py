@@ -6,7 +6,8 @@ nodes, self loops, negative/NaN/inf lengths, two edges on one compass port of a 
 functions on nodes that cannot provide them, a queue node without the station it waits for
 (or ``queue_for`` on a node that is no queue, or naming no station), a zone that is no
 function of the plant, an empty area name, a declared function no station provides, a
-target that cannot be reached from an entry.
+target that cannot be reached from an entry; a name (of the plant, a function, a node, an
+area) that is not a string of printable text.
 Warnings (returned): a target that some other node cannot reach.
 
 Each rule is a mask over all nodes or all edges, computed for the whole plant at once: a
@@ -18,6 +19,7 @@ rule, with the first rule it fails in the order the rules are listed.
 from __future__ import annotations
 
 import math
+import unicodedata
 from collections.abc import Callable
 from itertools import repeat
 from typing import TYPE_CHECKING
@@ -43,6 +45,7 @@ Rule = tuple[np.ndarray, Callable[[int], str]]  # (mask of the items that pass, 
 def validate(plant: Plant, source: str | None = None) -> list[str]:
     check_plant_size(len(plant.nodes), len(plant.edges), source)
     _check_nodes(plant, source)
+    _check_names(plant, source)
     _check_places(plant, source)
     _check_edges(plant, source)
     _check_functions(plant, source)
@@ -169,6 +172,73 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
         source,
         lambda i: f"nodes[{i}] (id {ids[i]})" if id_ok[i] else f"nodes[{i}]",
     )
+
+
+# Characters refused in names, by Unicode category: names reach terminals, log files, the
+# drawing and the operator page, where a control character (ESC starts a terminal escape
+# sequence), a line or paragraph separator (one message, one line) or an invisible format
+# character (a right-to-left override reverses what follows) would make the text show
+# something other than what it is. Surrogates are no text at all: they cannot be written as
+# UTF-8, so printing or drawing the name fails. The zero-width (non-)joiners are format
+# characters that some scripts and emoji need, and they move nothing.
+REFUSED_CATEGORIES = {
+    "Cc": "a control character",
+    "Cf": "an invisible format character",
+    "Zl": "a line separator",
+    "Zp": "a paragraph separator",
+    "Cs": "a lone surrogate, not text (it cannot be written as UTF-8)",
+}
+JOINERS = frozenset("\u200c\u200d")
+
+
+def text_problem(value: object) -> str | None:
+    """What makes ``value`` unfit to name something an operator reads, None if nothing."""
+    if not isinstance(value, str):
+        return f"must be a string, got {_short(value)}"
+    if value.isprintable():  # the fast path: no character of any refused category
+        return None
+    for position, char in enumerate(value, start=1):
+        kind = REFUSED_CATEGORIES.get(unicodedata.category(char))
+        if kind is not None and char not in JOINERS:
+            return (
+                f"{_short(value)}: character {position} (U+{ord(char):04X}) is {kind}; "
+                "a name must be printable text"
+            )
+    return None
+
+
+def _first_unfit(values: list[object]) -> tuple[int, str] | None:
+    """The index of the first value with a ``text_problem`` and that problem; None if every
+    value is fit. Plants repeat few names (a grid's are all empty), so each distinct one is
+    looked at once."""
+    try:
+        distinct = set(values)
+    except TypeError:  # an unhashable value: certainly no name, found below
+        distinct = None
+    if distinct is not None and not any(map(text_problem, distinct)):
+        return None
+    return next(((i, p) for i, value in enumerate(values) if (p := text_problem(value))), None)
+
+
+def _check_names(plant: Plant, source: str | None) -> None:
+    """The plant's name, its functions' names, and the names and areas of its nodes."""
+    problem = text_problem(plant.name)
+    if problem:
+        raise TopologyError(f"the plant's name {problem}", source, "name")
+    for function, name in plant.functions.items():
+        problem = text_problem(name)
+        if problem:
+            raise TopologyError(f"the name of function {function} {problem}", source, "functions")
+    nodes = plant.nodes
+    for key, values in (
+        ("name", [node.name for node in nodes]),
+        # an area that is no string at all is refused with the other places (_place_problem)
+        ("area", [node.area if isinstance(node.area, str) else "" for node in nodes]),
+    ):
+        unfit = _first_unfit(values)
+        if unfit is not None:
+            i, problem = unfit
+            raise TopologyError(f"{key} {problem}", source, f"nodes[{i}] (id {nodes[i].id})")
 
 
 def _check_places(plant: Plant, source: str | None) -> None:

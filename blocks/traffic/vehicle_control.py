@@ -30,7 +30,8 @@ fixed); the vehicle neither replans by itself nor is pushed. The ReservationMatr
 every release as in the reactive mode.
 
 Plausibility: a report may only move the vehicle along what it was released (the
-ReservationMatrix decides). A report that claims anything else, or a vehicle link that saw
+ReservationMatrix decides). A report that claims anything else (another node, or none of
+the plant), or a vehicle link that saw
 the vehicle's message counter jump, makes the vehicle **suspect**: it gets a stop command,
 its holds stay as they are (the others wait or route around it, as for a stale vehicle),
 and nothing of what it reports is applied except moves along its holds. It returns to
@@ -107,7 +108,7 @@ class VehicleControl(FunctionBlock):
     wait_replanned = Static(False)
     consistent_since_ns = Static(None)  # suspect: reporting a held node since then
     link_jumps = Static(0)  # the link's count of this vehicle's counter jumps, last seen
-    reported = Static(None)  # the last reported node, plausible or not
+    reported = Static(None)  # the last reported node, plausible or not (None: not in the plant)
 
     def __init__(
         self,
@@ -162,7 +163,7 @@ class VehicleControl(FunctionBlock):
             self.state = "offline"  # never heard of: its record holds no position
             return
         if current == NO_NODE or current not in self.index:
-            self.state = "fault"
+            self._nowhere(ctx, current)
             return
         self.reported = current
         clear = bool(flags & CLEAR)
@@ -212,6 +213,17 @@ class VehicleControl(FunctionBlock):
             self.traffic.reached(self.vehicle, current, clear)
 
     # ----- suspect vehicles ----------------------------------------------------------------
+    def _nowhere(self, ctx: CycleContext, current: int) -> None:
+        """A report naming no node of the plant passed the link's checks (a forged frame, or
+        a vehicle configured for another plant): nothing in it can be checked or applied, so
+        the vehicle is suspect like one reporting a node it was never given."""
+        self.reservation.refuse()
+        self.reported = None  # an operator cannot confirm it stands where it reports
+        if not self.suspect:
+            where = "no node" if current == NO_NODE else f"node {current}, not in the plant"
+            self._become_suspect(ctx, f"reports {where}")
+        self._while_suspect(ctx, current, clear=False, plausible=False)
+
     def _become_suspect(self, ctx: CycleContext, why: str) -> None:
         self.suspect, self.suspect_reason = True, why
         self.suspect_events += 1

@@ -47,6 +47,7 @@ from ..config import (
     TRAFFIC_MODES,
     FleetConfig,
     first_vehicles,
+    idle_settings,
     load_config,
     modbus_endpoint,
 )
@@ -112,6 +113,14 @@ def add_options(run: argparse.ArgumentParser) -> None:
     web.add_options(run)
 
 
+def same_file(a: str, b: str) -> bool:
+    """Do the two paths name one existing file (links and relative paths included)?"""
+    try:
+        return Path(a).samefile(b)
+    except OSError:  # one of them does not exist (yet): not the same
+        return False
+
+
 def run(args: argparse.Namespace, modbus: Any) -> int:
     cfg = load_config(args.config)
     if args.cycle_time is not None:
@@ -124,6 +133,8 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         cfg.dispatch.strategy = args.dispatch
     if args.vehicles_count is not None:
         first_vehicles(cfg, args.vehicles_count)
+    for unused in idle_settings(cfg):
+        warnings.warn(unused, UserWarning, stacklevel=1)
     total = (
         args.cycles
         if args.cycles is not None
@@ -137,6 +148,11 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         raise ConfigError(
             "--vehicles-count: only with vehicles simulated in this process (the vehicle "
             "process simulates every vehicle of the configuration)"
+        )
+    if args.retain is not None and args.config is not None and same_file(args.retain, args.config):
+        # a retain file that holds no retain data is moved aside at start
+        raise CliError(
+            f"--retain {args.retain}: that is the configuration file; name a file of its own"
         )
     out = Path(args.out)
     check_out_dir(out)

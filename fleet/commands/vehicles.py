@@ -9,12 +9,17 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from plc_runtime.cli import MAX_DURATION_S
 from plc_runtime.errors import ConfigError
 
 from ..route import load_plant
 
+# A simulation step: below a tenth of a millisecond the loop only spins; above a second a
+# vehicle would jump whole segments between its reports, and Ctrl-C waits for the step.
+MIN_PERIOD_S, MAX_PERIOD_S = 1e-4, 1.0
 
-def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]) -> None:
+
+def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -> None:
     p = sub.add_parser("vehicles", help="run simulated AGVs in this process, talking over a bus")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--plant", help="plant file or sample name")
@@ -43,12 +48,14 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     )
     p.add_argument(
         "--period",
-        type=positive(float),
+        type=positive(float, least=MIN_PERIOD_S, most=MAX_PERIOD_S),
         default=0.01,
-        help="simulation step in seconds (default 0.01)",
+        help=f"simulation step in seconds, {MIN_PERIOD_S:g}..{MAX_PERIOD_S:g} (default 0.01)",
     )
     p.add_argument(
-        "--duration", type=positive(float), help="wall-clock seconds to run (default: until Ctrl-C)"
+        "--duration",
+        type=positive(float, most=MAX_DURATION_S),
+        help="wall-clock seconds to run (default: until Ctrl-C)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(

@@ -19,6 +19,7 @@ from typing import TypeVar
 
 from ..errors import TopologyError
 from ..model import MAX_NODE_ID, Edge, Node, Plant
+from ..validate import text_problem
 from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
@@ -154,9 +155,13 @@ def _node(node_id: int, options: dict[str, str], source: str, where: str) -> Nod
                 f"{axis} must be a finite number (ASCII digits), got {shown(text)}", source, where
             )
         position[axis] = value
+    name = options.get("name", "")
+    problem = text_problem(name)  # here too, not only in validation: this knows the line
+    if problem:
+        raise TopologyError(f"name {problem}", source, where)
     return Node(
         node_id,
-        name=options.get("name", ""),
+        name=name,
         x=position["x"],
         y=position["y"],
         role=options.get("role", "transit"),

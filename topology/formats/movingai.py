@@ -63,6 +63,7 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
             raise TopologyError(
                 f"row has {len(text)} cells, expected {width}", source, f"line {row + 2 + y}"
             )
+    _check_nothing_after(lines, row + 1 + height, height, source)
     cells = np.frombuffer("".join(grid).encode("utf-32-le"), dtype="<u4").reshape(height, width)
     passable = np.isin(cells, [ord(c) for c in PASSABLE])
     known = passable | np.isin(cells, [ord(c) for c in BLOCKED])
@@ -72,6 +73,20 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
             f"unknown cell {chr(cells[y, x])!r} at column {x + 1}", source, f"line {row + 2 + y}"
         )
     return grid_plant(passable, cell_size, name=path.stem, source=source)
+
+
+def _check_nothing_after(lines: list[str], end: int, height: int, source: str) -> None:
+    """Only blank lines may follow the rows: a line more is a row the header does not
+    count (a wrong height, or two maps in one file), and reading the map without it would
+    drive vehicles on a plant other than the one written down."""
+    for number, line in enumerate(lines[end:], start=end + 1):
+        if line.strip():
+            raise TopologyError(
+                f"text after the {height} row(s) that 'height {height}' declares: "
+                f"{shown(line)}; only blank lines may follow the map",
+                source,
+                f"line {number}",
+            )
 
 
 def _header(lines: list[str], source: str) -> tuple[dict[str, int], int]:

@@ -32,12 +32,15 @@ import json
 import os
 import stat
 import tomllib
+from json.decoder import WHITESPACE, scanstring
+from json.scanner import py_make_scanner
 from pathlib import Path
 from typing import Any
 
 from ..errors import TopologyError
 from ..limits import MAX_FILE_BYTES
 from ..model import Edge, Node, Plant
+from .numbers import shown
 
 NODE_KEYS = {"id", "name", "x", "y", "role", "functions", "queue_for", "zone", "area"}
 EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable", "highway"}
@@ -81,7 +84,9 @@ def load_toml(path: Path) -> Plant:
 def load_json(path: Path) -> Plant:
     text = read_text(path)
     try:
-        data = json.loads(text)
+        data = json.loads(text, object_pairs_hook=_unique_keys)
+    except _DuplicateKey as exc:
+        raise _duplicate_key_error(text, exc.key, str(path)) from None
     except json.JSONDecodeError as exc:
         raise TopologyError(
             f"invalid JSON: {exc.msg}", str(path), f"line {exc.lineno}, column {exc.colno}"
@@ -89,6 +94,91 @@ def load_json(path: Path) -> Plant:
     except (ValueError, RecursionError) as exc:  # a 5000-digit integer, nesting thousands deep
         raise TopologyError(f"unreadable JSON: {str(exc)[:80]}", str(path)) from None
     return from_dict(data, str(path))
+
+
+class _DuplicateKey(Exception):
+    """An object of a JSON document gives ``key`` twice (at ``first`` and ``again`` in the
+    text, where those are known)."""
+
+    def __init__(self, key: str, first: int = -1, again: int = -1) -> None:
+        super().__init__(key)
+        self.key, self.first, self.again = key, first, again
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook``: an object as a dict, _DuplicateKey if a key repeats. Python's
+    json keeps the last value of a repeated key, so an edit that added a second ``"id"``
+    would change the plant without a word."""
+    table = dict(pairs)
+    if len(table) != len(pairs):
+        seen: set[str] = set()
+        for key, _value in pairs:
+            if key in seen:
+                raise _DuplicateKey(key)
+            seen.add(key)
+    return table
+
+
+class _KeyLocator(json.JSONDecoder):
+    """Reads a JSON document with json's own pure-Python scanner, its object parser
+    replaced by one that raises _DuplicateKey with the positions of both keys at the first
+    key given twice. The fast C scanner that ``json.loads`` uses reports no positions to an
+    ``object_pairs_hook``, so this slower reading is only done on a document known to have
+    a repeated key, and the objects' values are not kept."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.parse_object = self._object
+        self.scan_once = py_make_scanner(self)
+
+    @staticmethod
+    def _object(
+        s_and_end: tuple[str, int], strict: bool, scan_once: Any, *_hooks: Any
+    ) -> tuple[None, int]:
+        text, end = s_and_end
+        seen: dict[str, int] = {}
+        end = WHITESPACE.match(text, end).end()
+        while text[end] != "}":
+            key, after = scanstring(text, end + 1, strict)  # text[end] is the opening quote
+            if key in seen:
+                raise _DuplicateKey(key, seen[key], end)
+            seen[key] = end
+            colon = WHITESPACE.match(text, after).end()
+            _value, end = scan_once(text, WHITESPACE.match(text, colon + 1).end())
+            end = WHITESPACE.match(text, end).end()
+            if text[end] == ",":
+                end = WHITESPACE.match(text, end + 1).end()
+        return None, end + 1
+
+
+def _duplicate_key_error(text: str, key: str, source: str) -> TopologyError:
+    """The error for a JSON document with a repeated key, with the line and column of the
+    first repetition and of the key's first occurrence. ``json.loads`` read the document
+    up to the end of an object with a repeated key, so the text up to the first repetition
+    is valid JSON; the locating reader may still run out of stack in a document nested
+    hundreds deep, and then the key alone is named."""
+    first = again = -1
+    try:
+        _KeyLocator().decode(text)
+    except _DuplicateKey as exc:
+        key, first, again = exc.key, exc.first, exc.again
+    except RecursionError:
+        pass
+    if again < 0:
+        return TopologyError(f"duplicate key {shown(key)} in one object", source)
+    return TopologyError(
+        f"duplicate key {shown(key)} in one object (first on {_line_column(text, first)}): "
+        "each key may be given once",
+        source,
+        _line_column(text, again),
+    )
+
+
+def _line_column(text: str, position: int) -> str:
+    """``line L, column C`` of a position in the text, counted from 1 as an editor does."""
+    line = text.count("\n", 0, position) + 1
+    column = position - text.rfind("\n", 0, position)  # rfind is -1 on the first line
+    return f"line {line}, column {column}"
 
 
 def _typed(value: Any, kinds: type | tuple[type, ...], what: str, source: str, where: str) -> Any:
@@ -117,7 +207,7 @@ def from_dict(data: Any, source: str) -> Plant:
         raise TopologyError("expected a table/object with 'nodes' and 'edges'", source)
     unknown = set(data) - TOP_KEYS
     if unknown:
-        raise TopologyError(f"unknown top-level key(s): {', '.join(sorted(unknown))}", source)
+        raise TopologyError(f"unknown top-level key(s): {_key_list(unknown)}", source)
     for key in ("nodes", "edges"):
         if not isinstance(data.get(key), list):
             raise TopologyError(f"'{key}' must be a list of tables", source, key)
@@ -146,10 +236,16 @@ def _check_table(
         raise TopologyError("expected a table", source, where)
     unknown = set(item) - keys
     if unknown:
-        raise TopologyError(f"unknown key(s): {', '.join(sorted(unknown))}", source, where)
+        raise TopologyError(f"unknown key(s): {_key_list(unknown)}", source, where)
     for key in required:
         if key not in item:
             raise TopologyError(f"missing '{key}'", source, where)
+
+
+def _key_list(keys: set[str]) -> str:
+    """Keys for a message: as written, or quoted with escapes where a key has characters
+    that are not printable, so that no control sequence of a file reaches the terminal."""
+    return ", ".join(key if key.isprintable() else shown(key) for key in sorted(keys))
 
 
 def _node(item: Any, i: int, source: str) -> Node:

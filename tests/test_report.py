@@ -1,0 +1,90 @@
+"""The files a fleet run leaves behind (fleet.report.write_all): the data is written even
+when the drawing of the routes fails."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fleet import report
+from fleet.config import parse_config
+from fleet.program import FleetProgram
+from plc_runtime.clock import VirtualClock
+
+CONFIG = """
+[plant]
+sample = "model-plant"
+[[recipes]]
+name = "drill"
+functions = [2, 1]
+[[vehicles]]
+id = 1
+start = 0
+"""
+
+
+@pytest.fixture(scope="module")
+def program() -> FleetProgram:
+    cfg = parse_config(CONFIG)
+    cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
+    program = FleetProgram(cfg, clock=VirtualClock())
+    try:
+        program.rt.start()
+        program.rt.step(round(2 / cfg.cycle_time))
+    finally:
+        program.close()
+    return program
+
+
+def failing_draw(exc: BaseException):
+    def draw(*args, **kwargs):
+        raise exc
+
+    return draw
+
+
+def test_a_failed_drawing_keeps_the_data_and_says_why(program, tmp_path, monkeypatch):
+    monkeypatch.setattr(
+        "topology.draw.draw",
+        failing_draw(TypeError("set_text(): incompatible function arguments.\n" + "x\n" * 50)),
+    )
+    result = report.summary(program, wall_s=1.0)
+    with pytest.warns(RuntimeWarning) as caught:
+        files = report.write_all(program, tmp_path, result)
+    (warning,) = caught
+    assert str(warning.message) == (
+        f"{tmp_path / 'routes.png'}: routes drawing not written: "
+        "TypeError: set_text(): incompatible function arguments."
+    )
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["routes_error"] == "TypeError: set_text(): incompatible function arguments."
+    assert written["files"] == files and set(files) == {"summary", "recipes"}
+    assert (tmp_path / "recipes.csv").read_text().startswith("vehicle,recipe,")
+    assert not (tmp_path / "routes.png").exists()
+
+    monkeypatch.undo()  # drawn after all: summary.json names it
+    again = tmp_path / "again"
+    files = report.write_all(program, again, report.summary(program, wall_s=1.0))
+    assert files["routes"] == str(again / "routes.png")
+    assert json.loads((again / "summary.json").read_text())["files"] == files
+
+
+def test_the_data_is_written_before_the_drawing(program, tmp_path, monkeypatch):
+    """A drawing takes seconds on a large plant; a Ctrl-C in it must not cost the data."""
+    monkeypatch.setattr("topology.draw.draw", failing_draw(KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        report.write_all(program, tmp_path, report.summary(program, wall_s=1.0))
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert set(written["files"]) == {"summary", "recipes"}
+    assert (tmp_path / "recipes.csv").exists()
+
+
+def test_a_drawing_that_cannot_be_saved_names_the_os_reason(program, tmp_path, monkeypatch):
+    monkeypatch.setattr(
+        "topology.draw.draw", failing_draw(PermissionError(13, "Permission denied"))
+    )
+    result = report.summary(program, wall_s=1.0)
+    with pytest.warns(RuntimeWarning, match="routes.png: routes drawing not written: Permission"):
+        report.write_all(program, tmp_path, result)
+    assert result["routes_error"] == "Permission denied"
