@@ -241,10 +241,12 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     cfg.time_windows_given = time_windows is not None
     if cfg.status_period_s >= cfg.stale_after_s:
         # a vehicle reporting this seldom would read as stale between two of its reports
-        raise bus.fail(
-            "status_period_s",
-            f"must be less than stale_after_s ({cfg.stale_after_s:g} s), got "
-            f"{cfg.status_period_s:g}: every vehicle would turn stale between its reports",
+        raise _out_of_order(
+            bus,
+            ("status_period_s", cfg.status_period_s),
+            ("stale_after_s", cfg.stale_after_s),
+            "must be less than",
+            "every vehicle would turn stale between its reports",
         )
     for reader in (runtime, routing, stations, sequencer, bus, top):
         reader.finish()
@@ -271,6 +273,23 @@ def idle_settings(cfg: FleetConfig) -> list[str]:
     return []
 
 
+def _out_of_order(
+    r: TableReader,
+    low: tuple[str, float],
+    high: tuple[str, float],
+    relation: str,
+    why: str,
+) -> ConfigError:
+    """The error for two settings of one table in the wrong order, in seconds, named at the
+    one the file gives (the other may be its default, which the message then says)."""
+
+    def described(key: str, value: float) -> str:
+        return f"{key} = {value:g} s" + ("" if key in r.table else " (the default)")
+
+    key = low[0] if low[0] in r.table or high[0] not in r.table else high[0]
+    return r.fail(key, f"{described(*low)} {relation} {described(*high)}: {why}")
+
+
 def _time_windows(r: TableReader) -> TimeWindowsConfig:
     horizon_s = r.number("horizon_s", 20.0, 0.1, 3600.0)
     cfg = TimeWindowsConfig(
@@ -291,9 +310,12 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
     if cfg.wait_free_s > cfg.wait_occupied_s:
         # T_w1 is the patience with a vehicle still on its way, T_w2 with one standing on
         # the node: waiting longer for one that moves than for one that stands is backwards
-        raise r.fail(
-            "wait_free_s",
-            f"must not exceed wait_occupied_s ({cfg.wait_occupied_s:g} s), got {cfg.wait_free_s:g}",
+        raise _out_of_order(
+            r,
+            ("wait_free_s", cfg.wait_free_s),
+            ("wait_occupied_s", cfg.wait_occupied_s),
+            "must not exceed",
+            "a vehicle on its way would be waited for longer than one standing on the node",
         )
     if cfg.replan_s >= horizon_s:
         # a plan is booked horizon_s ahead and made again every replan_s: with a longer

@@ -285,6 +285,10 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
         files["routes"] = write_drawing(program, routes)
     except Exception as exc:  # any failure of the drawing: the data is written already
         result["routes_error"] = _reason(exc)
+        try:  # an earlier run's drawing beside this run's data would show the wrong run
+            routes.unlink(missing_ok=True)
+        except OSError:
+            pass  # routes.png is not named under "files", and the warning says why
         warnings.warn(
             f"{routes}: routes drawing not written: {result['routes_error']}",
             RuntimeWarning,

@@ -257,6 +257,7 @@ class _Connection(ServerRequestHandler):
         self._rx = bytearray()  # received, not yet handed to pymodbus
         self._in_flight = False  # a request is with pymodbus, its answer not yet sent
         self._writing_paused = False  # the client does not read its answers fast enough
+        self._eof = False  # the client has half-closed: answer what it sent, then close
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         peer = transport.get_extra_info("peername")
@@ -311,7 +312,18 @@ class _Connection(ServerRequestHandler):
             if frame is None:
                 break
             self._serve(frame)
+        if self._eof and not (self._in_flight or self._writing_paused):
+            self.close()  # all it sent is answered (a partial frame never completes)
+            return
         self._throttle()
+
+    def eof_received(self) -> bool:
+        """asyncio: the client will send nothing more (a half-close, as a client that sends
+        its requests and then shuts its side down does). What it sent is still answered,
+        and the connection closes after the last answer: True keeps it open for them."""
+        self._eof = True
+        self._pump()
+        return True
 
     def _next_frame(self) -> bytes | None:
         """The first frame, taken out of the buffer; None while it is incomplete. A header

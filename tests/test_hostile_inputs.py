@@ -599,12 +599,19 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
         (
             'channel = "agv"',
             'channel = "agv"\nstatus_period_s = 1.0\nstale_after_s = 0.5',
-            r"bus\.status_period_s: must be less than stale_after_s \(0\.5 s\), got 1",
+            r"bus\.status_period_s: status_period_s = 1 s must be less than stale_after_s = 0\.5 s",
+        ),
+        (
+            'channel = "agv"',
+            'channel = "agv"\nstale_after_s = 0.1',
+            r"bus\.stale_after_s: status_period_s = 0\.1 s \(the default\) must be less than "
+            r"stale_after_s = 0\.1 s: every vehicle would turn stale",
         ),
         (
             "[bus]",
             "[time_windows]\nwait_free_s = 40\n[bus]",
-            r"time_windows\.wait_free_s: must not exceed wait_occupied_s \(30 s\), got 40",
+            r"time_windows\.wait_free_s: wait_free_s = 40 s must not exceed wait_occupied_s = 30 s "
+            r"\(the default\)",
         ),
     ],
     ids=[
@@ -613,6 +620,7 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
         "nested-recipes",
         "faults-vehicle-twice",
         "status-slower-than-stale",
+        "stale-sooner-than-default-status",
         "wait-thresholds-backwards",
     ],
 )

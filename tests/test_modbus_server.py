@@ -794,3 +794,19 @@ def test_function_codes_128_to_255_get_illegal_function(served, caplog, fc):
     assert line.endswith(
         "exception 01, function codes 128..255 are reserved for exception responses, not requests"
     )
+
+
+@pytest.mark.parametrize("count", [1, 2, 10])
+def test_requests_before_a_half_close_are_all_answered(served, count):
+    """A client that sends its requests and shuts its side down (it reads on) gets every
+    answer, then the server closes the connection."""
+    rt, server, _client = served
+    rt.image.write("%MW3", 4242)
+    rt.step()
+    cases = [PIPELINE[i % len(PIPELINE)] for i in range(count)]
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.sendall(b"".join(frame(50 + i, pdu) for i, (pdu, _) in enumerate(cases)))
+        sock.shutdown(socket.SHUT_WR)
+        answers = receive_frames(sock, count)
+        assert answers == [frame(50 + i, want) for i, (_, want) in enumerate(cases)]
+        assert sock.recv(1) == b""  # closed after the last answer

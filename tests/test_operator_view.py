@@ -212,7 +212,7 @@ def test_articulation_points_match_an_independent_count():
     from topology import Edge, Node, Plant, model_plant, warehouse
 
     ring = Plant.build(
-        [Node(k, float(k), 0.0) for k in range(12)],
+        [Node(k, x=float(k), y=0.0) for k in range(12)],
         [Edge(k, (k + 1) % 12, 0.0 if k in (4, 5, 6) else 1.0) for k in range(12)],
     )  # segments of length 0 still join their nodes: no cut node in a ring
     for plant in (model_plant(), warehouse(), grid(6, 6), ring):

@@ -50,6 +50,7 @@ def test_a_failed_drawing_keeps_the_data_and_says_why(program, tmp_path, monkeyp
         failing_draw(TypeError("set_text(): incompatible function arguments.\n" + "x\n" * 50)),
     )
     result = report.summary(program, wall_s=1.0)
+    (tmp_path / "routes.png").write_bytes(b"an earlier run's drawing")
     with pytest.warns(RuntimeWarning) as caught:
         files = report.write_all(program, tmp_path, result)
     (warning,) = caught
@@ -88,3 +89,18 @@ def test_a_drawing_that_cannot_be_saved_names_the_os_reason(program, tmp_path, m
     with pytest.warns(RuntimeWarning, match="routes.png: routes drawing not written: Permission"):
         report.write_all(program, tmp_path, result)
     assert result["routes_error"] == "Permission denied"
+
+
+def test_names_are_drawn_as_written_not_as_math(tmp_path):
+    """A "$" in a name would start matplotlib's math mode, and an unknown macro in it
+    failed the drawing."""
+    from topology import Edge, Node, Plant
+    from topology.draw import draw
+
+    plant = Plant.build(
+        [Node(0, role="entry", functions=(0,)), Node(1, x=1.0, role="exit", functions=(1,))],
+        [Edge(0, 1, 1.0)],
+        name="hall $\\nosuchmacro$",
+    )
+    out = draw(plant, tmp_path / "plant.png", title="hall $\\frac{1$")
+    assert out.stat().st_size > 0

@@ -256,7 +256,7 @@ def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program
     try:
         counter = p.fleet._counter[STATUS + 2] + 1  # the counter of its last frame, and on
         for k in range(2):  # two consecutive statuses agree: the link takes the position
-            fid, data = codec.encode(Status(2, 60000, NO_NODE, "DRIVING", 0.0, (counter + k) % 16))
+            fid, data = codec.encode(Status(2, 60000, 60001, "DRIVING", 0.0, (counter + k) % 16))
             forger.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
         p.fleet._counter[STATUS + 2] = (counter + 1) % 16  # the real vehicle goes on after them
         c = p.controls[2]
@@ -265,7 +265,8 @@ def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program
         forger.shutdown()
     assert c.state == "suspect" and c.suspect_reason == "reports node 60000, not in the plant"
     assert p.reservation.held_by(2) == before
-    assert p.rt.image.read("agv2.node") == NO_NODE and p.rt.image.read("agv2.suspect") is True
+    assert p.rt.image.read("agv2.node") == NO_NODE and p.rt.image.read("agv2.next") == NO_NODE
+    assert p.rt.image.read("agv2.suspect") is True
     p.rt.step()
     assert p.fleet.vehicles[2].go is False  # stopped
     # the true reports resume: back in service by the rule, and on with its recipes

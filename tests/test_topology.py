@@ -364,7 +364,7 @@ def small_plant(**changes) -> dict:
         (
             {"node_area": "dr\u202eill"},
             ": nodes[1] (id 1): ",
-            r"area .* invisible format character",
+            r"area .* \(U\+202E\) is a bidirectional control",
         ),
         ({"node_name": "a\u2028b"}, ": nodes[1] (id 1): ", r"\(U\+2028\) is a line separator"),
         (
@@ -401,6 +401,18 @@ def test_names_in_any_script_are_fine_but_not_control_characters(tmp_path):
     same check refuses an escape sequence in a .nodes file and in a plant built in code."""
     name = "Bohrstation Süd 北 ‍🧑‍🔧 می‌خواهم"
     assert load_json_plant(tmp_path, small_plant(name=name, node_name=name)).name == name
+    # marks that set digits beside Hebrew or Arabic, a soft hyphen, a word joiner, a flag
+    # made of tag characters, a byte order mark: invisible, but they move nothing
+    for name in (
+        "תחנה \u200e3",
+        "محطة\u200f 3",
+        "\u061cمحطة",
+        "Lager\u00adhalle",
+        "A\u2060B",
+        "\U0001f3f4\U000e0067\U000e0062\U000e0073\U000e0063\U000e0074\U000e007f",
+        "\ufeffhall",
+    ):
+        assert load_json_plant(tmp_path, small_plant(node_name=name)).nodes[1].name == name
     path = tmp_path / "thesis.nodes"
     path.write_text(
         "0 -1 0 1 1.0 -1 0 -1 0 role=entry functions=0\n"
@@ -485,3 +497,13 @@ def test_movingai_only_blank_lines_follow_the_rows(tmp_path):
     )
     path.write_text("type octile\nheight 1\nwidth 3\nmap\n...\n\n  \n")
     assert load(path).n == 3
+
+
+def test_a_plant_named_after_its_file_escapes_what_a_name_may_not_hold(tmp_path):
+    """A map or node list takes its name from the file's name, which nobody wrote as a
+    name: a tab or a byte that is not UTF-8 there is escaped, not refused."""
+    text = (Path(__file__).parent.parent / "examples/plants/random-32-32.map").read_text()
+    path = tmp_path / "lager\udce4\tost.map"  # a file name in Latin-1, and a tab
+    path.write_text(text)
+    assert load(path).name == "lager\\udce4\\tost"
+    assert load(tmp_path / "lager\udce4\tost.map").name.isprintable()

@@ -83,6 +83,11 @@ class Picture:
     usage: dict[Segment, int]
 
 
+# Names come from plant files: "$" in one would start matplotlib's math mode, and a name
+# such as "hall $\nosuchmacro$" would fail the drawing. Text is drawn as written.
+LITERAL_TEXT = {"text.parse_math": False}
+
+
 def draw(
     plant: Plant,
     out: str | Path,
@@ -98,8 +103,9 @@ def draw(
     out = Path(out)
     if out.suffix.lower() != ".png":
         raise TopologyError("the drawing is a PNG: give a file name ending in .png", str(out))
-    picture = render(plant, routes, title, blocked, vehicles, lifted, recent, earlier)
-    picture.figure.savefig(out, dpi=DPI, bbox_inches="tight", pad_inches=0.1)
+    with matplotlib.rc_context(LITERAL_TEXT):
+        picture = render(plant, routes, title, blocked, vehicles, lifted, recent, earlier)
+        picture.figure.savefig(out, dpi=DPI, bbox_inches="tight", pad_inches=0.1)
     return out
 
 
@@ -122,6 +128,21 @@ def render(
     how many before them fading (the heat map counts every driven segment)."""
     if recent < 1 or earlier < 0:
         raise TopologyError(f"recent must be >= 1 and earlier >= 0, got {recent} and {earlier}")
+    with matplotlib.rc_context(LITERAL_TEXT):
+        return _render(plant, routes, title, blocked, vehicles, lifted, recent, earlier)
+
+
+def _render(
+    plant: Plant,
+    routes: Sequence[Sequence[int]],
+    title: str | None,
+    blocked: Sequence[Segment],
+    vehicles: Vehicles | None,
+    lifted: Sequence[Segment],
+    recent: int,
+    earlier: int,
+) -> Picture:
+    """``render``'s figure, with every text taken literally (``LITERAL_TEXT``)."""
     vehicles = dict(vehicles or {})
     mode = "heatmap" if len(vehicles) > HEATMAP_ABOVE else "vehicles" if vehicles else "plant"
     geo = _Geometry(plant)

@@ -174,37 +174,51 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
     )
 
 
-# Characters refused in names, by Unicode category: names reach terminals, log files, the
-# drawing and the operator page, where a control character (ESC starts a terminal escape
-# sequence), a line or paragraph separator (one message, one line) or an invisible format
-# character (a right-to-left override reverses what follows) would make the text show
-# something other than what it is. Surrogates are no text at all: they cannot be written as
-# UTF-8, so printing or drawing the name fails. The zero-width (non-)joiners are format
-# characters that some scripts and emoji need, and they move nothing.
+# Characters refused in names: names reach terminals, log files, the drawing and the
+# operator page, where a control character (ESC starts a terminal escape sequence), a line
+# or paragraph separator (one message, one line) or a bidirectional embedding, override or
+# isolate (U+202A..U+202E, U+2066..U+2069: what follows is shown reordered) would make the
+# text show something other than what it is. Surrogates are no text at all: they cannot be
+# written as UTF-8, so printing or drawing the name fails. Other invisible format
+# characters stay allowed: the left-to-right and right-to-left marks that set digits beside
+# Hebrew or Arabic, soft hyphens, joiners, the tags of flag emoji move nothing.
 REFUSED_CATEGORIES = {
     "Cc": "a control character",
-    "Cf": "an invisible format character",
     "Zl": "a line separator",
     "Zp": "a paragraph separator",
     "Cs": "a lone surrogate, not text (it cannot be written as UTF-8)",
 }
-JOINERS = frozenset("\u200c\u200d")
+BIDI_CONTROLS = frozenset(map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A)]))
 
 
 def text_problem(value: object) -> str | None:
     """What makes ``value`` unfit to name something an operator reads, None if nothing."""
     if not isinstance(value, str):
         return f"must be a string, got {_short(value)}"
-    if value.isprintable():  # the fast path: no character of any refused category
+    if value.isprintable():  # the fast path: no character of any refused kind
         return None
     for position, char in enumerate(value, start=1):
         kind = REFUSED_CATEGORIES.get(unicodedata.category(char))
-        if kind is not None and char not in JOINERS:
+        if kind is None and char in BIDI_CONTROLS:
+            kind = "a bidirectional control (it reorders the text after it)"
+        if kind is not None:
             return (
                 f"{_short(value)}: character {position} (U+{ord(char):04X}) is {kind}; "
                 "a name must be printable text"
             )
     return None
+
+
+def escaped_name(text: str) -> str:
+    """``text`` with every character a name may not hold written as its escape: for names
+    a plant takes from its file name, which the file system gives as it is (a tab, a byte
+    that is not UTF-8) and which nobody wrote as a name."""
+    if text_problem(text) is None:
+        return text
+    return "".join(
+        char if text_problem(char) is None else char.encode("unicode_escape").decode("ascii")
+        for char in text
+    )
 
 
 def _first_unfit(values: list[object]) -> tuple[int, str] | None:

@@ -19,7 +19,7 @@ from typing import TypeVar
 
 from ..errors import TopologyError
 from ..model import MAX_NODE_ID, Edge, Node, Plant
-from ..validate import text_problem
+from ..validate import escaped_name, text_problem
 from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
@@ -92,7 +92,7 @@ def load_nodes(path: str | Path) -> Plant:
             done.add((node_id, other, port))
     if not any(("x" in o or "y" in o) for o, _p, _l in records.values()):
         nodes = _layout(nodes, edges)
-    return Plant.build(nodes, edges, name=path.stem, source=source)
+    return Plant.build(nodes, edges, name=escaped_name(path.stem), source=source)
 
 
 def _integer(text: str, field: str, source: str, where: str) -> int:

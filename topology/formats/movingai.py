@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import TopologyError
 from ..grid import grid_plant
 from ..model import Plant
+from ..validate import escaped_name
 from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
@@ -72,7 +73,7 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
         raise TopologyError(
             f"unknown cell {chr(cells[y, x])!r} at column {x + 1}", source, f"line {row + 2 + y}"
         )
-    return grid_plant(passable, cell_size, name=path.stem, source=source)
+    return grid_plant(passable, cell_size, name=escaped_name(path.stem), source=source)
 
 
 def _check_nothing_after(lines: list[str], end: int, height: int, source: str) -> None:
