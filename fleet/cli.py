@@ -20,6 +20,7 @@ from plc_runtime.cli import (
     one_line_warning,
     positive,
     run_program,
+    terminal_text,
 )
 from plc_runtime.errors import PlcError
 from topology import TopologyError
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # stdout closed early (e.g. piped into head): nothing left to report
         return EXIT_ERROR
     except (PlcError, CliError, TopologyError, OSError) as exc:
-        print(f"plc-runtime: error: {exc}", file=sys.stderr)
+        print(f"plc-runtime: error: {terminal_text(str(exc))}", file=sys.stderr)
         return EXIT_ERROR
     finally:
         warnings.showwarning = show_warning

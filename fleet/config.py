@@ -18,6 +18,7 @@ from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import FileProblem, read_limited
 from topology import SAMPLES, Plant, TopologyError, load
+from topology.validate import text_problem
 from vehicles.agv import AgvParams
 from vehicles.fleet import Faults
 
@@ -394,6 +395,9 @@ def _recipes(source: str, items: list, plant: Plant, required: bool) -> dict[str
         name = r.get("name", str)
         functions = r.get("functions", list)
         r.finish()
+        problem = text_problem(name) if name else "must not be empty"
+        if problem:  # the dashboard, the events and recipes.csv show it
+            raise r.fail("name", problem)
         if name in recipes:
             raise r.fail("name", f"recipe {name!r} defined twice")
         if not functions or not all(

@@ -158,7 +158,20 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
 
 def one_line_warning(message: Warning | str, category: type, *args: Any, **kwargs: Any) -> None:
     """``warnings.showwarning`` for a command line: one line on stderr, no source line."""
-    print(f"plc-runtime: warning: {message}", file=sys.stderr)
+    print(f"plc-runtime: warning: {terminal_text(str(message))}", file=sys.stderr)
+
+
+def terminal_text(text: str) -> str:
+    """``text`` safe to print on a terminal: every character that is not printable but a
+    newline written as its escape. Messages quote what files and clients gave (a key, a
+    name, a path), and an ESC among it would start an escape sequence in the operator's
+    terminal; a lone surrogate could not even be printed."""
+    if text.isprintable():
+        return text
+    return "".join(
+        char if char.isprintable() or char == "\n" else char.encode("unicode_escape").decode()
+        for char in text
+    )
 
 
 ProgramBuilder = Callable[..., Runtime]

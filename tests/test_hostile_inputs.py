@@ -608,6 +608,11 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             r"stale_after_s = 0\.1 s: every vehicle would turn stale",
         ),
         (
+            'name = "drill-mill-paint"',
+            'name = "drill\\u001b[2J"',
+            r"recipes\[0\]\.name: 'drill\\x1b\[2J': character 6 \(U\+001B\) is a control",
+        ),
+        (
             "[bus]",
             "[time_windows]\nwait_free_s = 40\n[bus]",
             r"time_windows\.wait_free_s: wait_free_s = 40 s must not exceed wait_occupied_s = 30 s "
@@ -621,6 +626,7 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
         "faults-vehicle-twice",
         "status-slower-than-stale",
         "stale-sooner-than-default-status",
+        "escape-in-recipe-name",
         "wait-thresholds-backwards",
     ],
 )
@@ -698,3 +704,17 @@ def test_time_window_settings_under_reactive_traffic_are_named(tmp_path, capsys)
         main(["run", str(config), "--cycles", "2", "--out", out, "--traffic", "time_windows"]) == 0
     )
     assert "[time_windows]" not in capsys.readouterr().err
+
+
+def test_what_a_message_quotes_from_a_file_cannot_drive_the_terminal(tmp_path, capsys):
+    """An unknown key with an escape sequence in it, quoted by the error: printed escaped,
+    on one line."""
+    from fleet.cli import main
+    from fleet.config import DEFAULT_CONFIG
+
+    config = tmp_path / "fleet.toml"
+    config.write_text(DEFAULT_CONFIG.read_text() + '\n[web]\n"k\\u001b]0;owned\\u0007" = 1\n')
+    assert main(["run", str(config), "--cycles", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "\\x1b]0;owned\\x07" in err
+    assert err.count("\n") == 1
