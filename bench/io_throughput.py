@@ -14,6 +14,11 @@
    bus, so 1000 vehicles are 8 buses and 8 drivers), every vehicle reporting every 100 ms;
    the fleet is simulated between scans, outside the measured time. Baseline: the same
    runtime and program without drivers.
+6. Modbus clients polling without pause (each sends ten reads of 100 registers at a time
+   and waits for the answers, in a process of its own) while the default fleet job runs
+   paced at real time (10 ms cycle): the scan's execution time with the server serving
+   between scans (as a runtime's driver does) against the same server serving whenever a
+   request arrives (baseline), and without clients.
 5. A flood of valid status frames (each passes the CRC and counter checks): the time one
    tick's ``read_inputs`` takes with the per-tick cap a fleet program sets
    (``frames_per_tick``: what a 1 Mbit/s bus carries in a cycle) against the driver's
@@ -193,6 +198,72 @@ def flood_read_ms(vehicles: int, max_frames: int, ticks: int) -> float:
     finally:
         driver.close()
         sender.shutdown()
+
+
+POLLER = """
+import socket, struct, sys, time
+port, seconds = int(sys.argv[1]), float(sys.argv[2])
+request = struct.pack(">BHH", 3, 1024, 100)
+batch = b"".join(struct.pack(">HHHB", t, 0, len(request) + 1, 1) + request for t in range(10))
+answer = 9 + 200
+sock = socket.create_connection(("127.0.0.1", port))
+done, end = 0, time.monotonic() + seconds
+while time.monotonic() < end:
+    sock.sendall(batch)
+    got = 0
+    while got < 10 * answer:
+        got += len(sock.recv(65536))
+    done += 10
+sock.close()
+print(done)
+"""
+
+
+def polled_scans(clients: int, seconds: float, between_scans: bool) -> tuple[float, ...]:
+    """(scan p50 us, p99 us, max us, requests/s) of the default fleet job paced at real
+    time (10 ms cycle, vehicles simulated in the scan) while ``clients`` Modbus clients
+    poll; ``between_scans``: the server is a runtime's driver serving between scans, else
+    it serves whenever a request arrives."""
+    from fleet.config import load_config
+    from fleet.program import FleetProgram
+    from io_drivers.modbus_server import ModbusServer
+    from plc_runtime import PacedClock
+
+    class AnyTime(ModbusServer):
+        def added_to(self, runtime):  # the server as it was: no waiting for the scans
+            pass
+
+    cfg = load_config()
+    cfg.watchdog = 5.0
+    cfg.bus_channel = f"io-polled-{next(_channels)}"
+    program = FleetProgram(cfg, clock=PacedClock(1.0))
+    rt = program.rt
+    server = (ModbusServer if between_scans else AnyTime)(port=0)
+    rt.add_driver(server)
+    rt.start()
+    pollers = [
+        subprocess.Popen(
+            [sys.executable, "-c", POLLER, str(server.port), str(seconds)],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(clients)
+    ]
+    try:
+        rt.run(duration=seconds + 0.5)
+        answered = sum(int(p.communicate(timeout=30)[0]) for p in pollers)
+    finally:
+        for p in pollers:
+            p.kill()
+            p.wait()
+        stats = rt.stats.scan
+        program.close()
+    return (
+        stats.exec_percentile_ns(50) / 1e3,
+        stats.exec_percentile_ns(99) / 1e3,
+        stats.exec_max_ns / 1e3,
+        answered / seconds,
+    )
 
 
 def scan_times(vehicles: int, scans: int) -> tuple[float, float, float, float]:
@@ -401,6 +472,26 @@ def main() -> None:
         p50, p99, b50, b99 = scan_times(n, args.scans)
         print(
             f"| {n} | {(n + 124) // 125} | {p50:,.1f} | {p99:,.1f} | {b50:,.1f} | {b99:,.1f} | {p50 / b50:.1f} |"
+        )
+    print()
+    print("### Modbus clients polling without pause: the scan's execution time")
+    print()
+    print(
+        "| clients | server serves | scan p50 us | p99 us | max us | requests/s | p99 / any time |"
+    )
+    print("|---:|---|---:|---:|---:|---:|---:|")
+    seconds = 1.0 if args.quick else 5.0
+    print("| 0 | - | {:,.0f} | {:,.0f} | {:,.0f} | 0 | - |".format(*polled_scans(0, seconds, True)))
+    for clients in (2, 4):
+        quiet = polled_scans(clients, seconds, True)
+        any_time = polled_scans(clients, seconds, False)
+        print(
+            f"| {clients} | between scans | {quiet[0]:,.0f} | {quiet[1]:,.0f} | {quiet[2]:,.0f} "
+            f"| {quiet[3]:,.0f} | {quiet[1] / any_time[1]:.2f} |"
+        )
+        print(
+            f"| {clients} | any time (baseline) | {any_time[0]:,.0f} | {any_time[1]:,.0f} "
+            f"| {any_time[2]:,.0f} | {any_time[3]:,.0f} | 1 |"
         )
     print()
     print("### A flood of valid frames: one tick's input phase")

@@ -69,7 +69,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from plc_runtime import Address, ConfigError, PlcError, ProcessImage, parse_address
+from plc_runtime import Address, ConfigError, PlcError, ProcessImage, Runtime, parse_address
+from plc_runtime.quiet import QuietSelector
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +92,8 @@ IDLE_TIMEOUT = 60.0  # seconds without a request before a connection is closed
 MBAP_HEADER = 7  # transaction id (2), protocol id (2), length (2), unit id (1)
 MBAP_LENGTHS = range(2, 255)  # the length field: unit id + a PDU of 1..253 bytes
 MAX_BACKLOG = 16 * 1024  # bytes of requests waiting on one connection before reading stops
+QUIET_LEAD = 0.1  # of a cycle: no request is started this long before a scan
+QUIET_WAIT_S = 0.5  # a request waits this long at most for a scan to end (then it goes on)
 _DEFAULT_REASONS = {
     ExcCodes.ILLEGAL_FUNCTION: "function code not served",
     ExcCodes.ILLEGAL_ADDRESS: "address outside the served map",
@@ -467,8 +470,10 @@ class _ModbusThread:
         name: str = "modbus",
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout: float | None = IDLE_TIMEOUT,
+        between_scans: threading.Event | None = None,
     ):
         check_limits(name, max_connections, idle_timeout)
+        self._between_scans = between_scans  # serve only while it is set (None: always)
         self._read = read
         self._write = write
         self._allow = allow
@@ -700,9 +705,15 @@ class _ModbusThread:
         self._thread = self._loop = self._stop_evt = None
         self.port = None
 
+    def _new_loop(self) -> asyncio.AbstractEventLoop:
+        if self._between_scans is None:
+            return asyncio.new_event_loop()
+        return asyncio.SelectorEventLoop(QuietSelector(self._between_scans, QUIET_WAIT_S))
+
     def _thread_main(self) -> None:
         try:
-            asyncio.run(self._serve())
+            with asyncio.Runner(loop_factory=self._new_loop) as runner:
+                runner.run(self._serve())
         except BaseException as exc:  # pylint: disable=broad-except
             self._error = exc
         finally:
@@ -813,6 +824,16 @@ class ModbusServer:
         self._allowed = np.zeros(_MW_BITS, dtype=bool)  # per bit of %M: a client may write it
         self._writable_regs = np.zeros(N_HOLDING - MW_BASE, dtype=bool)  # every bit of %MWn
         self._owners: dict[int, str] = {}  # %MW index -> the read-only tag in it
+        self._between_scans: threading.Event | None = None  # set by added_to()
+
+    def added_to(self, runtime: Runtime) -> None:
+        """Serve between scans: the server's thread shares the interpreter with the scan,
+        and requests decoded and answered while a scan runs would lengthen it (clients
+        polling without pause, bench/io_throughput.py). The loop waits after every wake-up
+        until no scan runs (``plc_runtime.quiet``), and the runtime clears its event a
+        tenth of a cycle before each scan, so a request does not start just before one."""
+        self._between_scans = runtime.between_scans
+        runtime.ask_quiet_lead(QUIET_LEAD * runtime.cycle_time)
 
     def open(self, image: ProcessImage) -> None:
         for area, needed in (("I", 2048), ("Q", 2048), ("M", 2048)):
@@ -837,6 +858,7 @@ class ModbusServer:
             name=self.name,
             max_connections=self.max_connections,
             idle_timeout=self.idle_timeout,
+            between_scans=self._between_scans,
         )
         self._link_counters = server.counters
         try:

@@ -15,7 +15,10 @@ That is the moment to wake the server's thread: woken from inside a scan, it wou
 while the scan runs and take the interpreter from it. Such a thread should also wait on
 ``Runtime.between_scans`` before it works, for what wakes it by itself (its sockets), and
 the driver may ask for a ``Runtime.ask_quiet_lead``: the event then clears that long
-before each scan is due, so work is not started that would run into the scan.
+before each scan is due, so work is not started that would run into the scan. For both,
+such a driver may define ``added_to(runtime)``: ``Runtime.add_driver`` calls it with the
+runtime it was added to (``plc_runtime.quiet`` has a selector for an asyncio loop that
+waits on the event).
 """
 
 from __future__ import annotations

@@ -810,3 +810,29 @@ def test_requests_before_a_half_close_are_all_answered(served, count):
         answers = receive_frames(sock, count)
         assert answers == [frame(50 + i, want) for i, (_, want) in enumerate(cases)]
         assert sock.recv(1) == b""  # closed after the last answer
+
+
+def test_a_runtime_s_server_answers_only_between_scans(monkeypatch):
+    """While a scan runs (the runtime's between-scans event clear) a request waits; once
+    the scan is over it is answered."""
+    import io_drivers.modbus_server as module
+
+    monkeypatch.setattr(module, "QUIET_WAIT_S", 60.0)  # only the event lets it go on here
+    rt = runtime(fixture_tags())
+    server = ModbusServer(port=0)
+    rt.add_driver(server)
+    rt.add_task("main", [Probe(lambda ctx: None)])
+    rt.start()
+    try:
+        with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+            assert answers_request(sock, 1)  # between scans: at once
+            rt.between_scans.clear()  # as the runtime does for a scan
+            sock.sendall(read_request(2))
+            sock.settimeout(0.2)
+            with pytest.raises(TimeoutError):
+                sock.recv(1)  # held while the "scan" runs
+            rt.between_scans.set()
+            assert receive_frames(sock, 1)[0][:2] == struct.pack(">H", 2)
+    finally:
+        rt.between_scans.set()
+        rt.stop()

@@ -6,9 +6,10 @@ interpreter's lock that the scan needs, and the scan's execution time grows by i
 puts its communication load where the cycle has time to spare; this does the same, in two
 parts:
 
-* :class:`QuietSelector`: whatever wakes the server's loop (a request arriving, a timer),
-  the loop waits until no scan runs (``Runtime.between_scans``) before it does anything.
-  A scan pays at most for handing the interpreter over once, not for the server's work.
+* ``plc_runtime.quiet.QuietSelector``: whatever wakes the server's loop (a request
+  arriving, a timer), the loop waits until no scan runs (``Runtime.between_scans``) before
+  it does anything. A scan pays at most for handing the interpreter over once, not for the
+  server's work.
 * :class:`ScanGate`: a request that arrives is read and checked by the guard (host, rate,
   token, size: cheap), then waits here until the end of the next scan, and runs its
   handler in the time before the following one, where the scan waits for its release
@@ -28,25 +29,8 @@ desks' timeout answers ("controller not scanning").
 from __future__ import annotations
 
 import asyncio
-import selectors
-import threading
 from collections import deque
 from collections.abc import Callable
-
-
-class QuietSelector(selectors.DefaultSelector):
-    """The server loop's selector: after every wake-up it waits (at most ``timeout``
-    seconds) until no scan runs, so the loop's work falls between scans."""
-
-    def __init__(self, between_scans: threading.Event, timeout: float) -> None:
-        super().__init__()
-        self._between_scans = between_scans
-        self._timeout = timeout
-
-    def select(self, timeout: float | None = None) -> list:
-        ready = super().select(timeout)
-        self._between_scans.wait(self._timeout)
-        return ready
 
 
 class ScanGate:

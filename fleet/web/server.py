@@ -40,13 +40,14 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from io_drivers.modbus_server import is_loopback
 from plc_runtime import ConfigError, ProcessImage
+from plc_runtime.quiet import QuietSelector
 
 from ..program import FleetProgram
 from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
 from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
 from .fleet_desk import FleetDesk
-from .gate import QuietSelector, ScanGate
+from .gate import ScanGate
 from .guard import (
     BODY_TIMEOUT,
     MAX_BODY,
