@@ -474,6 +474,7 @@ class _ModbusThread:
     ):
         check_limits(name, max_connections, idle_timeout)
         self._between_scans = between_scans  # serve only while it is set (None: always)
+        self._selector: QuietSelector | None = None  # the loop's, when it waits for scans
         self._read = read
         self._write = write
         self._allow = allow
@@ -694,6 +695,8 @@ class _ModbusThread:
         thread, loop, evt = self._thread, self._loop, self._stop_evt
         if thread is None:
             return
+        if self._selector is not None:
+            self._selector.release()  # its shutdown does not wait for scans
         if loop is not None and evt is not None and not loop.is_closed():
             try:
                 loop.call_soon_threadsafe(evt.set)
@@ -708,7 +711,8 @@ class _ModbusThread:
     def _new_loop(self) -> asyncio.AbstractEventLoop:
         if self._between_scans is None:
             return asyncio.new_event_loop()
-        return asyncio.SelectorEventLoop(QuietSelector(self._between_scans, QUIET_WAIT_S))
+        self._selector = QuietSelector(self._between_scans, QUIET_WAIT_S)
+        return asyncio.SelectorEventLoop(self._selector)
 
     def _thread_main(self) -> None:
         try:

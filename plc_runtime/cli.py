@@ -17,6 +17,7 @@ import math
 import signal
 import sys
 import time
+import unicodedata
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -161,15 +162,27 @@ def one_line_warning(message: Warning | str, category: type, *args: Any, **kwarg
     print(f"plc-runtime: warning: {terminal_text(str(message))}", file=sys.stderr)
 
 
+# What a terminal must not be given raw: control characters (ESC starts an escape
+# sequence), lone surrogates (not text; printing one fails), line and paragraph separators,
+# and the bidirectional controls that show the text after them reordered. Other characters
+# that are not "printable" in Python's sense (no-break spaces, joiners, soft hyphens) are
+# parts of names and paths and stay as they are.
+_UNSAFE_CATEGORIES = frozenset(("Cc", "Cs", "Zl", "Zp"))
+_BIDI_CONTROLS = frozenset(map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A)]))
+
+
 def terminal_text(text: str) -> str:
-    """``text`` safe to print on a terminal: every character that is not printable but a
+    """``text`` safe to print on a terminal: every character of the kinds above but a
     newline written as its escape. Messages quote what files and clients gave (a key, a
-    name, a path), and an ESC among it would start an escape sequence in the operator's
-    terminal; a lone surrogate could not even be printed."""
+    name, a path), and an ESC among it would start an escape sequence on the operator's
+    screen."""
     if text.isprintable():
         return text
     return "".join(
-        char if char.isprintable() or char == "\n" else char.encode("unicode_escape").decode()
+        char.encode("unicode_escape").decode()
+        if char != "\n"
+        and (unicodedata.category(char) in _UNSAFE_CATEGORIES or char in _BIDI_CONTROLS)
+        else char
         for char in text
     )
 

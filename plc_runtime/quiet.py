@@ -29,8 +29,15 @@ class QuietSelector(selectors.DefaultSelector):
         super().__init__()
         self._between_scans = between_scans
         self._timeout = timeout
+        self._released = False
+
+    def release(self) -> None:
+        """Wait no more (from any thread): the server is shutting down, and its loop's
+        last wake-ups must not each wait for a scan, however long the cycle."""
+        self._released = True
 
     def select(self, timeout: float | None = None) -> list:
         ready = super().select(timeout)
-        self._between_scans.wait(self._timeout)
+        if not self._released:
+            self._between_scans.wait(self._timeout)
         return ready

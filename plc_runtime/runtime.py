@@ -240,10 +240,10 @@ class Runtime:
             )
         if any(d.name == driver.name for d in self.drivers):
             raise ConfigError(f"driver {driver.name!r} already added")
-        self.drivers.append(driver)
         added_to = getattr(driver, "added_to", None)  # optional (io.py)
-        if added_to is not None:
-            added_to(self)
+        if callable(added_to):
+            added_to(self)  # before it counts as added: if this fails, it is not
+        self.drivers.append(driver)
 
     @property
     def quiet_lead(self) -> float:

@@ -718,3 +718,12 @@ def test_what_a_message_quotes_from_a_file_cannot_drive_the_terminal(tmp_path, c
     err = capsys.readouterr().err
     assert "\x1b" not in err and "\\x1b]0;owned\\x07" in err
     assert err.count("\n") == 1
+
+
+def test_terminal_text_escapes_only_what_could_drive_a_terminal():
+    from plc_runtime.cli import terminal_text
+
+    kept = ["می\u200cخواهم", "Bohren\xa0Fräsen", "👨\u200d👩\u200d👧", "Lager\u00adhalle", "a\nb"]
+    assert [terminal_text(t) for t in kept] == kept
+    assert terminal_text("a\x1b[2Jb\tc") == "a\\x1b[2Jb\\tc"
+    assert terminal_text("r\u202eev\u2028\udce4") == "r\\u202eev\\u2028\\udce4"

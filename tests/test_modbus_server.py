@@ -836,3 +836,50 @@ def test_a_runtime_s_server_answers_only_between_scans(monkeypatch):
     finally:
         rt.between_scans.set()
         rt.stop()
+
+
+def test_a_server_waiting_for_a_scan_still_stops_at_once(monkeypatch):
+    """Stopped while the runtime holds its event clear (a long cycle's quiet lead, or a
+    scan that does not end): the server's shutdown does not wait for scans, so stop()
+    completes instead of giving up after its join timeout and leaving the runtime up."""
+    import io_drivers.modbus_server as module
+
+    monkeypatch.setattr(module, "QUIET_WAIT_S", 60.0)
+    rt = runtime(fixture_tags())
+    server = ModbusServer(port=0)
+    rt.add_driver(server)
+    rt.add_task("main", [Probe(lambda ctx: None)])
+    rt.start()
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        assert answers_request(sock, 1)
+        rt.between_scans.clear()
+        try:
+            rt.stop()  # joins the server's thread for 5 s at most, else TimeoutError
+        finally:
+            rt.between_scans.set()
+    assert rt.state == "STOP" and server.port is None
+
+
+def test_a_driver_attribute_named_added_to_that_is_no_method_is_left_alone():
+    class Logger:
+        name = "csvlog"
+        added_to = "2026-12-01"  # its own data, not the runtime's hook
+
+        def open(self, image):
+            pass
+
+        def read_inputs(self, image, now_ns):
+            pass
+
+        def write_outputs(self, image, now_ns):
+            pass
+
+        def close(self):
+            pass
+
+        def stats(self):
+            return {}
+
+    rt = runtime()
+    rt.add_driver(Logger())
+    assert [d.name for d in rt.drivers] == ["csvlog"]

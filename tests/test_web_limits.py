@@ -205,6 +205,18 @@ def test_foreign_hosts_count_against_the_rate_and_are_logged_once_a_second(caplo
         assert len(lines) == 1 and "Host header 'evil.example'" in lines[0]
 
 
+def test_a_refused_path_reaches_the_log_escaped(caplog):
+    """The path is logged as uvicorn decoded it: %1b would be an ESC on the operator's
+    terminal."""
+    with Controller() as ctl:
+        with caplog.at_level(logging.WARNING, logger="fleet.web.guard"):
+            reply = ctl.call("POST", f"{API}/orders%1b]0;owned%07%1b[2J", {}, token="wrong")
+        assert reply.status == 403
+    lines = [r.getMessage() for r in caplog.records if r.name == "fleet.web.guard"]
+    assert len(lines) == 1 and "orders\\x1b]0;owned\\x07\\x1b[2J from" in lines[0]
+    assert lines[0].isprintable()
+
+
 # ----- integers and repeats ---------------------------------------------------------------------
 @pytest.mark.parametrize(
     ("method", "path", "field"),

@@ -45,6 +45,8 @@ import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
+from plc_runtime.cli import terminal_text
+
 from .gate import ScanGate
 
 log = logging.getLogger(__name__)
@@ -200,7 +202,7 @@ class Guard:
                 "%s: refused %s %s from %s: 429, over %g requests per second",
                 self.where,
                 scope["method"],
-                scope["path"],
+                terminal_text(scope["path"]),  # decoded: %1b would be an ESC
                 address,
                 self.max_rate,
             )
@@ -237,7 +239,7 @@ class Guard:
                 "%s: refused %s %s from %s: %d, %s",
                 self.where,
                 scope["method"],
-                scope["path"],
+                terminal_text(scope["path"]),  # decoded: %1b would be an ESC
                 peer,
                 status,
                 why,

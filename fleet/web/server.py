@@ -219,6 +219,7 @@ class WebServer:
         self._socket: socket.socket | None = None
         self._server: _Server | None = None
         self._thread: threading.Thread | None = None
+        self._selector: QuietSelector | None = None  # its loop's, released at close
         self._error: BaseException | None = None
         self.answered = 0  # requests answered at quiet points
 
@@ -305,11 +306,9 @@ class WebServer:
         wake-up, until no scan runs (gate.py), until ``should_exit``."""
         server, sock = self._server, self._socket
         assert server is not None and sock is not None
-        between_scans = self._program.rt.between_scans
+        selector = self._selector = QuietSelector(self._program.rt.between_scans, GATE_S)
         try:
-            with asyncio.Runner(
-                loop_factory=lambda: asyncio.SelectorEventLoop(QuietSelector(between_scans, GATE_S))
-            ) as runner:
+            with asyncio.Runner(loop_factory=lambda: asyncio.SelectorEventLoop(selector)) as runner:
                 runner.run(server.serve([sock]))
         except BaseException as exc:  # a failed start: open() reports it
             self._error = exc
@@ -345,6 +344,8 @@ class WebServer:
         self.gate.detach()
         server, thread, sock = self._server, self._thread, self._socket
         self._server = self._thread = self._socket = None
+        if self._selector is not None:
+            self._selector.release()  # its shutdown does not wait for scans
         if server is not None:
             server.should_exit = True
         if thread is not None:
