@@ -7,7 +7,8 @@ communication load where the cycle has time to spare. This selector does the sam
 asyncio loop: whatever wakes the loop (a request arriving, a timer), the loop waits until
 no scan runs (``Runtime.between_scans``) before it does anything, so a scan pays at most
 for handing the interpreter over once, not for the server's work. When no scan ends within
-``timeout`` seconds (the runtime is stopping, or its scans are slow), the loop goes on.
+``timeout`` seconds (the runtime is stopping, or its scans are slow), the loop goes on;
+``release()`` ends the waiting for good, so a server shutting down is not held by scans.
 
     with asyncio.Runner(
         loop_factory=lambda: asyncio.SelectorEventLoop(QuietSelector(rt.between_scans, 0.5))
