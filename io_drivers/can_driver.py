@@ -31,9 +31,10 @@ counter step skipped, ``resyncs`` the senders whose counter jumped). What passes
 the vehicle records, which confirm positions (``unconfirmed``: positions never repeated).
 Nothing a frame contains can raise out of the scan. Per tick at most ``max_frames`` frames
 are read (the rest waits for the next tick, counted as ``deferred``), so a flooded bus
-cannot stretch the scan by more than reading that many costs: some 40 us a frame through
-python-can's virtual bus, so the 2,000 of the default are 80 ms, and a program sizes it
-to its cycle with :func:`frames_per_tick`. A sustained flood then delays the vehicles' own
+cannot stretch the scan by more than reading that many costs: some 5 to 10 us a frame
+through python-can's virtual bus (bench/io_throughput.py), so the 2,000 of the default
+take one to two 10 ms cycles, and a program sizes it to its cycle with
+:func:`frames_per_tick`. A sustained flood then delays the vehicles' own
 frames behind it until they are stale, which stops them where they are.
 """
 

@@ -31,13 +31,13 @@ every release as in the reactive mode.
 
 Plausibility: a report may only move the vehicle along what it was released (the
 ReservationMatrix decides). A report that claims anything else (another node, or none of
-the plant), or a vehicle link that saw
-the vehicle's message counter jump, makes the vehicle **suspect**: it gets a stop command,
-its holds stay as they are (the others wait or route around it, as for a stale vehicle),
-and nothing of what it reports is applied except moves along its holds. It returns to
-service by itself after reporting a node it holds for ``recover_s`` without a break, or
-when an operator acknowledges it (:meth:`acknowledge`): after looking, the operator
-confirms where it really is, and its holds move there if that node is free.
+the plant), or a vehicle link that saw the vehicle's message counter jump, makes the
+vehicle **suspect**: it gets a stop command, its holds stay as they are (the others wait
+or route around it, as for a stale vehicle), and nothing of what it reports is applied
+except moves along its holds. It returns to service by itself after reporting a node it
+holds for ``recover_s`` without a break, or when an operator acknowledges it
+(:meth:`acknowledge`): after looking, the operator confirms where it really is, and its
+holds move there if that node is free.
 """
 
 from __future__ import annotations
