@@ -307,6 +307,80 @@ def test_a_server_that_is_not_the_api_is_one_line(capsys):
     assert "(HTTP 501)" in error_line(code, err) and "not a plc-runtime HTTP API?" in err
 
 
+class _Answers(http.server.BaseHTTPRequestHandler):
+    """Answers every GET with 200 and the JSON body the test put in ``body``."""
+
+    body = b""
+
+    def do_GET(self) -> None:
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(self.body)))
+        self.end_headers()
+        self.wfile.write(self.body)
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+def _answered(capsys, body: object, *argv: str) -> tuple[int, str, str]:
+    """``plc-runtime order ARGV`` against a loopback server that answers ``body``."""
+    handler = type("Answers", (_Answers,), {"body": json.dumps(body).encode()})
+    server = http.server.HTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
+    thread.start()
+    try:
+        return order(capsys, *argv, "--url", f"http://127.0.0.1:{server.server_port}")
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
+
+
+def _answer_order(**changes: object) -> dict:
+    base = {"id": "o1", "get": 21, "put": 23, "start_s": 0, "end_s": None, "priority": 0,
+            "vehicle": None, "state": "RAW", "assigned": None, "reason": "", "history": [],
+            "sections": {}}  # fmt: skip
+    return base | changes
+
+
+@pytest.mark.parametrize(
+    ("argv", "body", "where"),
+    [
+        (["list"], {"orders": [{}], "total": 1, "offset": 0}, "orders.0.id: Field required"),
+        (["list"], [1, 2], "the answer: Input should be a valid dictionary"),
+        (["list"], {"orders": "x", "total": "y", "offset": 0}, "total: Input should be"),
+        (["show", "o1"], {"id": "o1"}, "get: Field required"),
+        (["show", "o1"], _answer_order(history=[{"time_s": "soon"}]), "history.0.time_s: "),
+        (["list", "--json"], {"orders": [{}], "total": 1, "offset": 0}, "orders.0.id: "),
+    ],
+)
+def test_an_answer_that_is_not_the_apis_is_one_line(capsys, argv, body, where):
+    """A server that answers JSON of another shape: one line naming the first field that is
+    wrong, never a KeyError or TypeError traceback."""
+    line = error_line(*_answered(capsys, body, *argv)[::2])
+    assert where in line and line.endswith("such; not a plc-runtime HTTP API?)"), line
+
+
+def test_an_answer_longer_than_the_limit_is_one_line(capsys, monkeypatch):
+    """A server that would send without end is read only up to the limit."""
+    monkeypatch.setattr(order_cli, "MAX_ANSWER_BYTES", 1000)
+    line = error_line(*_answered(capsys, {"pad": "x" * 2000}, "list")[::2])
+    assert "the answer is longer than" in line
+
+
+def test_control_characters_in_an_answer_do_not_reach_the_terminal(capsys):
+    """Whatever server the URL names, an ESC or a bidirectional control in its answer is
+    printed as an escape: it cannot recolour, retitle or reorder the operator's screen."""
+    hostile = _answer_order(id="\x1b]0;pwned\x07x", reason="late \u202ereversed\x1b[2J")
+    for argv in (["list"], ["show", "o1"]):
+        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0}
+                                   if argv == ["list"] else hostile, *argv)  # fmt: skip
+        assert (code, err) == (0, "")
+        assert "\x1b" not in out and "\u202e" not in out and "\x07" not in out
+        assert "\\x1b]0;pwned" in out and "\\u202e" in out
+
+
 # ----- run --web --------------------------------------------------------------------------------
 def test_run_serves_until_ctrl_c_and_closes(tmp_path, capsys):
     """As a reader starts it: a generated token printed once, an order added with it is

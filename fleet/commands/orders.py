@@ -8,10 +8,13 @@ variable ``PLC_RUNTIME_TOKEN``); reading needs none.
 Every failure is one line on stderr and exit code 2: ``--url`` names no controller, the
 controller cannot be reached, the token is missing or wrong, there is no such order, or the
 controller refused the order (the line names the field and what is wrong, as the order book
-says it). Requests go straight to the URL given: no proxy from the environment sees the
-token, and a redirect is not followed. Numbers are read as order files read them (ASCII
-digits only), and the tables show ids, reasons and every other text of the answer
-literally, never as rich markup.
+says it), or the answer is not what the API sends (checked against the API's own models,
+so a server that is not a controller cannot make the command fail with a traceback).
+Requests go straight to the URL given: no proxy from the environment sees the token, and a
+redirect is not followed. Numbers are read as order files read them (ASCII digits only),
+and the tables show ids, reasons and every other text of the answer literally, never as
+rich markup, with control characters written as escapes: the answer may come from any
+server the URL names, and an ESC in it would drive the operator's terminal.
 """
 
 from __future__ import annotations
@@ -21,22 +24,29 @@ import json
 import os
 import urllib.error
 import urllib.request
-from typing import Any
+from typing import Any, TypeVar
 from urllib.parse import quote, urlsplit
 
+from pydantic import BaseModel, ValidationError
 from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from plc_runtime.cli import CliError
+from plc_runtime.cli import CliError, terminal_text
 from topology.formats.numbers import not_an_integer, parse_float, parse_int, shown
 
+from ..web.models import OrderOut, OrderPage
 from ..web.options import TOKEN_ENV, bearer_token
+
+Answer = TypeVar("Answer", bound=BaseModel)
 
 DEFAULT_URL = "http://127.0.0.1:8080"
 PREFIX = "/api/v1"
 PAGE = 500  # orders per request of ``list`` (the API's largest page)
 TIMEOUT_S = 15.0  # the controller answers within two of its 5 s waits for the scan
+# the largest answer read: a page of 500 orders with the longest ids and a long history is
+# a few MB, so this only stops a server that would fill the memory
+MAX_ANSWER_BYTES = 64 * 2**20
 
 
 def integer(text: str) -> int:
@@ -98,12 +108,12 @@ def order_command(args: argparse.Namespace) -> int:
     if kind == "list":
         orders = api.all_orders()
         if args.json:
-            print(json.dumps(orders))
+            print(json.dumps([o.model_dump(mode="json") for o in orders]))
         else:
             Console().print(orders_table(orders, args.url))
         return 0
     if kind == "show":
-        order = api.call("GET", f"/orders/{quote(args.id, safe='')}")
+        order = api.call("GET", f"/orders/{quote(args.id, safe='')}", OrderOut)
     elif kind == "add":
         body = {"id": args.id, "get": args.get, "put": args.put}
         optional = {
@@ -113,15 +123,15 @@ def order_command(args: argparse.Namespace) -> int:
             "vehicle": args.vehicle,
         }
         body.update({k: v for k, v in optional.items() if v is not None})
-        order = api.call("POST", "/orders", body)
+        order = api.call("POST", "/orders", OrderOut, body)
     else:
-        order = api.call("DELETE", f"/orders/{quote(args.id, safe='')}")
+        order = api.call("DELETE", f"/orders/{quote(args.id, safe='')}", OrderOut)
     if args.json:
-        print(json.dumps(order))
+        print(json.dumps(order.model_dump(mode="json")))
     elif kind == "show":
         Console().print(order_table(order))
     else:
-        print(f"order {order['id']!r}: {order['state']}")
+        print(terminal_text(f"order {order.id!r}: {order.state}"))
     return 0
 
 
@@ -139,17 +149,24 @@ class Api:
             )
         self._open = urllib.request.build_opener(urllib.request.ProxyHandler({}), _NoRedirect).open
 
-    def all_orders(self) -> list[dict[str, Any]]:
+    def all_orders(self) -> list[OrderOut]:
         """Every order, page by page (the book only grows, so pages do not shift)."""
-        orders: list[dict[str, Any]] = []
+        orders: list[OrderOut] = []
         while True:
-            page = self.call("GET", f"/orders?offset={len(orders)}&limit={PAGE}")
-            orders += page["orders"]
-            if not page["orders"] or len(orders) >= page["total"]:
+            page = self.call("GET", f"/orders?offset={len(orders)}&limit={PAGE}", OrderPage)
+            orders += page.orders
+            if not page.orders or len(orders) >= page.total:
                 return orders
 
-    def call(self, method: str, path: str, body: dict[str, Any] | None = None) -> Any:
-        """The JSON answer of ``method path``; CliError with one line for every failure."""
+    def call(
+        self,
+        method: str,
+        path: str,
+        answer: type[Answer],
+        body: dict[str, Any] | None = None,
+    ) -> Answer:
+        """The answer of ``method path`` as the API's model ``answer``; CliError with one
+        line for every failure."""
         url = f"{self.base}{PREFIX}{path}"
         headers = {"Accept": "application/json"}
         data = None
@@ -161,7 +178,7 @@ class Api:
         request = urllib.request.Request(url, data, headers, method=method)
         try:
             with self._open(request, timeout=TIMEOUT_S) as reply:
-                return self._json(reply.read(), f"{method} {url}")
+                raw = reply.read(MAX_ANSWER_BYTES + 1)
         except urllib.error.HTTPError as exc:
             raise CliError(self._refusal(exc)) from None
         except urllib.error.URLError as exc:
@@ -179,6 +196,12 @@ class Api:
             raise CliError(f"--url {self.base!r}: {exc}") from None
         except OSError as exc:  # the connection broke mid-answer
             raise CliError(f"{self.base}: {exc.strerror or exc}") from None
+        if len(raw) > MAX_ANSWER_BYTES:
+            raise CliError(
+                f"{method} {url}: the answer is longer than {MAX_ANSWER_BYTES:,} bytes "
+                "(not a plc-runtime HTTP API?)"
+            )
+        return self._answer(raw, f"{method} {url}", answer)
 
     def _refusal(self, exc: urllib.error.HTTPError) -> str:
         """One line for an error answer: the API's own message where it gave one."""
@@ -191,12 +214,21 @@ class Api:
             line += f": give --token or set {TOKEN_ENV}"
         return line
 
-    def _json(self, raw: bytes, what: str) -> Any:
+    def _answer(self, raw: bytes, what: str, answer: type[Answer]) -> Answer:
         try:
-            return json.loads(raw)
+            data = json.loads(raw)
         except ValueError:
             raise CliError(
                 f"{what}: the answer is not JSON (not a plc-runtime HTTP API?)"
+            ) from None
+        try:
+            return answer.model_validate(data)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(part) for part in first["loc"]) or "the answer"
+            raise CliError(
+                f"{what}: {where}: {first['msg']} in the answer "
+                f"({exc.error_count()} such; not a plc-runtime HTTP API?)"
             ) from None
 
 
@@ -238,44 +270,45 @@ def _maybe(value: object) -> str:
 
 
 def _row(table: Table, *cells: object) -> None:
-    """A row shown literally: an id like ``[red]x`` or ``[/oops]`` is not rich markup."""
-    table.add_row(*(Text(str(cell)) for cell in cells))
+    """A row shown literally: an id like ``[red]x`` or ``[/oops]`` is not rich markup, and
+    control characters are escapes."""
+    table.add_row(*(Text(terminal_text(str(cell))) for cell in cells))
 
 
-def orders_table(orders: list[dict[str, Any]], url: str) -> Table:
-    table = Table(title=Text(f"{len(orders)} orders at {url}"))
+def orders_table(orders: list[OrderOut], url: str) -> Table:
+    table = Table(title=Text(terminal_text(f"{len(orders)} orders at {url}")))
     for name in ("id", "get", "put", "start s", "end s", "prio", "vehicle", "state", "assigned"):
         table.add_column(name, justify="left" if name in ("id", "state") else "right")
     table.add_column("reason")
     for o in orders:
         _row(
             table,
-            o["id"],
-            str(o["get"]),
-            str(o["put"]),
-            _time(o["start_s"]),
-            _time(o["end_s"]),
-            str(o["priority"]),
-            _maybe(o["vehicle"]),
-            o["state"],
-            _maybe(o["assigned"]),
-            o["reason"],
+            o.id,
+            o.get,
+            o.put,
+            _time(o.start_s),
+            _time(o.end_s),
+            o.priority,
+            _maybe(o.vehicle),
+            o.state,
+            _maybe(o.assigned),
+            o.reason,
         )
     return table
 
 
-def order_table(o: dict[str, Any]) -> Table:
+def order_table(o: OrderOut) -> Table:
     """One order: its fields, then its history and its sections."""
-    table = Table(title=Text(f"order {o['id']!r}"), show_header=False)
+    table = Table(title=Text(terminal_text(f"order {o.id!r}")), show_header=False)
     table.add_column("field")
     table.add_column("value")
     for name in ("get", "put", "priority", "vehicle", "state", "assigned", "reason"):
-        _row(table, name, _maybe(o[name]))
-    _row(table, "start_s", _time(o["start_s"]))
-    _row(table, "end_s", _time(o["end_s"]))
-    history = ", ".join(f"{h['time_s']:g} s {h['state']}" for h in o["history"])
+        _row(table, name, _maybe(getattr(o, name)))
+    _row(table, "start_s", _time(o.start_s))
+    _row(table, "end_s", _time(o.end_s))
+    history = ", ".join(f"{h.time_s:g} s {h.state}" for h in o.history)
     _row(table, "history", history)
-    for name, times in o["sections"].items():
+    for name, times in o.sections.items():
         _row(
             table, name, " .. ".join(f"{t:g} s" for t in times) + (" .." if len(times) == 1 else "")
         )
