@@ -83,7 +83,7 @@ from blocks.traffic.one_step import OneStepPlanner  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
 from plc_runtime.cli import non_negative, positive, whole  # noqa: E402
-from topology import Plant  # noqa: E402
+from topology import Plant, read_cells  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 from topology.samples import KIVA_HEIGHT, KIVA_WIDTH, kiva  # noqa: E402
 
@@ -138,7 +138,7 @@ def read_instance(path: Path) -> Instance:
             if key not in spec:
                 raise ValueError(f"missing key {key!r}")
         base = path.parent
-        passable = read_map(base / spec["mapFile"])
+        passable = read_cells(base / spec["mapFile"])
         starts = read_locations(base / spec["agentFile"])
         tasks = read_locations(base / spec["taskFile"])
     except (OSError, ValueError, TypeError) as e:
@@ -165,28 +165,6 @@ def read_instance(path: Path) -> Instance:
             raise InstanceError(f"{path}: start {k} at {loc} is also robot {robot_at[loc]}'s start")
         robot_at[loc] = k
     return Instance(Path(spec["mapFile"]).stem, passable, starts[:team], tasks, team)
-
-
-def read_map(path: Path) -> np.ndarray:
-    lines = path.read_text().splitlines()
-    try:
-        at = [line.strip() for line in lines].index("map")
-    except ValueError:
-        raise ValueError(f"{path}: no 'map' line") from None
-    header = dict(line.partition(" ")[::2] for line in lines[:at])
-    try:
-        height, width = int(header["height"]), int(header["width"])
-    except (KeyError, ValueError):
-        height = width = 0
-    if height < 1 or width < 1:
-        raise ValueError(f"{path}: the header needs lines 'height N' and 'width N', N >= 1")
-    rows = lines[at + 1 : at + 1 + height]
-    if len(rows) < height:
-        raise ValueError(f"{path}: the map is short: {len(rows)} rows for height {height}")
-    for y, row in enumerate(rows):
-        if len(row) != width or set(row) - set(".ESGT@"):
-            raise ValueError(f"{path}: map row {y} is not {width} cells of . E S @ T")
-    return np.array([[c in ".ESG" for c in row] for row in rows], dtype=bool)
 
 
 def read_locations(path: Path) -> list[int]:

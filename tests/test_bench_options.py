@@ -157,12 +157,18 @@ def test_time_windows_accepts_no_dwell(script):
     assert isinstance(script(time_windows, "--cell-m", "1", "--dwell-s", "0"), Ran)
 
 
-def instance(tmp_path: Path, starts=(390, 479), tasks=(435, 363), rows=None, **spec) -> Path:
-    """An instance on the test data's 32 x 32 map (``rows``: its first rows only), with
-    these starts and tasks; ``spec`` changes its JSON (None: the key is left out)."""
+def instance(
+    tmp_path: Path, starts=(390, 479), tasks=(435, 363), rows=None, cell=None, **spec
+) -> Path:
+    """An instance on the test data's 32 x 32 map (``rows``: its first rows only; ``cell``:
+    its first cell), with these starts and tasks; ``spec`` changes its JSON (None: the key
+    is left out)."""
     lines = MAP.read_text().splitlines()
+    first = lines.index("map") + 1
     if rows is not None:
-        lines = lines[: lines.index("map") + 1 + rows]
+        lines = lines[: first + rows]
+    if cell is not None:
+        lines[first] = cell + lines[first][1:]
     (tmp_path / "m.map").write_text("\n".join(lines) + "\n")
     (tmp_path / "a.agents").write_text("\n".join(map(str, (len(starts), *starts))) + "\n")
     (tmp_path / "t.tasks").write_text("\n".join(map(str, (len(tasks), *tasks))) + "\n")
@@ -204,7 +210,8 @@ def test_robots_sharing_a_start_stop_at_once(tmp_path):
         ({"tasks": ()}, "t.tasks lists no tasks"),
         ({"mapFile": None}, "missing key 'mapFile'"),
         ({"teamSize": None}, "missing key 'teamSize'"),
-        ({"rows": 20}, "m.map: the map is short: 20 rows for height 32"),
+        ({"rows": 20}, "m.map: line 24: truncated: 20 of 32 rows"),
+        ({"cell": "X"}, "m.map: line 5: unknown cell 'X' at column 1"),
         ({"starts": (390, 10)}, "start 1 at 10 is not a free cell of the map"),
     ],
 )

@@ -18,6 +18,7 @@ from topology import (
     load,
     load_scenarios,
     model_plant,
+    read_cells,
     warehouse,
 )
 from topology.formats import dump_json, dump_toml
@@ -73,12 +74,29 @@ def test_movingai_ids_follow_the_benchmark(tmp_path):
     assert plant.csr[0, 1] == 0.5
 
 
+def test_movingai_reads_the_robot_runners_cells(tmp_path):
+    """The League of Robot Runners writes its maps in this format with E (emitter) and S
+    (service) cells, both free; S is also MovingAI's swamp, passable from ground. W (water)
+    stays blocked."""
+    path = tmp_path / "warehouse_small.map"
+    path.write_text("type octile\nheight 2\nwidth 5\nmap\n@.E@S\n.EW..\n")
+    cells = read_cells(path)
+    assert cells.tolist() == [
+        [False, True, True, False, True],
+        [True, True, False, True, True],
+    ]
+    plant = load(path)
+    assert sorted(plant.ids.tolist()) == [1, 2, 4, 5, 6, 8, 9]
+    assert (1, 2) in plant.arc_index and (4, 9) in plant.arc_index and (2, 7) not in plant.arc_index
+
+
 @pytest.mark.parametrize(
     "text,message",
     [
         ("type octile\nheight 2\nwidth 3\nmap\n...\n", "truncated: 1 of 2 rows"),
         ("type octile\nheight 1\nwidth 3\nmap\n..\n", "line 5: row has 2 cells, expected 3"),
-        ("type octile\nheight 1\nwidth 3\nmap\n.S.\n", "line 5: unknown cell 'S' at column 2"),
+        ("type octile\nheight 1\nwidth 3\nmap\n.X.\n", "line 5: unknown cell 'X' at column 2"),
+        ("type octile\nheight 1\nwidth 3\nmap\n.e.\n", "line 5: unknown cell 'e' at column 2"),
         ("height x\nwidth 3\nmap\n", "integer 'height' and 'width'"),
         ("hello\n", "line 1: expected 'type'"),
     ],

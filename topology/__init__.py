@@ -2,7 +2,7 @@
 sample plants. Imports nothing else of this project."""
 
 from .errors import TopologyError
-from .formats import load, load_scenarios
+from .formats import load, load_scenarios, read_cells
 from .model import PORTS, ROLES, TARGET_ROLES, Edge, Node, Plant, route_cost
 from .samples import SAMPLES, grid, kiva, model_plant, warehouse
 
@@ -20,6 +20,7 @@ __all__ = [
     "load",
     "load_scenarios",
     "model_plant",
+    "read_cells",
     "route_cost",
     "warehouse",
 ]

@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import TopologyError
 from ..model import Plant
 from .compass import load_nodes
-from .movingai import Scenario, load_map, load_scenarios
+from .movingai import Scenario, load_map, load_scenarios, read_cells
 from .structured import dump_json, dump_toml, from_dict, load_json, load_toml, to_dict
 
 LOADERS = {".toml": load_toml, ".json": load_json, ".nodes": load_nodes}
@@ -32,4 +32,13 @@ def load(path: str | Path, cell_size: float = 1.0) -> Plant:
     return loader(path)
 
 
-__all__ = ["Scenario", "dump_json", "dump_toml", "from_dict", "load", "load_scenarios", "to_dict"]
+__all__ = [
+    "Scenario",
+    "dump_json",
+    "dump_toml",
+    "from_dict",
+    "load",
+    "load_scenarios",
+    "read_cells",
+    "to_dict",
+]

@@ -1,8 +1,10 @@
 """MovingAI 2D grid benchmark maps (.map) and scenarios (.scen), the standard format of the
 multi-agent path-finding community (Sturtevant, "Benchmarks for Grid-Based Pathfinding").
 
-A map becomes a 4-connected grid graph: '.' and 'G' are passable, '@', 'O', 'T' and 'W'
-blocked (other letters of the full format, S for swamp, are rejected rather than guessed).
+A map becomes a 4-connected grid graph: '.', 'G' and 'S' (swamp, passable from ground) are
+passable, '@', 'O', 'T' and 'W' (water, not passable from ground) blocked; 'E' is passable
+too, as the League of Robot Runners' maps write their emitter cells (and 'S' their service
+cells) in this format. Any other letter is refused rather than guessed.
 Node id of cell (x, y) is ``y * width + x`` with (0, 0) the top-left cell and x the column,
 so ids match the coordinates in .scen files. Every segment is ``cell_size`` long.
 
@@ -25,7 +27,7 @@ from ..validate import escaped_name
 from .numbers import parse_float, parse_int, shown
 from .structured import read_text
 
-PASSABLE = ".G"
+PASSABLE = ".GSE"
 BLOCKED = "@OTW"
 HEADER_KEYS = ("type", "height", "width")
 SCENARIO_FIELDS = (
@@ -51,6 +53,15 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
         and cell_size > 0
     ):
         raise TopologyError(f"cell size must be a finite number > 0, got {cell_size!r}", source)
+    passable = read_cells(path)
+    return grid_plant(passable, cell_size, name=escaped_name(path.stem), source=source)
+
+
+def read_cells(path: str | Path) -> np.ndarray:
+    """The map's cells as a (height, width) array, True where passable: for programs that
+    work on the grid itself (arrays in, arrays out) with the same checks as ``load_map``."""
+    path = Path(path)
+    source = str(path)
     lines = read_text(path).splitlines()
     header, row = _header(lines, source)
     height, width = header["height"], header["width"]
@@ -73,7 +84,7 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
         raise TopologyError(
             f"unknown cell {chr(cells[y, x])!r} at column {x + 1}", source, f"line {row + 2 + y}"
         )
-    return grid_plant(passable, cell_size, name=escaped_name(path.stem), source=source)
+    return passable
 
 
 def _check_nothing_after(lines: list[str], end: int, height: int, source: str) -> None:
