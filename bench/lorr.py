@@ -82,7 +82,7 @@ from blocks.routing.heuristic import distances_to  # noqa: E402
 from blocks.traffic.one_step import OneStepPlanner  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
-from plc_runtime.cli import non_negative, positive, whole  # noqa: E402
+from plc_runtime.cli import non_negative, positive, terminal_text, whole  # noqa: E402
 from topology import Plant, read_cells  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 from topology.samples import KIVA_HEIGHT, KIVA_WIDTH, kiva  # noqa: E402
@@ -618,11 +618,12 @@ def summary(result: dict) -> dict:
 
 
 def load(path: Path) -> Instance:
-    """:func:`read_instance`, or exit with its one-line error."""
+    """:func:`read_instance`, or exit with its one-line error (file names from the instance
+    written with their control characters and line breaks as escapes)."""
     try:
         return read_instance(path)
     except InstanceError as e:
-        sys.exit(f"lorr.py: {e}")
+        sys.exit(f"lorr.py: {terminal_text(str(e))}".replace("\n", "\\n"))
 
 
 def main() -> None:

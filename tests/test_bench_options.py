@@ -157,6 +157,9 @@ def test_time_windows_accepts_no_dwell(script):
     assert isinstance(script(time_windows, "--cell-m", "1", "--dwell-s", "0"), Ran)
 
 
+MISSING = "No such file or directory"
+
+
 def instance(
     tmp_path: Path, starts=(390, 479), tasks=(435, 363), rows=None, cell=None, **spec
 ) -> Path:
@@ -213,6 +216,11 @@ def test_robots_sharing_a_start_stop_at_once(tmp_path):
         ({"rows": 20}, "m.map: line 24: truncated: 20 of 32 rows"),
         ({"cell": "X"}, "m.map: line 5: unknown cell 'X' at column 1"),
         ({"starts": (390, 10)}, "start 1 at 10 is not a free cell of the map"),
+        ({"mapFile": "\x1b[31mred.map"}, "/\\x1b[31mred.map: cannot read plant file: " + MISSING),
+        (
+            {"mapFile": "x\nlorr.py: f.map"},
+            "/x\\nlorr.py: f.map: cannot read plant file: " + MISSING,
+        ),
     ],
 )
 def test_a_bad_instance_is_one_line_naming_the_file(tmp_path, script, change, message):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import http.server
 import json
+import math
 import os
 import re
 import signal
@@ -307,34 +308,68 @@ def test_a_server_that_is_not_the_api_is_one_line(capsys):
     assert "(HTTP 501)" in error_line(code, err) and "not a plc-runtime HTTP API?" in err
 
 
-class _Answers(http.server.BaseHTTPRequestHandler):
-    """Answers every GET with 200 and the JSON body the test put in ``body``."""
+class _RawServer:
+    """A loopback server that answers every connection with ``respond(conn)``: bytes that
+    need not be HTTP, sent as slowly as the test likes. Closed, with its threads, on exit."""
 
-    body = b""
+    def __init__(self, respond) -> None:
+        self.respond = respond
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.listener.settimeout(0.05)
+        self.url = f"http://127.0.0.1:{self.listener.getsockname()[1]}"
+        self.stop = threading.Event()
+        self.threads = [threading.Thread(target=self._accept)]
 
-    def do_GET(self) -> None:
-        self.send_response(200)
-        self.send_header("Content-Type", "application/json")
-        self.send_header("Content-Length", str(len(self.body)))
-        self.end_headers()
-        self.wfile.write(self.body)
+    def __enter__(self) -> _RawServer:
+        self.threads[0].start()
+        return self
 
-    def log_message(self, *args: object) -> None:
-        pass
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        for thread in list(self.threads):
+            thread.join(10)
+        self.listener.close()
+
+    def _accept(self) -> None:
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.listener.accept()
+            except TimeoutError:
+                continue
+            thread = threading.Thread(target=self._serve, args=(conn,))
+            self.threads.append(thread)
+            thread.start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        with conn:
+            conn.settimeout(5)
+            request = b""
+            try:
+                while b"\r\n\r\n" not in request:
+                    chunk = conn.recv(65536)
+                    if not chunk:
+                        return
+                    request += chunk
+                self.respond(conn, self.stop)
+            except OSError:
+                pass  # the command gave up and closed: as intended
+
+
+def _http(body: bytes, status: str = "200 OK", **headers: str) -> bytes:
+    fields = {"Content-Type": "application/json", "Content-Length": str(len(body))} | headers
+    head = "".join(f"{k}: {v}\r\n" for k, v in fields.items())
+    return f"HTTP/1.1 {status}\r\n{head}Connection: close\r\n\r\n".encode() + body
+
+
+def _sent(capsys, raw: bytes, *argv: str) -> tuple[int, str, str]:
+    """``plc-runtime order ARGV`` against a loopback server that sends ``raw``."""
+    with _RawServer(lambda conn, stop: conn.sendall(raw)) as server:
+        return order(capsys, *argv, "--url", server.url)
 
 
 def _answered(capsys, body: object, *argv: str) -> tuple[int, str, str]:
-    """``plc-runtime order ARGV`` against a loopback server that answers ``body``."""
-    handler = type("Answers", (_Answers,), {"body": json.dumps(body).encode()})
-    server = http.server.HTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
-    thread.start()
-    try:
-        return order(capsys, *argv, "--url", f"http://127.0.0.1:{server.server_port}")
-    finally:
-        server.shutdown()
-        server.server_close()
-        thread.join()
+    """``plc-runtime order ARGV`` against a loopback server that answers ``body`` as JSON."""
+    return _sent(capsys, _http(json.dumps(body).encode()), *argv)
 
 
 def _answer_order(**changes: object) -> dict:
@@ -379,6 +414,102 @@ def test_control_characters_in_an_answer_do_not_reach_the_terminal(capsys):
         assert (code, err) == (0, "")
         assert "\x1b" not in out and "\u202e" not in out and "\x07" not in out
         assert "\\x1b]0;pwned" in out and "\\u202e" in out
+
+
+@pytest.mark.parametrize(
+    ("raw", "where"),
+    [
+        (b"garbage\r\n\r\n", "BadStatusLine("),
+        (b"HTTP/1.1 1000 X\r\n\r\n", "BadStatusLine("),
+        (b"HTTP/1.1 200 OK\r\n" + b"X: y\r\n" * 200 + b"\r\n", "got more than 100 headers"),
+        (_http(b"", **{"Transfer-Encoding": "chunked"})[:-2] + b"zz\r\n", "IncompleteRead("),
+        (b"", "Remote end closed connection without response"),
+        (_http(b"[" * 100_000), "the answer is not JSON"),
+        (_http(json.dumps(_answer_order(start_s=math.nan)).encode()), "the answer is not JSON"),
+        (_http(json.dumps(_answer_order(end_s=math.inf)).encode()), "the answer is not JSON"),
+        (_http(b"[" * 100_000, "500 Oops"), "Oops (http://127.0.0.1:"),
+    ],
+)
+def test_a_server_that_does_not_speak_the_api_is_one_line(capsys, raw, where):
+    """Whatever comes back (not HTTP, broken chunks, JSON nested too deep for the parser,
+    NaN, which JSON does not have and --json could not print), one line, no traceback."""
+    assert where in error_line(*_sent(capsys, raw, "show", "o1")[::2])
+
+
+def test_a_refusal_from_a_server_stays_one_short_line(capsys):
+    """An error answer's message is the server's text: a newline in it must not print a
+    second, forged line, and a long one is cut short."""
+    forged = {"error": "bad\nplc-runtime: error: forged"}
+    line = error_line(*_sent(capsys, _http(json.dumps(forged).encode(), "400 Bad"), "list")[::2])
+    assert line == "bad\\nplc-runtime: error: forged (HTTP 400)"
+    huge = {"error": "x" * 100_000}
+    line = error_line(*_sent(capsys, _http(json.dumps(huge).encode(), "400 Bad"), "list")[::2])
+    assert line == "x" * order_cli.MAX_ERROR_CHARS + "... (HTTP 400)"
+
+
+def test_an_added_orders_line_cannot_be_forged(capsys):
+    """``order add`` prints one line: a newline in the state the server gives is an escape."""
+    answer = _http(json.dumps(_answer_order(id="a\nb", state="RAW\nFAKE")).encode(), "201 Created")
+    code, out, err = _sent(capsys, answer, "add", "--token", TOKEN, "--id", "a", "--get", "21",
+                           "--put", "23")  # fmt: skip
+    assert (code, err) == (0, "") and out == "order 'a\\nb': RAW\\nFAKE\n"
+
+
+@pytest.mark.parametrize(
+    ("page", "where"),
+    [
+        ({"orders": [_answer_order()], "total": 10**18, "offset": 0}, "a page of 1 orders from offset 0"),
+        ({"orders": [], "total": 10, "offset": 0}, "a page of 0 orders from offset 0"),
+        ({"orders": [_answer_order()], "total": 1, "offset": 7}, "a page of 1 orders from offset 7"),
+    ],
+)  # fmt: skip
+def test_list_stops_at_pages_that_do_not_add_up(capsys, page, where):
+    """A server claiming a huge book but sending one order a page (or a page from elsewhere)
+    cannot keep ``list`` paging for ever: every page but the last must be full."""
+    assert where in error_line(*_answered(capsys, page, "list")[::2])
+
+
+def test_list_reads_at_most_its_limit(capsys, monkeypatch):
+    """A server that sends full pages of a book without end: ``list`` stops at its limit."""
+    monkeypatch.setattr(order_cli, "PAGE", 2)
+    monkeypatch.setattr(order_cli, "MAX_LIST_BYTES", 5000)
+
+    def pages(conn: socket.socket, stop: threading.Event) -> None:
+        pages.served += 1  # (each page on its own connection, one after the other)
+        offset = 2 * (pages.served - 1)
+        orders = [_answer_order(id=f"o{offset + k}") for k in range(2)]
+        conn.sendall(
+            _http(json.dumps({"orders": orders, "total": 10**9, "offset": offset}).encode())
+        )
+
+    pages.served = 0
+    with _RawServer(pages) as server:
+        line = error_line(*order(capsys, "list", "--url", server.url)[::2])
+    assert "more than 5,000 bytes of orders" in line and "read the book page by page" in line
+    assert pages.served < 20
+
+
+def test_a_server_that_sends_slowly_is_given_up_in_time(capsys, monkeypatch):
+    """The timeout bounds the whole request: a byte every 0.2 s passes every single read's
+    timeout, and would take 20 s for this body."""
+    monkeypatch.setattr(order_cli, "TIMEOUT_S", 1.0)
+
+    def drip(conn: socket.socket, stop: threading.Event) -> None:
+        conn.sendall(_http(b"", **{"Content-Length": "100"})[: -0 or None])
+        while not stop.wait(0.2):
+            conn.sendall(b" ")
+
+    with _RawServer(drip) as server:
+        begin = time.monotonic()
+        line = error_line(*order(capsys, "list", "--url", server.url)[::2])
+    assert line.endswith("no complete answer within 1 s")
+    assert time.monotonic() - begin < 19  # (the drip would take 20 s)
+
+
+def test_an_id_that_is_not_utf8_is_one_line(capsys):
+    """Bytes of the shell that are not UTF-8 reach argv as surrogate escapes."""
+    line = error_line(*order(capsys, "show", "--url", "http://127.0.0.1:9", "\udcff")[::2])
+    assert line == "order id '\\udcff': not UTF-8 text"
 
 
 # ----- run --web --------------------------------------------------------------------------------

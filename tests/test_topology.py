@@ -97,6 +97,16 @@ def test_movingai_reads_the_robot_runners_cells(tmp_path):
         ("type octile\nheight 1\nwidth 3\nmap\n..\n", "line 5: row has 2 cells, expected 3"),
         ("type octile\nheight 1\nwidth 3\nmap\n.X.\n", "line 5: unknown cell 'X' at column 2"),
         ("type octile\nheight 1\nwidth 3\nmap\n.e.\n", "line 5: unknown cell 'e' at column 2"),
+        # a form feed or a line separator is a stray character, not the end of a row
+        (
+            "type octile\nheight 2\nwidth 3\nmap\n.\x0c.\n...\n",
+            r"line 5: unknown cell '\\x0c' at column 2",
+        ),
+        (
+            "type octile\nheight 2\nwidth 3\nmap\n...\n.\u2028.\n",
+            r"line 6: unknown cell '\\u2028' at col",
+        ),
+        ("type octile\rheight 1\rwidth 3\rmap\r...\r", "line 1: expected 'type'"),
         ("height x\nwidth 3\nmap\n", "integer 'height' and 'width'"),
         ("hello\n", "line 1: expected 'type'"),
     ],

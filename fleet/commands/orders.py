@@ -20,8 +20,11 @@ server the URL names, and an ESC in it would drive the operator's terminal.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import os
+import socket
+import threading
 import urllib.error
 import urllib.request
 from typing import Any, TypeVar
@@ -47,6 +50,10 @@ TIMEOUT_S = 15.0  # the controller answers within two of its 5 s waits for the s
 # the largest answer read: a page of 500 orders with the longest ids and a long history is
 # a few MB, so this only stops a server that would fill the memory
 MAX_ANSWER_BYTES = 64 * 2**20
+# what ``list`` reads in all: some 600,000 orders of a real book; past it the book is
+# better read page by page from the API than as one table
+MAX_LIST_BYTES = 256 * 2**20
+MAX_ERROR_CHARS = 500  # of a refusal's message: the API's are one short line
 
 
 def integer(text: str) -> int:
@@ -112,6 +119,11 @@ def order_command(args: argparse.Namespace) -> int:
         else:
             Console().print(orders_table(orders, args.url))
         return 0
+    if kind in ("show", "withdraw"):
+        try:
+            args.id.encode()
+        except UnicodeEncodeError:  # bytes of the shell that are not UTF-8 (surrogate escapes)
+            raise CliError(f"order id {terminal_text(repr(args.id))}: not UTF-8 text") from None
     if kind == "show":
         order = api.call("GET", f"/orders/{quote(args.id, safe='')}", OrderOut)
     elif kind == "add":
@@ -131,7 +143,7 @@ def order_command(args: argparse.Namespace) -> int:
     elif kind == "show":
         Console().print(order_table(order))
     else:
-        print(terminal_text(f"order {order.id!r}: {order.state}"))
+        print(f"order {one_line(repr(order.id))}: {one_line(order.state)}")
     return 0
 
 
@@ -147,16 +159,58 @@ class Api:
             raise CliError(
                 f"{where}: not a bearer token (A-Z a-z 0-9 - . _ ~ + / only, and = at its end)"
             )
-        self._open = urllib.request.build_opener(urllib.request.ProxyHandler({}), _NoRedirect).open
+        self._open = urllib.request.build_opener(
+            urllib.request.ProxyHandler({}),
+            _NoRedirect,
+            _DeadlineHTTPHandler(self._watch),
+            _DeadlineHTTPSHandler(self._watch),
+        ).open
+        self._expired = threading.Event()
+        self._timer: threading.Timer | None = None  # the running request's deadline
+        self._read = 0  # bytes of answers read by this Api
 
     def all_orders(self) -> list[OrderOut]:
-        """Every order, page by page (the book only grows, so pages do not shift)."""
+        """Every order, page by page (the book only grows, so pages do not shift). Each page
+        must start where the last ended and be full unless it is the last, and all of them
+        hold at most MAX_LIST_BYTES: a server that is not the API cannot keep the command
+        paging for ever."""
         orders: list[OrderOut] = []
         while True:
-            page = self.call("GET", f"/orders?offset={len(orders)}&limit={PAGE}", OrderPage)
+            path = f"/orders?offset={len(orders)}&limit={PAGE}"
+            page = self.call("GET", path, OrderPage)
+            # (total and orders come from one scan: a page holds all it can)
+            if page.offset != len(orders) or len(page.orders) != max(
+                0, min(PAGE, page.total - page.offset)
+            ):
+                raise CliError(
+                    f"GET {self.base}{PREFIX}{path}: a page of {len(page.orders)} orders from "
+                    f"offset {page.offset} in the answer (not a plc-runtime HTTP API?)"
+                )
             orders += page.orders
             if not page.orders or len(orders) >= page.total:
                 return orders
+            if self._read > MAX_LIST_BYTES:
+                raise CliError(
+                    f"{self.base}: more than {MAX_LIST_BYTES:,} bytes of orders "
+                    f"({len(orders):,} of {page.total:,}); read the book page by page: "
+                    f"GET {PREFIX}/orders?offset=N&limit={PAGE}"
+                )
+
+    def _watch(self, sock: socket.socket) -> None:
+        """Bound the whole request, not each read: a server that sends a byte every few
+        seconds would pass every read's timeout. When TIMEOUT_S has passed since the
+        connection was made, the socket is shut down, which ends any read at once."""
+
+        def expire() -> None:
+            self._expired.set()
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass  # already closed: the request is over
+
+        self._timer = threading.Timer(TIMEOUT_S, expire)
+        self._timer.daemon = True
+        self._timer.start()
 
     def call(
         self,
@@ -176,10 +230,33 @@ class Api:
         if method != "GET" and self.token is not None:
             headers["Authorization"] = f"Bearer {self.token}"
         request = urllib.request.Request(url, data, headers, method=method)
+        self._timer = None
+        self._expired.clear()
+        try:
+            raw = self._exchange(request)
+        finally:
+            if self._timer is not None:
+                self._timer.cancel()
+        if len(raw) > MAX_ANSWER_BYTES:
+            raise CliError(
+                f"{method} {url}: the answer is longer than {MAX_ANSWER_BYTES:,} bytes "
+                "(not a plc-runtime HTTP API?)"
+            )
+        self._read += len(raw)
+        return self._answer(raw, f"{method} {url}", answer)
+
+    def _exchange(self, request: urllib.request.Request) -> bytes:
+        """The answer's body, at most MAX_ANSWER_BYTES + 1 of it; CliError with one line
+        for every failure on the way."""
         try:
             with self._open(request, timeout=TIMEOUT_S) as reply:
                 raw = reply.read(MAX_ANSWER_BYTES + 1)
+            if self._expired.is_set():
+                raise TimeoutError  # the body may be cut short by the shutdown
+            return raw
         except urllib.error.HTTPError as exc:
+            if self._expired.is_set():
+                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
             raise CliError(self._refusal(exc)) from None
         except urllib.error.URLError as exc:
             reason = exc.reason
@@ -191,24 +268,27 @@ class Api:
                 "`plc-runtime run CONFIG --web HOST:PORT` running there?"
             ) from None
         except TimeoutError:
-            raise CliError(f"{self.base}: no answer within {TIMEOUT_S:g} s") from None
+            raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
         except ValueError as exc:  # http.client: a URL with characters a request cannot hold
+            if self._expired.is_set():
+                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
             raise CliError(f"--url {self.base!r}: {exc}") from None
-        except OSError as exc:  # the connection broke mid-answer
-            raise CliError(f"{self.base}: {exc.strerror or exc}") from None
-        if len(raw) > MAX_ANSWER_BYTES:
-            raise CliError(
-                f"{method} {url}: the answer is longer than {MAX_ANSWER_BYTES:,} bytes "
-                "(not a plc-runtime HTTP API?)"
-            )
-        return self._answer(raw, f"{method} {url}", answer)
+        except (OSError, http.client.HTTPException) as exc:
+            # the connection broke mid-answer, or what came back is not HTTP
+            if self._expired.is_set():
+                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else repr(exc)
+            raise CliError(f"{self.base}: {one_line(why)} (not a plc-runtime HTTP API?)") from None
 
     def _refusal(self, exc: urllib.error.HTTPError) -> str:
         """One line for an error answer: the API's own message where it gave one."""
         try:
-            message = json.loads(exc.read())["error"]
-        except (ValueError, KeyError, TypeError, OSError):
-            message = f"{exc.reason} ({self.base} is not a plc-runtime HTTP API?)"
+            message = _json(exc.read(MAX_ANSWER_BYTES))["error"]
+            if not isinstance(message, str):
+                raise TypeError
+            message = one_line(message)
+        except (ValueError, KeyError, TypeError, OSError, http.client.HTTPException):
+            message = f"{one_line(str(exc.reason))} ({self.base} is not a plc-runtime HTTP API?)"
         line = f"{message} (HTTP {exc.code})"
         if exc.code == 401:
             line += f": give --token or set {TOKEN_ENV}"
@@ -216,20 +296,41 @@ class Api:
 
     def _answer(self, raw: bytes, what: str, answer: type[Answer]) -> Answer:
         try:
-            data = json.loads(raw)
+            data = _json(raw)
         except ValueError:
             raise CliError(
                 f"{what}: the answer is not JSON (not a plc-runtime HTTP API?)"
             ) from None
         try:
-            return answer.model_validate(data)
+            return answer.model_validate(data, strict=True)
         except ValidationError as exc:
             first = exc.errors()[0]
             where = ".".join(str(part) for part in first["loc"]) or "the answer"
             raise CliError(
-                f"{what}: {where}: {first['msg']} in the answer "
+                f"{what}: {one_line(where)}: {first['msg']} in the answer "
                 f"({exc.error_count()} such; not a plc-runtime HTTP API?)"
             ) from None
+
+
+def _json(raw: bytes) -> Any:
+    """``raw`` as JSON, strictly: NaN and Infinity are not JSON (the API never sends them,
+    and ``--json`` must print valid JSON), and nesting too deep to parse is refused like any
+    other text that is not JSON (ValueError)."""
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"{name} is not JSON")
+
+    try:
+        return json.loads(raw, parse_constant=refuse)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
+
+
+def one_line(text: str) -> str:
+    """A server's ``text`` as part of one line on a terminal: control characters and line
+    breaks as escapes (a newline could forge a second line), at most MAX_ERROR_CHARS."""
+    text = terminal_text(text).replace("\n", "\\n")
+    return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS] + "..."
 
 
 def check_url(url: str) -> None:
@@ -252,6 +353,39 @@ def check_url(url: str) -> None:
         except ValueError:
             wrong = "the port is not a number 0-65535"
     raise CliError(f"--url {url!r}: {wrong}; {expected}")
+
+
+class _DeadlineHTTPHandler(urllib.request.HTTPHandler):
+    """Plain HTTP whose connections tell ``watch`` their socket once connected."""
+
+    def __init__(self, watch: Any) -> None:
+        super().__init__()
+        self._connection = _watched(http.client.HTTPConnection, watch)
+
+    def http_open(self, req: urllib.request.Request) -> http.client.HTTPResponse:
+        return self.do_open(self._connection, req)
+
+
+class _DeadlineHTTPSHandler(urllib.request.HTTPSHandler):
+    """HTTPS whose connections tell ``watch`` their socket once connected."""
+
+    def __init__(self, watch: Any) -> None:
+        super().__init__()
+        self._connection = _watched(http.client.HTTPSConnection, watch)
+
+    def https_open(self, req: urllib.request.Request) -> http.client.HTTPResponse:
+        return self.do_open(
+            self._connection, req, context=self._context, check_hostname=self._check_hostname
+        )
+
+
+def _watched(base: type[http.client.HTTPConnection], watch: Any) -> type:
+    class Watched(base):  # type: ignore[valid-type, misc]
+        def connect(self) -> None:
+            super().connect()
+            watch(self.sock)
+
+    return Watched
 
 
 class _NoRedirect(urllib.request.HTTPRedirectHandler):

@@ -21,7 +21,7 @@ from ..errors import TopologyError
 from ..model import MAX_NODE_ID, Edge, Node, Plant
 from ..validate import escaped_name, text_problem
 from .numbers import parse_float, parse_int, shown
-from .structured import read_text
+from .structured import read_text, text_lines
 
 PORT_ORDER = ("N", "E", "S", "W")
 T = TypeVar("T", int, float)
@@ -33,7 +33,7 @@ def load_nodes(path: str | Path) -> Plant:
     path = Path(path)
     source = str(path)
     records: dict[int, tuple[dict[str, str], list[tuple[str, int, float]], int]] = {}
-    for number, raw in enumerate(read_text(path).splitlines(), start=1):
+    for number, raw in enumerate(text_lines(read_text(path)), start=1):
         line = raw.split("#", 1)[0].replace(",", " ").split()
         if not line:
             continue

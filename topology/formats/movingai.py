@@ -25,7 +25,7 @@ from ..grid import grid_plant
 from ..model import Plant
 from ..validate import escaped_name
 from .numbers import parse_float, parse_int, shown
-from .structured import read_text
+from .structured import read_text, text_lines
 
 PASSABLE = ".GSE"
 BLOCKED = "@OTW"
@@ -62,7 +62,7 @@ def read_cells(path: str | Path) -> np.ndarray:
     work on the grid itself (arrays in, arrays out) with the same checks as ``load_map``."""
     path = Path(path)
     source = str(path)
-    lines = read_text(path).splitlines()
+    lines = text_lines(read_text(path))
     header, row = _header(lines, source)
     height, width = header["height"], header["width"]
     grid = lines[row + 1 : row + 1 + height]
@@ -156,7 +156,7 @@ def load_scenarios(path: str | Path) -> list[Scenario]:
     cell: x = 40 on a 32-wide map is a cell of the next row)."""
     path = Path(path)
     source = str(path)
-    lines = read_text(path).splitlines()
+    lines = text_lines(read_text(path))
     if not lines or not lines[0].startswith("version"):
         raise TopologyError("expected 'version 1' on the first line", source, "line 1")
     scenarios = []

@@ -70,6 +70,17 @@ def read_text(path: Path) -> str:
         raise TopologyError(f"not UTF-8 text (byte {exc.start})", str(path)) from None
 
 
+def text_lines(text: str) -> list[str]:
+    """The lines of a line-based plant file as an editor numbers them: split at LF (CRLF
+    too), not at the form feeds, file separators and Unicode line separators that
+    ``str.splitlines`` also splits at, so a stray one is reported as what it is, in the
+    line an editor shows. A newline at the end ends the last line, it starts none."""
+    lines = text.split("\n")
+    if lines[-1] == "":
+        lines.pop()
+    return [line.removesuffix("\r") for line in lines]
+
+
 def load_toml(path: Path) -> Plant:
     text = read_text(path)  # its own errors are already TopologyErrors
     try:
