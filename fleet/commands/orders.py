@@ -10,8 +10,9 @@ controller cannot be reached, the token is missing or wrong, there is no such or
 controller refused the order (the line names the field and what is wrong, as the order book
 says it), or the answer is not what the API sends (checked against the API's own models,
 so a server that is not a controller cannot make the command fail with a traceback).
-Requests go straight to the URL given: no proxy from the environment sees the token, and a
-redirect is not followed. Numbers are read as order files read them (ASCII digits only),
+A request is given up 15 s after it connected, however slowly the server sends. Requests go
+straight to the URL given: no proxy from the environment sees the token, and a redirect is
+not followed. Numbers are read as order files read them (ASCII digits only),
 and the tables show ids, reasons and every other text of the answer literally, never as
 rich markup, with control characters written as escapes: the answer may come from any
 server the URL names, and an ESC in it would drive the operator's terminal.
@@ -27,6 +28,7 @@ import socket
 import threading
 import urllib.error
 import urllib.request
+from collections.abc import Callable
 from typing import Any, TypeVar
 from urllib.parse import quote, urlsplit
 
@@ -42,6 +44,7 @@ from ..web.models import OrderOut, OrderPage
 from ..web.options import TOKEN_ENV, bearer_token
 
 Answer = TypeVar("Answer", bound=BaseModel)
+Watch = Callable[[socket.socket], None]  # told each connection's socket once connected
 
 DEFAULT_URL = "http://127.0.0.1:8080"
 PREFIX = "/api/v1"
@@ -358,7 +361,7 @@ def check_url(url: str) -> None:
 class _DeadlineHTTPHandler(urllib.request.HTTPHandler):
     """Plain HTTP whose connections tell ``watch`` their socket once connected."""
 
-    def __init__(self, watch: Any) -> None:
+    def __init__(self, watch: Watch) -> None:
         super().__init__()
         self._connection = _watched(http.client.HTTPConnection, watch)
 
@@ -369,7 +372,7 @@ class _DeadlineHTTPHandler(urllib.request.HTTPHandler):
 class _DeadlineHTTPSHandler(urllib.request.HTTPSHandler):
     """HTTPS whose connections tell ``watch`` their socket once connected."""
 
-    def __init__(self, watch: Any) -> None:
+    def __init__(self, watch: Watch) -> None:
         super().__init__()
         self._connection = _watched(http.client.HTTPSConnection, watch)
 
@@ -379,7 +382,7 @@ class _DeadlineHTTPSHandler(urllib.request.HTTPSHandler):
         )
 
 
-def _watched(base: type[http.client.HTTPConnection], watch: Any) -> type:
+def _watched(base: type[http.client.HTTPConnection], watch: Watch) -> type:
     class Watched(base):  # type: ignore[valid-type, misc]
         def connect(self) -> None:
             super().connect()
