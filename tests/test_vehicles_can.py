@@ -304,6 +304,29 @@ def test_a_new_direction_during_a_turn_costs_its_own_turn_time():
     assert agv.turn_left == pytest.approx(2.0)
 
 
+def test_a_route_cancelled_during_a_turn_leaves_the_vehicle_standing_where_it_is():
+    """The controller cancels routes (an operator's acknowledge, its safe state on STOP): a
+    vehicle turning on the spot then stops turning and waits, where it used to finish the
+    turn and set off towards a route it no longer had (IndexError, the process gone)."""
+    agv = AGV(1, model_plant(), 0)
+    agv.command((6, 7))
+    while agv.node != 7:
+        agv.step(0.01)
+    agv.command((3,))  # a 90 degree turn at 7
+    for _ in range(30):
+        agv.step(0.01)
+    assert 0 < agv.turn_left < 1.0 and agv.state == "DRIVING"
+    agv.command(())
+    assert agv.turn_left == 0 and agv.state == "WAITING_FOR_ROUTE"
+    for _ in range(300):
+        agv.step(0.01)
+    assert (agv.node, agv.target, agv.driven[-1]) == (7, None, 7)
+    agv.command((3,))  # released again: the whole turn, then it drives
+    for _ in range(1000):
+        agv.step(0.01)
+    assert agv.node == 3
+
+
 def test_failed_sends_are_retried_next_tick():
     channel = f"retry-{next(_channels)}"
     listener = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)

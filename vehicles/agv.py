@@ -80,6 +80,8 @@ class AGV:
             self.commanded = True
             if self.target is not None and self.progress == 0.0 and self.speed == 0.0:
                 self.target = None  # it has not left its node yet: it stays there
+            if self.target is None:
+                self.turn_left = 0.0  # a turn on the spot towards the cancelled route ends
             return True
         if self.target is not None:
             if nodes[0] != self.target:
