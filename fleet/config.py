@@ -14,6 +14,7 @@ from pathlib import Path
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
+from io_drivers.protocol import MAX_NODE_ID
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import FileProblem, read_limited
@@ -372,9 +373,26 @@ def _plant(reader: TableReader, base: Path) -> Plant:
     if not path.is_absolute():
         path = base / path
     try:
-        return load(path)
+        plant = load(path)
     except TopologyError as exc:
         raise ConfigError(f"{reader.source}: plant.file: {exc}") from None
+    problem = link_node_problem(plant)
+    if problem is not None:
+        raise ConfigError(f"{reader.source}: plant.file: {path}: {problem}")
+    return plant
+
+
+def link_node_problem(plant: Plant) -> str | None:
+    """Why vehicles could not name the plant's nodes on their link, or None: a node id
+    there is 16 bits and 65535 means "no node", so a vehicle standing on node 65535 would
+    report none, and one on 70000 could not report at all (docs/protocol.md)."""
+    highest = int(plant.ids.max()) if plant.n else 0
+    if highest <= MAX_NODE_ID:
+        return None
+    return (
+        f"node {highest}: the vehicle link names nodes 0..{MAX_NODE_ID} "
+        f"(16 bits, {MAX_NODE_ID + 1} means no node); number the plant's nodes within it"
+    )
 
 
 def _node(reader: TableReader, key: str, plant: Plant) -> int:

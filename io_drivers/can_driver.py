@@ -49,6 +49,7 @@ import can
 
 from plc_runtime import ConfigError, ProcessImage
 
+from .can_bus import BusOpenError, open_can_bus
 from .e2e import ACCEPTED, RESYNC, CounterCheck
 from .protocol import (
     ALL_VEHICLES,
@@ -145,21 +146,9 @@ class CanDriver:
             image, self.vehicles, self.input_base, self.output_base, self.stale_after_ns
         )
         try:
-            self.bus = can.Bus(
-                interface=self.interface,
-                channel=self.channel,
-                receive_own_messages=False,
-                **self.bus_kwargs,
-            )
-        except (
-            can.CanError,
-            OSError,
-            ValueError,
-            ImportError,
-        ) as exc:  # CanError covers an unavailable interface
-            raise ConfigError(
-                f"CAN interface {self.interface!r} channel {self.channel!r}: {exc}"
-            ) from None
+            self.bus = open_can_bus(self.interface, self.channel, **self.bus_kwargs)
+        except BusOpenError as exc:
+            raise ConfigError(str(exc)) from None
         self._sent_sequence: dict[int, int] = {}
         self._sent_go: dict[int, bool] = {}
         # vehicle -> when its StopGo was last sent, oldest first: the next to refresh
@@ -198,8 +187,8 @@ class CanDriver:
         self.records.refresh_flags(now_ns)
 
     def _handle(self, msg: can.Message, now_ns: int) -> None:
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            self.counters["unknown_id"] += 1
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
+            self.counters["unknown_id"] += 1  # (not a classic CAN frame of the protocol)
             return
         frame_id = msg.arbitration_id
         try:

@@ -650,8 +650,9 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
         (["run", "--cycles", "100000000000"], "--cycles: must be at most 1e+10"),
         (["vehicles", "--plant", "model-plant", "--period", "5"], "--period: must be at most 1"),
         (["vehicles", "--plant", "model-plant", "--duration", "1e9"], "must be at most 1e+07"),
+        (["vehicles", "--plant", "model-plant", "--seed", "-1"], "--seed: must be a whole number"),
     ],
-    ids=["speed", "duration", "cycles", "vehicles-period", "vehicles-duration"],
+    ids=["speed", "duration", "cycles", "vehicles-period", "vehicles-duration", "vehicles-seed"],
 )
 def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
     """A pace at which no cycle ends (it overflowed the sleep), a run of centuries, a
@@ -661,6 +662,81 @@ def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
     with pytest.raises(SystemExit) as stop:
         main(args)
     assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("where", ["missing/m.json", "."])
+def test_a_monitor_report_that_cannot_be_written_is_refused_before_the_run(
+    where, tmp_path, monkeypatch, capsys
+):
+    """The vehicles' monitor writes its report at exit: a run of hours must not learn only
+    then that its folder is missing (or that the name is a folder)."""
+    from fleet.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    args = ["vehicles", "--plant", "model-plant", "--duration", "60", "--monitor-out", where]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--monitor-out {where}: " in err
+    assert "vehicles ready" not in err  # refused before any vehicle started
+
+
+_PLANT_WITH_ID = """name = "big ids"
+[functions]
+0 = "entry"
+1 = "exit"
+[[nodes]]
+id = 7000
+x = 0.0
+y = 0.0
+role = "entry"
+functions = [0]
+[[nodes]]
+id = {node}
+x = 1.0
+y = 0.0
+[[nodes]]
+id = 3
+x = 2.0
+y = 0.0
+role = "exit"
+functions = [1]
+[[edges]]
+from = 7000
+to = {node}
+length = 1.0
+[[edges]]
+from = {node}
+to = 3
+length = 1.0
+"""
+
+
+@pytest.mark.parametrize("node", [65535, 70000])
+def test_a_plant_whose_node_ids_the_vehicle_link_cannot_carry_is_refused(node, tmp_path, capsys):
+    """Node ids on the link are 16 bits and 65535 means "no node": a vehicle on node 65535
+    reported none (and was taken for lost), one on 70000 could not report at all. Refused
+    when the plant is loaded, by the controller's configuration and the vehicles' process."""
+    from fleet.cli import main
+    from fleet.config import DEFAULT_CONFIG, parse_config
+    from plc_runtime.errors import ConfigError
+
+    plant = tmp_path / "big.toml"
+    plant.write_text(_PLANT_WITH_ID.format(node=node))
+    text = DEFAULT_CONFIG.read_text()
+    start = text.index("[plant]")
+    end = text.index("\n[", start + 1)
+    config = text[:start] + '[plant]\nfile = "big.toml"\n' + text[end:]
+    with pytest.raises(
+        ConfigError,
+        match=f"plant.file: .*big.toml: node {node}: the vehicle link names nodes 0..65534",
+    ):
+        parse_config(config, "c.toml", tmp_path)
+    assert main(["vehicles", "--plant", str(plant), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err
+        == f"plc-runtime: error: {plant}: node {node}: the vehicle link names nodes 0..65534 (16 bits, 65535 means no node); number the plant's nodes within it\n"
+    )
 
 
 def test_the_retain_file_may_not_be_the_configuration(tmp_path, capsys):

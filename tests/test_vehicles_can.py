@@ -1,11 +1,15 @@
 """The AGV simulator and the CAN driver, co-simulated on the virtual clock over a virtual bus."""
 
+import gc
 import itertools
+import re
+from collections import deque
 
 import can
 import pytest
 from fleet_helpers import Dispatcher, record
 
+from io_drivers.can_bus import BusOpenError, open_can_bus
 from io_drivers.can_driver import FAULT, GO_BIT, LINK_JUMPS, ONLINE, STALE, CanDriver
 from io_drivers.protocol import NO_NODE, STATE_CODE, Codec, RouteCommand, Status
 from plc_runtime import Runtime, StartupError, VirtualClock
@@ -213,13 +217,47 @@ def test_malformed_frames_and_unknown_ids_are_counted(tmp_path):
     for frame_id, data in frames:
         noise.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
     noise.send(can.Message(arbitration_id=0x1FFFFFF, data=b"x", is_extended_id=True))
+    # a valid frame's bytes as CAN FD: not a frame of this classic-CAN protocol
+    noise.send(can.Message(arbitration_id=good_id, data=good, is_extended_id=False, is_fd=True))
     rt.step()
     stats = driver.stats()
-    assert stats["malformed"] == 2 and stats["unknown_id"] == 2 and stats["unknown_vehicle"] == 1
+    assert stats["malformed"] == 2 and stats["unknown_id"] == 3 and stats["unknown_vehicle"] == 1
     assert stats["crc_errors"] == 1 and stats["frames_in"] == 3
     assert rt.state == "RUN" and rt.image.read(f"%IW{record(1) // 2}") == 5
     rt.stop()
     noise.shutdown()
+
+
+def test_the_vehicles_obey_classic_can_frames_only_and_read_a_bus_worth_a_step():
+    """A command as a CAN FD frame is not the protocol's, and is ignored; a flood waiting
+    on a bus without a bit rate (virtual, UDP) is read what 1 Mbit/s carries in a step, so
+    one step cannot stall on it, and nothing of it is lost: the next steps read the rest."""
+    channel = f"fd-{next(_channels)}"
+    controller = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    fleet = Fleet(model_plant(), {1: 0}, can.Bus(interface="virtual", channel=channel))
+    fleet.step(0.01)
+    codec = Codec()
+    frame_id, data = codec.encode(RouteCommand(1, 1, (6,)))
+    controller.send(
+        can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=True)
+    )
+    for _ in range(20):
+        fleet.step(0.01)
+    assert fleet.vehicles[1].route == deque() and fleet.vehicles[1].target is None
+    assert fleet.counters["ignored"] == 1
+    for _ in range(250):  # 0.01 s of a 1 Mbit/s bus carries 100 frames
+        controller.send(can.Message(arbitration_id=0x7FF, data=b"x", is_extended_id=True))
+    fleet.step(0.01)
+    assert fleet.counters["ignored"] == 1 + 100
+    fleet.step(0.01)
+    fleet.step(0.01)
+    assert fleet.counters["ignored"] == 1 + 250
+    controller.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+    for _ in range(20):
+        fleet.step(0.01)
+    assert fleet.vehicles[1].driven[-1] == 6 or fleet.vehicles[1].target == 6
+    fleet.bus.shutdown()
+    controller.shutdown()
 
 
 def test_driver_sends_route_commands_on_sequence_change_and_stops_everyone_on_close():
@@ -266,6 +304,32 @@ def test_bad_interface_is_a_clear_startup_error():
     ):
         rt.start()
     rt.stop()
+
+
+@pytest.mark.parametrize(
+    ("interface", "cause"),
+    [
+        ("socketcand", "TypeError: SocketCanDaemonBus.__init__() missing"),  # no host, port
+        ("neousys", "Neousys WDT_DIO Can driver missing"),  # no vendor library
+    ],
+)
+def test_an_interface_that_cannot_open_is_one_error(interface, cause, caplog):
+    """Each python-can interface fails in its own way; both ends of the link report one
+    error naming interface, channel and cause (the controller at start, the vehicles'
+    process as its exit line), and the half-made bus does not log a second line."""
+    with pytest.raises(BusOpenError) as error:
+        open_can_bus(interface, "0")
+    assert str(error.value).startswith(f"CAN interface {interface!r} channel '0': {cause}")
+    gc.collect()
+    assert "not properly shut down" not in caplog.text
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=WIDE_WATCHDOG)
+    rt.add_driver(CanDriver([1], interface=interface, channel="0"))
+    rt.add_task("program", [Dispatcher({})])
+    with pytest.raises(StartupError, match=re.escape(f"cannot open: CAN interface {interface!r}")):
+        rt.start()
+    rt.stop()
+    gc.collect()
+    assert "not properly shut down" not in caplog.text
 
 
 def test_state_codes_match_the_dbc():

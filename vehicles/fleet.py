@@ -18,12 +18,14 @@ generator, so the same seed gives the same run, bit for bit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import can
 import numpy as np
 
+from io_drivers.can_driver import CAN_FRAMES_PER_S, MIN_FRAMES_PER_TICK
 from io_drivers.e2e import ACCEPTED, CounterCheck
 from io_drivers.protocol import (
     ALL_VEHICLES,
@@ -133,7 +135,7 @@ class Fleet:
 
     def step(self, dt: float) -> None:
         self.announce()
-        self._receive()
+        self._receive(dt)
         self._apply_faults(dt)
         self._front_sensors()
         clear_before = {v: agv.clear for v, agv in self.vehicles.items()}
@@ -298,11 +300,18 @@ class Fleet:
                 return
         self.counters["sent"] += 1
 
-    def _receive(self) -> None:
+    def _receive(self, dt: float) -> None:
+        """The frames waiting on the bus, at most what a 1 Mbit/s bus carries in ``dt``: a
+        flood on a bus without that limit (virtual, UDP) is read a bus's worth a step, as
+        the controller's driver reads it, instead of stalling the step. Classic CAN frames
+        only: extended ids, error, remote and CAN FD frames are not the protocol's."""
         if self.bus is None:
             return
-        while (msg := self.bus.recv(timeout=0)) is not None:
-            if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+        for _ in range(max(MIN_FRAMES_PER_TICK, math.ceil(dt * CAN_FRAMES_PER_S))):
+            msg = self.bus.recv(timeout=0)
+            if msg is None:
+                return
+            if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame or msg.is_fd:
                 self.counters["ignored"] += 1
                 continue
             self.receive(msg.arbitration_id, bytes(msg.data))

@@ -11,8 +11,7 @@ from __future__ import annotations
 import signal
 from collections.abc import Callable, Mapping
 
-import can
-
+from io_drivers.can_bus import open_can_bus
 from plc_runtime.clock import WallClock
 from topology import Plant
 
@@ -67,25 +66,26 @@ def run_fleet(
         nonlocal stop
         stop = True
 
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    bus = (
-        None
-        if modbus_base_port
-        else can.Bus(interface=interface, channel=channel, receive_own_messages=False)
-    )
-    fleet = Fleet(
-        plant,
-        starts,
-        bus,
-        params=params,
-        faults=faults,
-        seed=seed,
-        status_period=status_period,
-        charges=charges,
-    )
+    bus = None if modbus_base_port else open_can_bus(interface, channel)
+    try:
+        fleet = Fleet(
+            plant,
+            starts,
+            bus,
+            params=params,
+            faults=faults,
+            seed=seed,
+            status_period=status_period,
+            charges=charges,
+        )
+    except BaseException:
+        if bus is not None:
+            bus.shutdown()
+        raise
     endpoints = (
         VehicleModbusEndpoints(fleet, base_port=modbus_base_port) if modbus_base_port else None
     )
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         if endpoints:
             ports = endpoints.start()

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
-from plc_runtime.cli import MAX_DURATION_S
+from plc_runtime.cli import MAX_DURATION_S, whole
 from plc_runtime.errors import ConfigError
 
 from ..route import load_plant
@@ -57,7 +59,9 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
         type=positive(float, most=MAX_DURATION_S),
         help="wall-clock seconds to run (default: until Ctrl-C)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed", type=whole, default=0, help="seed of the injected faults and delays (default 0)"
+    )
     p.add_argument(
         "--json", action="store_true", help="print the final state of every vehicle as JSON"
     )
@@ -66,10 +70,25 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
 INJECTED = ("dropped", "corrupted", "spoofed")  # the simulator's counters of injected faults
 
 
+def check_writable(name: str) -> None:
+    """ConfigError unless a file can be written at ``name``: the monitor's report is written
+    at exit, and a run of hours must not find out only then that its folder is missing."""
+    path = Path(name)
+    folder = path.parent
+    if path.is_dir():
+        raise ConfigError(f"--monitor-out {name}: a folder, not a file")
+    if not folder.is_dir():
+        raise ConfigError(f"--monitor-out {name}: no folder {str(folder)!r}")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ConfigError(f"--monitor-out {name}: not writable")
+
+
 def vehicles_command(args: argparse.Namespace) -> int:
     from vehicles.monitor import ConflictMonitor
     from vehicles.runner import default_starts, parse_bus, run_fleet
 
+    if args.monitor_out:
+        check_writable(args.monitor_out)
     status_period, faults, params, charges = 0.1, None, None, None
     if args.config:
         from ..config import load_config
@@ -79,7 +98,12 @@ def vehicles_command(args: argparse.Namespace) -> int:
         faults = cfg.faults or None  # the configuration's [faults]: a commissioning test
         params, charges = cfg.agv, cfg.battery.start  # [simulation] and start charges
     else:
+        from ..config import link_node_problem
+
         plant = load_plant(args.plant)
+        problem = link_node_problem(plant)
+        if problem is not None:
+            raise ConfigError(f"{args.plant}: {problem}")
     try:
         interface, channel = (None, None) if args.modbus_base_port else parse_bus(args.bus)
         if not args.config:

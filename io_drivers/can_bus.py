@@ -1,0 +1,45 @@
+"""Opening a python-can bus with one clear error, whatever the interface.
+
+python-can's interfaces fail in their own ways when they cannot open: a missing vendor
+library is a NameError in one, a missing argument a TypeError in another, a bad address
+an OSError, and a bus that failed half-way logs "was not properly shut down" when it is
+collected. Both ends of the vehicle link (the controller's driver and the simulated
+vehicles) open their bus here, so a user sees one line naming the interface, the channel
+and the cause.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import can
+
+
+class BusOpenError(ValueError):
+    """The bus could not be opened; the message names interface, channel and cause."""
+
+
+def open_can_bus(interface: str | None, channel: str | None, **kwargs: Any) -> can.BusABC:
+    """``can.Bus(interface, channel, receive_own_messages=False, **kwargs)``, or
+    BusOpenError. The half-made bus of a failed attempt is collected while python-can's
+    bus log is quiet: its warning would be a second line about the same failure."""
+    log = logging.getLogger("can.bus")
+    quiet = log.disabled
+    log.disabled = True
+    try:
+        return _construct(interface, channel, kwargs)
+    finally:
+        log.disabled = quiet
+
+
+def _construct(interface: str | None, channel: str | None, kwargs: dict[str, Any]) -> can.BusABC:
+    try:
+        return can.Bus(interface=interface, channel=channel, receive_own_messages=False, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - any failure of any interface: "cannot open"
+        cause = str(exc) or type(exc).__name__
+        if not isinstance(exc, can.CanError | OSError | ValueError):
+            cause = f"{type(exc).__name__}: {cause}"
+    # raised here, not in the except block: the failed bus, which the exception's traceback
+    # holds, is then already collected (quietly)
+    raise BusOpenError(f"CAN interface {interface!r} channel {channel!r}: {cause}")
