@@ -11,7 +11,15 @@ from fleet_helpers import Dispatcher, record
 
 from io_drivers.can_bus import BusOpenError, open_can_bus
 from io_drivers.can_driver import FAULT, GO_BIT, LINK_JUMPS, ONLINE, STALE, CanDriver
-from io_drivers.protocol import NO_NODE, STATE_CODE, Codec, RouteCommand, Status
+from io_drivers.protocol import (
+    ALL_VEHICLES,
+    NO_NODE,
+    STATE_CODE,
+    Codec,
+    RouteCommand,
+    Status,
+    StopGo,
+)
 from plc_runtime import Runtime, StartupError, VirtualClock
 from topology import model_plant
 from vehicles.agv import AGV
@@ -258,6 +266,22 @@ def test_the_vehicles_obey_classic_can_frames_only_and_read_a_bus_worth_a_step()
     assert fleet.vehicles[1].driven[-1] == 6 or fleet.vehicles[1].target == 6
     fleet.bus.shutdown()
     controller.shutdown()
+
+
+def test_a_broadcast_go_starts_no_vehicle_and_a_broadcast_stop_stops_them_all():
+    """The broadcast id is the controller's last word (everyone stops); a go is always a
+    vehicle's own, so a single frame, however valid, cannot set a held fleet off."""
+    fleet = Fleet(model_plant(), {1: 0, 2: 10}, None)
+    codec = Codec()
+    for v in (1, 2):
+        fleet.receive(*codec.encode(StopGo(v, False, 1)))
+    fleet.receive(*codec.encode(StopGo(ALL_VEHICLES, True, 1)))
+    assert [a.go for a in fleet.vehicles.values()] == [False, False]
+    assert fleet.counters["ignored"] == 1
+    for v in (1, 2):
+        fleet.receive(*codec.encode(StopGo(v, True, 2)))
+    fleet.receive(*codec.encode(StopGo(ALL_VEHICLES, False, 2)))
+    assert [a.go for a in fleet.vehicles.values()] == [False, False]
 
 
 def test_driver_sends_route_commands_on_sequence_change_and_stops_everyone_on_close():

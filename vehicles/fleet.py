@@ -325,7 +325,7 @@ class Fleet:
         controller, or replayed old frames) only sets the new reference, so it can stop a
         vehicle but never start one or give it a route; the controller's next frames (the
         go is repeated every second, a route resent when the vehicle shows no sign of it)
-        are then in the window."""
+        are then in the window. A go for every vehicle (the broadcast id) is not obeyed."""
         try:
             message = self.codec.decode(frame_id, data)
         except CorruptFrame:
@@ -342,6 +342,11 @@ class Fleet:
                 if not self.vehicles[message.vehicle].command(message.nodes):
                     self.counters["rejected"] += 1
         elif isinstance(message, StopGo):
+            if message.go and message.vehicle == ALL_VEHICLES:
+                # the broadcast is for stopping everyone (the controller closing): a vehicle
+                # sets off only on a go of its own, so one frame cannot start a fleet
+                self.counters["ignored"] += 1
+                return
             verdict = self.checks.check(frame_id, message.counter)
             if message.go and verdict is not ACCEPTED:
                 return
