@@ -294,7 +294,9 @@ class Runtime:
             self._last_tick_start = None
             self._next_retain_save = self._t0 + round((self.retain_interval or 0) * 1e9)
             if self.watchdog_interrupt:
-                self._alarm.install(frozenset({Runtime._run_tick.__code__}))
+                self._alarm.install(
+                    frozenset({Runtime._run_tick.__code__, Runtime._fault.__code__})
+                )
             self.state = RUN
 
     def _open_drivers(self) -> None:
@@ -581,6 +583,9 @@ class Runtime:
         return True
 
     def _fault(self, reason: str) -> None:
+        # no watchdog interrupt from here on: the safe state must be published whole (an
+        # alarm that lands before this line finds this function unsafe and waits)
+        self._alarm.end_scan()
         self.state = FAULT
         self.fault_reason = reason
         self.image.publish_safe_state(self.safe_outputs)

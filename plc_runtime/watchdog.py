@@ -61,7 +61,8 @@ class WatchdogAlarm:
             # a program that ends without stop(): at interpreter exit the handler is gone
             # while the timer may still be armed, and SIGALRM would kill the process
             atexit.register(self.uninstall)
-        self._unsafe_codes = unsafe_codes | {self.begin_scan.__code__, self.end_scan.__code__}
+        own = (self.begin_scan, self.end_scan, self._arm)
+        self._unsafe_codes = unsafe_codes | {f.__code__ for f in own}
         self._thread = threading.get_ident()
         self._pending = False
         return True

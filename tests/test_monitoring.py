@@ -281,6 +281,31 @@ def test_a_swallowed_watchdog_interrupt_comes_again():
     rt.stop()
 
 
+def test_the_safe_state_is_published_whole_after_a_watchdog_fault(monkeypatch):
+    """A machine so busy that publishing the safe state takes longer than the watchdog's
+    repeat (10 ms): the repeat used to interrupt the fault handling itself, and the
+    WatchdogTimeout escaped the runtime as a traceback, with the safe state half written.
+    Once the fault is being handled, no alarm interrupts it."""
+    from plc_runtime.image import ProcessImage
+
+    publish = ProcessImage.publish_safe_state
+    published = []
+
+    def slow_publish(image, safe_outputs):
+        Busy(0.040).cycle(None)  # Python busy-waiting: the alarm's handler runs in here
+        publish(image, safe_outputs)
+        published.append(True)
+
+    monkeypatch.setattr(ProcessImage, "publish_safe_state", slow_publish)
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock(), watchdog=0.005)
+    rt.add_task("main", [Busy(0.050, scans={0})])
+    rt.start()
+    rt.step()
+    assert rt.state == "FAULT" and "was aborted" in rt.fault_reason
+    assert published == [True]
+    rt.stop()
+
+
 def test_second_runtime_falls_back_to_the_after_the_fact_check():
     first = Runtime(cycle_time=1.0, clock=VirtualClock())
     first.add_task("main", [Probe(lambda ctx: None)])
