@@ -583,12 +583,16 @@ class Runtime:
         return True
 
     def _fault(self, reason: str) -> None:
-        # no watchdog interrupt from here on: the safe state must be published whole (an
-        # alarm that lands before this line finds this function unsafe and waits)
-        self._alarm.end_scan()
-        self.state = FAULT
-        self.fault_reason = reason
-        self.image.publish_safe_state(self.safe_outputs)
+        # the watchdog holds off while the safe state is published, so it is published
+        # whole (an alarm landing before the first line finds this function unsafe and
+        # waits); it is on again afterwards, for what the failed scan's cleanup runs
+        self._alarm.held = True
+        try:
+            self.state = FAULT
+            self.fault_reason = reason
+            self.image.publish_safe_state(self.safe_outputs)
+        finally:
+            self._alarm.held = False
 
     def _fault_on(self, who: str, exc: BaseException) -> None:
         """FAULT because ``exc`` escaped a block or a driver, whatever its class.

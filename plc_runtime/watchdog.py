@@ -36,6 +36,9 @@ class WatchdogAlarm:
         self._thread: int | None = None  # the main thread, once installed
         self._previous_handler: object = signal.SIG_DFL
         self._unsafe_codes: frozenset[CodeType] = frozenset()
+        # set by the runtime while it must not be interrupted anywhere (publishing the safe
+        # state): an alarm then looks again a millisecond later, as in unsafe code
+        self.held = False
 
     def install(self, unsafe_codes: frozenset[CodeType]) -> bool:
         """Take over SIGALRM if this is the main thread and nobody else uses it.
@@ -99,7 +102,7 @@ class WatchdogAlarm:
         self._pending = False
         if self.in_scan:
             overdue = perf_counter_ns() - self._scan_start_ns - self.limit_ns
-            if frame is not None and frame.f_code in self._unsafe_codes:
+            if self.held or (frame is not None and frame.f_code in self._unsafe_codes):
                 self._arm(_RETRY_NS)
             elif overdue >= 0:
                 # Armed again first: a block that swallows the exception (a bare except,

@@ -6,6 +6,8 @@ always measured in real time. Tests of what an overrun does to the schedule use
 CPU would experience it.
 """
 
+import time
+
 import pytest
 from conftest import Busy, Probe
 
@@ -303,6 +305,36 @@ def test_the_safe_state_is_published_whole_after_a_watchdog_fault(monkeypatch):
     rt.step()
     assert rt.state == "FAULT" and "was aborted" in rt.fault_reason
     assert published == [True]
+    rt.stop()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # (as intended)
+def test_the_cleanup_of_a_failed_scan_is_still_interrupted():
+    """What a failed block leaves behind runs when its exception is released, after the
+    fault: a generator's ``finally`` here, waiting for an answer that never comes. The
+    watchdog holds off only while the safe state is published, so that hang is still cut."""
+    finished = []
+
+    def fail(ctx):
+        def transfer():
+            try:
+                yield b"frame"
+            finally:
+                end = time.perf_counter() + 30.0  # stands in for a hang: bounded, for a test
+                while time.perf_counter() < end:
+                    pass
+                finished.append(True)
+
+        pending = transfer()
+        next(pending)
+        raise OSError("bus error")
+
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock(), watchdog=0.050)
+    rt.add_task("main", [Probe(fail)])
+    rt.start()
+    rt.step()
+    assert rt.state == "FAULT" and "raised OSError: bus error" in rt.fault_reason
+    assert finished == []  # the wait was interrupted, not waited out
     rt.stop()
 
 
