@@ -82,7 +82,7 @@ from blocks.routing.heuristic import distances_to  # noqa: E402
 from blocks.traffic.one_step import OneStepPlanner  # noqa: E402
 from blocks.traffic.sipp import ArcGeometry, SafeIntervalSearch, TurnTimes  # noqa: E402
 from blocks.traffic.time_windows import TimeWindowTable, WindowConflict  # noqa: E402
-from plc_runtime.cli import non_negative, positive, terminal_text, whole  # noqa: E402
+from plc_runtime.cli import non_negative, one_line, positive, whole  # noqa: E402
 from topology import Plant, read_cells  # noqa: E402
 from topology.grid import grid_plant  # noqa: E402
 from topology.samples import KIVA_HEIGHT, KIVA_WIDTH, kiva  # noqa: E402
@@ -623,7 +623,7 @@ def load(path: Path) -> Instance:
     try:
         return read_instance(path)
     except InstanceError as e:
-        sys.exit(f"lorr.py: {terminal_text(str(e))}".replace("\n", "\\n"))
+        sys.exit(f"lorr.py: {one_line(str(e))}")
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Opening a python-can bus with one clear error, whatever the interface.
+"""Opening a python-can bus with one clear error, whatever the interface; what a bus carries.
 
 python-can's interfaces fail in their own ways when they cannot open: a missing vendor
 library is a NameError in one, a missing argument a TypeError in another, a bad address
@@ -11,9 +11,22 @@ and the cause.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import can
+
+# A classic CAN bus at 1 Mbit/s carries about 9,000 frames of 8 data bytes a second (some
+# 111 bits each with stuffing): more than that in a while cannot come from a real bus.
+CAN_FRAMES_PER_S = 10_000
+MIN_FRAMES_PER_READ = 32
+
+
+def frames_carried(seconds: float) -> int:
+    """The frames a 1 Mbit/s bus carries in ``seconds`` (at least 32): what one read of a
+    bus without a bit rate (virtual, UDP) should take at most, so a flood on it costs no
+    more than a real bus's worth."""
+    return max(MIN_FRAMES_PER_READ, math.ceil(seconds * CAN_FRAMES_PER_S))
 
 
 class BusOpenError(ValueError):

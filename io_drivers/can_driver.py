@@ -49,7 +49,7 @@ import can
 
 from plc_runtime import ConfigError, ProcessImage
 
-from .can_bus import BusOpenError, open_can_bus
+from .can_bus import BusOpenError, frames_carried, open_can_bus
 from .e2e import ACCEPTED, RESYNC, CounterCheck
 from .protocol import (
     ALL_VEHICLES,
@@ -79,11 +79,6 @@ from .vehicle_records import (  # noqa: F401 - the record API
     VehicleRecords,
 )
 
-# A classic CAN bus at 1 Mbit/s carries about 9,000 frames of 8 data bytes a second (some
-# 111 bits each with stuffing): more than that in a cycle cannot come from a real bus.
-CAN_FRAMES_PER_S = 10_000
-MIN_FRAMES_PER_TICK = 32
-
 
 def frames_per_tick(cycle_s: float, vehicles: int, status_period_s: float) -> int:
     """The frames one tick should read at most: what a 1 Mbit/s bus carries in a cycle, or
@@ -91,9 +86,8 @@ def frames_per_tick(cycle_s: float, vehicles: int, status_period_s: float) -> in
     factor leaves room for their less frequent infos and for bursts), whichever is more, so
     that the vehicles' own traffic is never deferred and a flood costs the scan no more than
     a bus's worth."""
-    carried = cycle_s * CAN_FRAMES_PER_S
     sent = 4 * vehicles * cycle_s / status_period_s
-    return max(MIN_FRAMES_PER_TICK, math.ceil(max(carried, sent)))
+    return max(frames_carried(cycle_s), math.ceil(sent))
 
 
 class CanDriver:

@@ -187,6 +187,14 @@ def terminal_text(text: str) -> str:
     )
 
 
+def one_line(text: str, most: int | None = None) -> str:
+    """``text`` as part of one line on a terminal: ``terminal_text`` with its newlines as
+    escapes too (text from a client or a file could forge a second line), cut at ``most``
+    characters if given."""
+    text = terminal_text(text).replace("\n", "\\n")
+    return text if most is None or len(text) <= most else text[:most] + "..."
+
+
 ProgramBuilder = Callable[..., Runtime]
 """``build(clock=, cycle_time=, watchdog=, retain_file=) -> Runtime`` (a runtime in STOP)."""
 

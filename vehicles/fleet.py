@@ -18,14 +18,13 @@ generator, so the same seed gives the same run, bit for bit.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import can
 import numpy as np
 
-from io_drivers.can_driver import CAN_FRAMES_PER_S, MIN_FRAMES_PER_TICK
+from io_drivers.can_bus import frames_carried
 from io_drivers.e2e import ACCEPTED, CounterCheck
 from io_drivers.protocol import (
     ALL_VEHICLES,
@@ -307,7 +306,7 @@ class Fleet:
         only: extended ids, error, remote and CAN FD frames are not the protocol's."""
         if self.bus is None:
             return
-        for _ in range(max(MIN_FRAMES_PER_TICK, math.ceil(dt * CAN_FRAMES_PER_S))):
+        for _ in range(frames_carried(dt)):
             msg = self.bus.recv(timeout=0)
             if msg is None:
                 return

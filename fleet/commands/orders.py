@@ -37,7 +37,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from plc_runtime.cli import CliError, terminal_text
+from plc_runtime.cli import CliError, one_line, terminal_text
 from topology.formats.numbers import not_an_integer, parse_float, parse_int, shown
 
 from ..web.models import OrderOut, OrderPage
@@ -56,7 +56,7 @@ MAX_ANSWER_BYTES = 64 * 2**20
 # what ``list`` reads in all: some 600,000 orders of a real book; past it the book is
 # better read page by page from the API than as one table
 MAX_LIST_BYTES = 256 * 2**20
-MAX_ERROR_CHARS = 500  # of a refusal's message: the API's are one short line
+MAX_ERROR_CHARS = 500  # of a text of the server's in a line: the API's are one short line
 
 
 def integer(text: str) -> int:
@@ -146,7 +146,9 @@ def order_command(args: argparse.Namespace) -> int:
     elif kind == "show":
         Console().print(order_table(order))
     else:
-        print(f"order {one_line(repr(order.id))}: {one_line(order.state)}")
+        print(
+            f"order {one_line(repr(order.id), MAX_ERROR_CHARS)}: {one_line(order.state, MAX_ERROR_CHARS)}"
+        )
     return 0
 
 
@@ -237,9 +239,14 @@ class Api:
         self._expired.clear()
         try:
             raw = self._exchange(request)
+        except CliError:
+            if not self._expired.is_set():
+                raise
         finally:
             if self._timer is not None:
                 self._timer.cancel()
+        if self._expired.is_set():  # whatever broke or came back: cut short by the deadline
+            raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s")
         if len(raw) > MAX_ANSWER_BYTES:
             raise CliError(
                 f"{method} {url}: the answer is longer than {MAX_ANSWER_BYTES:,} bytes "
@@ -253,13 +260,8 @@ class Api:
         for every failure on the way."""
         try:
             with self._open(request, timeout=TIMEOUT_S) as reply:
-                raw = reply.read(MAX_ANSWER_BYTES + 1)
-            if self._expired.is_set():
-                raise TimeoutError  # the body may be cut short by the shutdown
-            return raw
+                return reply.read(MAX_ANSWER_BYTES + 1)
         except urllib.error.HTTPError as exc:
-            if self._expired.is_set():
-                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
             raise CliError(self._refusal(exc)) from None
         except urllib.error.URLError as exc:
             reason = exc.reason
@@ -273,15 +275,13 @@ class Api:
         except TimeoutError:
             raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
         except ValueError as exc:  # http.client: a URL with characters a request cannot hold
-            if self._expired.is_set():
-                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
             raise CliError(f"--url {self.base!r}: {exc}") from None
         except (OSError, http.client.HTTPException) as exc:
             # the connection broke mid-answer, or what came back is not HTTP
-            if self._expired.is_set():
-                raise CliError(f"{self.base}: no complete answer within {TIMEOUT_S:g} s") from None
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else repr(exc)
-            raise CliError(f"{self.base}: {one_line(why)} (not a plc-runtime HTTP API?)") from None
+            raise CliError(
+                f"{self.base}: {one_line(why, MAX_ERROR_CHARS)} (not a plc-runtime HTTP API?)"
+            ) from None
 
     def _refusal(self, exc: urllib.error.HTTPError) -> str:
         """One line for an error answer: the API's own message where it gave one."""
@@ -289,9 +289,9 @@ class Api:
             message = _json(exc.read(MAX_ANSWER_BYTES))["error"]
             if not isinstance(message, str):
                 raise TypeError
-            message = one_line(message)
+            message = one_line(message, MAX_ERROR_CHARS)
         except (ValueError, KeyError, TypeError, OSError, http.client.HTTPException):
-            message = f"{one_line(str(exc.reason))} ({self.base} is not a plc-runtime HTTP API?)"
+            message = f"{one_line(str(exc.reason), MAX_ERROR_CHARS)} ({self.base} is not a plc-runtime HTTP API?)"
         line = f"{message} (HTTP {exc.code})"
         if exc.code == 401:
             line += f": give --token or set {TOKEN_ENV}"
@@ -310,7 +310,7 @@ class Api:
             first = exc.errors()[0]
             where = ".".join(str(part) for part in first["loc"]) or "the answer"
             raise CliError(
-                f"{what}: {one_line(where)}: {first['msg']} in the answer "
+                f"{what}: {one_line(where, MAX_ERROR_CHARS)}: {first['msg']} in the answer "
                 f"({exc.error_count()} such; not a plc-runtime HTTP API?)"
             ) from None
 
@@ -327,13 +327,6 @@ def _json(raw: bytes) -> Any:
         return json.loads(raw, parse_constant=refuse)
     except RecursionError:
         raise ValueError("nested too deeply") from None
-
-
-def one_line(text: str) -> str:
-    """A server's ``text`` as part of one line on a terminal: control characters and line
-    breaks as escapes (a newline could forge a second line), at most MAX_ERROR_CHARS."""
-    text = terminal_text(text).replace("\n", "\\n")
-    return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS] + "..."
 
 
 def check_url(url: str) -> None:
