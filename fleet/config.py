@@ -151,7 +151,8 @@ def load_config(path: str | Path | None = None) -> FleetConfig:
     path = Path(path) if path is not None else DEFAULT_CONFIG
     source = path.name if path == DEFAULT_CONFIG else str(path)
     try:
-        text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8")
+        # utf-8-sig: an editor on Windows may start the file with a byte order mark
+        text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8-sig")
     except FileProblem as exc:
         raise ConfigError(f"{source}: {exc}, not a fleet configuration") from None
     except OSError as exc:

@@ -103,6 +103,19 @@ def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):
     assert message in str(exc.value) and str(path) in str(exc.value)
 
 
+def test_a_configuration_saved_with_a_byte_order_mark_loads(tmp_path):
+    """Editors on Windows may save UTF-8 with a BOM, which TOML itself does not allow; the
+    configuration reads as without it, and its errors keep their lines."""
+    path = tmp_path / "fleet.toml"
+    path.write_bytes(DEFAULT_CONFIG.read_bytes())
+    plain = load_config(path)
+    path.write_bytes(b"\xef\xbb\xbf" + DEFAULT_CONFIG.read_bytes())
+    assert load_config(path) == plain
+    path.write_bytes(b"\xef\xbb\xbf[plant\n")
+    with pytest.raises(ConfigError, match=r"\(at line 1, column 7\)"):
+        load_config(path)
+
+
 def test_two_vehicles_starting_in_one_single_vehicle_area_are_refused(tmp_path):
     examples = DEFAULT_CONFIG.parent.parent / "examples"
     plant = (examples / "plants" / "distribution-centre.toml").resolve()

@@ -279,6 +279,27 @@ def test_garbage_files_give_one_clear_error(tmp_path, content):
             assert content == b"" and suffix == ".nodes"  # an empty node list is an empty plant
 
 
+def test_plant_files_saved_with_a_byte_order_mark_load(tmp_path):
+    """A BOM (as editors on Windows write UTF-8) is no part of the text in any format, and
+    the lines of errors are counted as without it."""
+    examples = Path(__file__).parent.parent / "examples" / "plants"
+    thesis = tmp_path / "thesis.nodes"
+    thesis.write_text(
+        "0 -1 0 1 1.0 -1 0 -1 0 role=entry functions=0\n"
+        "1 -1 0 -1 0 -1 0 0 1.0 role=exit functions=1\n"
+    )
+    json_plant = tmp_path / "plant.json"
+    json_plant.write_text(json.dumps(small_plant()))
+    for original in (examples / "workshop.toml", examples / "random-32-32.map", thesis, json_plant):
+        marked = tmp_path / f"bom{original.suffix}"
+        marked.write_bytes(b"\xef\xbb\xbf" + original.read_bytes())
+        assert load(marked).fingerprint == load(original).fingerprint
+    marked = tmp_path / "bom.map"
+    marked.write_bytes(b"\xef\xbb\xbftype octile\nheight 1\nwidth 2\nmap\n.x\n")
+    with pytest.raises(TopologyError, match="line 5"):
+        load(marked)
+
+
 def test_unknown_extension_and_missing_file(tmp_path):
     with pytest.raises(TopologyError, match="unknown plant file type '.yaml'"):
         load(tmp_path / "plant.yaml")

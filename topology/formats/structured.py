@@ -65,7 +65,7 @@ def read_text(path: Path) -> str:
     if b"\0" in raw:
         raise TopologyError("binary data, not a plant file", str(path))
     try:
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")  # an editor on Windows may start it with a BOM
     except UnicodeDecodeError as exc:
         raise TopologyError(f"not UTF-8 text (byte {exc.start})", str(path)) from None
 
