@@ -5,7 +5,8 @@ to report; it compares what they expose with what it saw in the previous scan (a
 deadlock record, a replan counter that went up, a segment that became blocked, a vehicle
 whose state became stale), so no block carries logging code and every source is covered
 the same way, whoever caused the change (the blockade schedule, an operator over Modbus).
-Memory is bounded: the newest ``capacity`` events are kept, and a count per kind.
+Memory is bounded: the newest ``capacity`` events (and segment changes) are kept, and a
+count per kind.
 """
 
 from __future__ import annotations
@@ -67,6 +68,9 @@ class EventLog(FunctionBlock):
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
         self._blocked: set[tuple[int, int]] = set()
+        # every segment closed or reopened, whoever did it: (time_s, "closed" | "reopened", a, b)
+        self.segment_changes: deque[tuple[float, str, int, int]] = deque(maxlen=capacity)
+        self.lifted: set[tuple[int, int]] = set()  # reopened during the run, open now
         self._epoch = -1  # the blockades' change counter when they were last compared
         self._started = False
 
@@ -100,8 +104,12 @@ class EventLog(FunctionBlock):
         blocked = {(min(a, b), max(a, b)) for a, b in self.blockades.blocked_segments()}
         for a, b in sorted(blocked - self._blocked):
             self.add(now, "blockade", None, f"segment {a}-{b} closed")
+            self.segment_changes.append((round(now, 3), "closed", a, b))
+            self.lifted.discard((a, b))
         for a, b in sorted(self._blocked - blocked):
             self.add(now, "reopened", None, f"segment {a}-{b} open again")
+            self.segment_changes.append((round(now, 3), "reopened", a, b))
+            self.lifted.add((a, b))
         self._blocked = blocked
 
     def _strandings(self, now: float) -> None:

@@ -64,20 +64,17 @@ class BlockadeSchedule(FunctionBlock):
         self.pending = sorted(blockades, key=lambda b: b.at_s)
         self.open_until: list[Blockade] = []
         self.constraints = constraints
-        self.log: list[tuple[float, str, int, int]] = []
 
     def cycle(self, ctx: CycleContext) -> None:
         now = ctx.time
         while self.pending and self.pending[0].at_s <= now:
             b = self.pending.pop(0)
             self.constraints.block(b.a, b.b, both_ways=True)
-            self.log.append((now, "closed", b.a, b.b))
             if b.until_s is not None:
                 self.open_until.append(b)
         for b in [b for b in self.open_until if b.until_s <= now]:
             self.open_until.remove(b)
             self.constraints.unblock(b.a, b.b, both_ways=True)
-            self.log.append((now, "reopened", b.a, b.b))
 
 
 class FleetCycle(FunctionBlock):

@@ -109,8 +109,8 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         },
         "suspect_events": sum(c.suspect_events for c in program.controls.values()),
         "blockades": [
-            {"time_s": round(t, 3), "event": what, "segment": [a, b]}
-            for t, what, a, b in program.schedule.log
+            {"time_s": t, "event": what, "segment": [a, b]}
+            for t, what, a, b in program.events.segment_changes
         ],
         "faults": faults(program, stats.get("drivers", {})),
         "events": [e.to_dict() for e in program.events.recent(EVENTS_IN_SUMMARY)],
@@ -221,11 +221,14 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
         control = program.controls[v]
         planned = ([control.current] if control.current is not None else []) + list(control.planned)
         vehicles[f"AGV {v}"] = (program.recorder.driven[v], planned)
-    lifted = [(a, b) for _t, what, a, b in program.schedule.log if what == "reopened"]
+    lifted = sorted(program.events.lifted)
     stats = program.rt.stats.to_dict()
+    done = [f"{len(program.completed)} recipes"] if program.sequencers else []
+    if program.orders is not None:
+        done.append(f"{program.orders.book.counts()['FINISHED']} orders")
     title = (
         f"{program.cfg.plant.name}: {len(program.vehicles)} AGVs, "
-        f"{len(program.completed)} recipes in {stats['clock_time_s']:.0f} s"
+        f"{' and '.join(done)} in {stats['clock_time_s']:.0f} s"
     )
     # matplotlib costs a second of start-up: only commands that draw pay for it
     from topology.draw import draw

@@ -121,7 +121,7 @@ def test_level_3_routes_avoid_a_blockade_and_come_back_after_it_clears(program):
     during = [t for t, _v, a, b in trace.entered if (a, b) in blocked and 62 <= t < 200]
     after = [t for t, _v, a, b in trace.entered if (a, b) in blocked and t >= 200]
     assert before and after and not during
-    assert [e for _t, e, *_ in p.schedule.log] == ["closed", "reopened"]
+    assert list(p.events.segment_changes) == [(60.0, "closed", 7, 8), (200.0, "reopened", 7, 8)]
     detour = [t for t, _v, a, b in trace.entered if (a, b) == (3, 17) and 62 <= t < 200]
     assert detour  # the way round over the top lane
     assert len(p.completed) >= 10
@@ -142,4 +142,4 @@ def test_level_4_the_default_job_runs_every_vehicles_own_recipes(program):
             assert functions == list(cfg.recipes[name].functions)
         recipes_seen.add(done[0][0])
     assert len(recipes_seen) == len(p.vehicles)  # different recipes per vehicle
-    assert [e for _t, e, *_ in p.schedule.log] == ["closed", "reopened"]
+    assert [e for _t, e, *_ in p.events.segment_changes] == ["closed", "reopened"]

@@ -15,7 +15,7 @@ from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
 from fleet import liveness
 from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
-from fleet.report import summary
+from fleet.report import summary, write_drawing
 from plc_runtime.errors import ConfigError
 
 WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
@@ -67,7 +67,9 @@ o5,28,25,30,500
 
 
 @pytest.mark.parametrize("strategy", ["nearest_idle", "dhht", "two_stage"])
-def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strategy, tmp_path, made):
+def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(
+    strategy, tmp_path, made, monkeypatch
+):
     cfg = config(ORDERS, tmp_path)
     cfg.dispatch.strategy = strategy
     p = start(cfg, made)
@@ -93,6 +95,10 @@ def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(strateg
     for v, r in p.orders.runners.items():  # each on a place of its own, held by it
         if r.phase == "parked":
             assert p.orders.claims.holder.get(r.current) == v
+    drawn = []  # the drawing's title counts the orders, not the (absent) recipes
+    monkeypatch.setattr("topology.draw.draw", lambda plant, path, **kw: drawn.append(kw) or path)
+    write_drawing(p, tmp_path / "routes.png")
+    assert drawn[0]["title"] == "workshop: 3 AGVs, 5 orders in 240 s"
 
 
 def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):

@@ -237,3 +237,52 @@ def test_the_fleet_report_hands_over_whole_routes_and_lifted_blockades(tmp_path,
     assert len(program.recorder.driven[1]) > 3
     texts = legend_texts(render(cfg.plant, **kwargs))
     assert "blocked segment (1)" in texts and "blockade lifted during the run (1)" in texts
+
+
+def test_segments_an_operator_closes_and_reopens_are_in_the_summary_and_drawing(
+    tmp_path, monkeypatch
+):
+    """The blockade command of the Modbus map (and the web API, which does the same) changes
+    the plant as the configured schedule does, so the run's report lists it the same way."""
+    import fleet.report as report
+    from fleet.tags import CLOSE, REOPEN
+
+    cfg = parse_config(
+        """
+        [plant]
+        sample = "model-plant"
+        [[recipes]]
+        name = "drill"
+        functions = [2, 1]
+        [[vehicles]]
+        id = 1
+        start = 0
+        """
+    )
+    cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
+    program = FleetProgram(cfg, clock=VirtualClock())
+    image = program.rt.image
+    try:
+        program.rt.start()
+        for seq, (code, a, b, seconds) in enumerate(
+            [(CLOSE, 7, 8, 1), (CLOSE, 13, 8, 1), (REOPEN, 8, 7, 2)], start=1
+        ):
+            image.write_many(
+                {"fleet.cmd.a": a, "fleet.cmd.b": b, "fleet.cmd.code": code, "fleet.cmd.seq": seq}
+            )
+            program.rt.step(round(seconds / cfg.cycle_time))
+        result = report.summary(program, wall_s=1.0)
+    finally:
+        program.close()
+    assert [(c["event"], c["segment"]) for c in result["blockades"]] == [
+        ("closed", [7, 8]),
+        ("closed", [8, 13]),
+        ("reopened", [7, 8]),
+    ]
+    assert [c["time_s"] for c in result["blockades"]] == pytest.approx([0.0, 1.0, 2.0], abs=0.1)
+    calls = []
+    monkeypatch.setattr("topology.draw.draw", lambda plant, path, **kw: calls.append(kw) or path)
+    report.write_drawing(program, tmp_path / "routes.png")
+    (kwargs,) = calls
+    assert kwargs["lifted"] == [(7, 8)]
+    assert {(min(a, b), max(a, b)) for a, b in kwargs["blocked"]} == {(8, 13)}
