@@ -37,6 +37,7 @@ from .orders_config import (
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
 VEHICLES_PER_BUS = 126
 MODBUS = "modbus"  # the bus "interface" that means one Modbus TCP server per vehicle
+LOOPBACK = ("127.0.0.1", "localhost", "::1")  # where simulated Modbus vehicles can serve
 
 # a configuration is a few kilobytes; this is far above any, and bounds what a wrong path costs
 MAX_CONFIG_BYTES = 4 * 2**20

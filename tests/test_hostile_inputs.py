@@ -24,6 +24,8 @@ from topology.formats.movingai import load_map
 from topology.grid import grid_plant
 from topology.limits import MAX_EDGES, MAX_FILE_BYTES, MAX_NODES
 
+EXAMPLE_JOB = str(Path(__file__).resolve().parent.parent / "examples" / "default.toml")
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -662,6 +664,34 @@ def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
     with pytest.raises(SystemExit) as stop:
         main(args)
     assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--plant", "model-plant"], "no link: give the bus the controller uses"),
+        (["--plant", "model-plant", "--bus", "virtual:agv"], "--bus virtual:agv: the virtual bus"),
+        (["--config", EXAMPLE_JOB], "default.toml: bus virtual:agv: the virtual bus"),
+        (
+            ["--config", EXAMPLE_JOB, "--count", "2", "--bus", "socketcan:vcan0"],
+            "--count applies with --plant: a configuration names its vehicles",
+        ),
+        (
+            ["--plant", "model-plant", "--bus", "modbus:10.0.0.1:5100"],
+            "--bus modbus:10.0.0.1:5100: simulated vehicles serve Modbus on 127.0.0.1 only",
+        ),
+    ],
+    ids=["no-link", "virtual", "config-virtual", "config-count", "modbus-elsewhere"],
+)
+def test_simulated_vehicles_no_controller_could_reach_are_refused(args, message, capsys):
+    """The virtual bus lives inside one process: vehicles started on it alone would run,
+    say they are ready and never hear from anyone. A --count the configuration would
+    override is refused rather than ignored."""
+    from fleet.cli import main
+
+    assert main(["vehicles", *args, "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err and "ready" not in err
 
 
 @pytest.mark.parametrize("where", ["missing/m.json", "."])

@@ -43,6 +43,7 @@ from plc_runtime.errors import ConfigError
 from .. import liveness
 from ..config import (
     DEFAULT_CONFIG,
+    LOOPBACK,
     MODBUS,
     TRAFFIC_MODES,
     FleetConfig,
@@ -57,7 +58,6 @@ from ..report import check_out_dir, summary, write_all
 from ..web import options as web
 
 VEHICLES_READY_TIMEOUT = 20.0
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 class FleetRunError(ConfigError):

@@ -14,6 +14,7 @@ from typing import Any
 from plc_runtime.cli import MAX_DURATION_S, whole
 from plc_runtime.errors import ConfigError
 
+from ..config import LOOPBACK, MODBUS, modbus_endpoint
 from ..route import load_plant
 
 # A simulation step: below a tenth of a millisecond the loop only spins; above a second a
@@ -29,7 +30,9 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
         "--config", help="fleet configuration: its plant, vehicles and start nodes, status period"
     )
     p.add_argument(
-        "--count", type=positive(int), default=4, help="with --plant: number of vehicles (ids 1..N)"
+        "--count",
+        type=positive(int),
+        help="with --plant: number of vehicles (ids 1..N, default 4)",
     )
     p.add_argument(
         "--monitor-out",
@@ -39,8 +42,8 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
     link = p.add_mutually_exclusive_group()
     link.add_argument(
         "--bus",
-        default="virtual:agv",
-        help="INTERFACE:CHANNEL, e.g. socketcan:vcan0 or udp_multicast:239.74.163.2",
+        help="INTERFACE:CHANNEL the controller listens on, e.g. socketcan:vcan0 or "
+        "udp_multicast:239.74.163.2 (default with --config: its [bus])",
     )
     link.add_argument(
         "--modbus-base-port",
@@ -83,13 +86,56 @@ def check_writable(name: str) -> None:
         raise ConfigError(f"--monitor-out {name}: not writable")
 
 
+def parse_link(spec: str) -> tuple[str, str]:
+    from vehicles.runner import parse_bus
+
+    try:
+        return parse_bus(spec)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def shared_link(
+    bus: tuple[str, str] | None, modbus_base_port: int | None, where: str
+) -> tuple[str | None, str | None, int | None]:
+    """(interface, channel, Modbus base port) of a link a controller in another process can
+    reach: the in-process virtual bus is refused (nobody could ever talk to the vehicles),
+    and ``modbus:HOST:PORT``, as ``run --bus`` takes it, means a Modbus server per vehicle."""
+    if modbus_base_port is not None:
+        return None, None, modbus_base_port
+    if bus is None:
+        raise ConfigError(
+            "no link: give the bus the controller uses (--bus socketcan:vcan0, --bus "
+            "udp_multicast:239.74.163.2) or --modbus-base-port PORT"
+        )
+    interface, channel = bus
+    if interface == "virtual":
+        raise ConfigError(
+            f"{where} {interface}:{channel}: the virtual bus exists inside one process, so no "
+            "controller could reach these vehicles; give a shared bus (--bus socketcan:vcan0, "
+            "--bus udp_multicast:239.74.163.2) or --modbus-base-port PORT"
+        )
+    if interface == MODBUS:
+        host, port = modbus_endpoint(channel)
+        if host not in LOOPBACK:
+            raise ConfigError(
+                f"{where} {interface}:{channel}: simulated vehicles serve Modbus on 127.0.0.1 only"
+            )
+        return None, None, port
+    return interface, channel, None
+
+
 def vehicles_command(args: argparse.Namespace) -> int:
     from vehicles.monitor import ConflictMonitor
-    from vehicles.runner import default_starts, parse_bus, run_fleet
+    from vehicles.runner import default_starts, run_fleet
 
     if args.monitor_out:
         check_writable(args.monitor_out)
+    if args.config and args.count is not None:
+        raise ConfigError("--count applies with --plant: a configuration names its vehicles")
     status_period, faults, params, charges = 0.1, None, None, None
+    bus = parse_link(args.bus) if args.bus else None
+    where = "--bus"
     if args.config:
         from ..config import load_config
 
@@ -97,6 +143,8 @@ def vehicles_command(args: argparse.Namespace) -> int:
         plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s
         faults = cfg.faults or None  # the configuration's [faults]: a commissioning test
         params, charges = cfg.agv, cfg.battery.start  # [simulation] and start charges
+        if bus is None and args.modbus_base_port is None:
+            bus, where = (cfg.bus_interface, cfg.bus_channel), f"{cfg.source}: bus"
     else:
         from ..config import link_node_problem
 
@@ -104,12 +152,11 @@ def vehicles_command(args: argparse.Namespace) -> int:
         problem = link_node_problem(plant)
         if problem is not None:
             raise ConfigError(f"{args.plant}: {problem}")
-    try:
-        interface, channel = (None, None) if args.modbus_base_port else parse_bus(args.bus)
-        if not args.config:
-            starts = default_starts(plant, args.count)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
+        try:
+            starts = default_starts(plant, 4 if args.count is None else args.count)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    interface, channel, modbus_base_port = shared_link(bus, args.modbus_base_port, where)
     monitors: list[ConflictMonitor] = []
 
     def watch(fleet: Any) -> None:
@@ -133,7 +180,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
             args.period,
             args.duration,
             args.seed,
-            modbus_base_port=args.modbus_base_port,
+            modbus_base_port=modbus_base_port,
             on_ready=ready,
             on_step=watch if args.monitor_out else None,
             status_period=status_period,
