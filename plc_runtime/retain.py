@@ -55,6 +55,25 @@ class RetainFile:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
 
+    def check_writable(self) -> None:
+        """RetainError unless a save could write here: the folder is made if missing, and the
+        temporary file a save writes first is tried. A program that runs for months must not
+        learn only at its first save that its retain data can never be kept."""
+        folder, tmp = self.path.parent, self.path.with_name(self.path.name + ".tmp")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            if tmp.exists():  # a save's leftover (written over), or another's save right now
+                writable = os.access(folder, os.W_OK | os.X_OK)
+            else:
+                tmp.touch(exist_ok=False)
+                tmp.unlink()
+                writable = True
+        except OSError as exc:
+            why = "not a folder" if isinstance(exc, FileExistsError) else exc.strerror or exc
+            raise RetainError(f"{self.path}: cannot write retain file there: {why}") from None
+        if not writable:
+            raise RetainError(f"{self.path}: cannot write retain file there: folder not writable")
+
     def save(self, layout: str, values: dict[str, object]) -> None:
         for key, value in values.items():
             problem = _unstorable(value)

@@ -26,7 +26,7 @@ from time import perf_counter_ns
 from .clock import VirtualClock, WallClock
 from .collector import DEFAULT_YOUNG_THRESHOLD, FullCollections, YoungThreshold
 from .context import CycleContext
-from .errors import ConfigError, StartupError, StateError, WatchdogTimeout
+from .errors import ConfigError, RetainError, StartupError, StateError, WatchdogTimeout
 from .fb import FunctionBlock
 from .files import is_special
 from .image import ProcessImage, ProgramImage
@@ -140,6 +140,11 @@ class Runtime:
         if retain_file is not None and (what := is_special(retain_file)) is not None:
             raise ConfigError(f"retain file {retain_file} is {what}, not a file; give a file path")
         self._retain = RetainStore(retain_file)
+        if self._retain.file is not None:
+            try:
+                self._retain.file.check_writable()
+            except RetainError as exc:
+                raise ConfigError(str(exc)) from None
         self._tick_ns = round(self.cycle_time * 1e9)
         self._watchdog_ns = round(self.watchdog * 1e9)
         self._min_cycle_ns = round(min_cycle_time * 1e9) if min_cycle_time else 0

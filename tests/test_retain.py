@@ -267,6 +267,23 @@ def test_retain_file_that_is_a_directory_is_a_config_error(tmp_path):
         Runtime(retain_file=tmp_path)
 
 
+def test_a_retain_file_that_could_never_be_saved_is_refused_before_the_start(tmp_path):
+    """A save comes at stop, maybe months later: a place it can never write is a
+    configuration error now, not a warning then. A missing folder is made (as --out's)."""
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(ConfigError, match=r"afile/x.retain: cannot write retain file there: not a"):
+        Runtime(retain_file=tmp_path / "afile" / "x.retain")
+    Runtime(retain_file=tmp_path / "new" / "x.retain")
+    assert (tmp_path / "new").is_dir() and not list((tmp_path / "new").iterdir())
+    (tmp_path / "new" / "x.retain.tmp").write_text("a save cut short")  # written over later
+    Runtime(retain_file=tmp_path / "new" / "x.retain")
+    if os.geteuid() != 0:  # root may write anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o555)
+        with pytest.raises(ConfigError, match="locked/x.retain: cannot write retain file there"):
+            Runtime(retain_file=locked / "x.retain")
+
+
 def test_block_referring_back_to_its_parent(tmp_path):
     class Child(FunctionBlock):
         n = Static(0, retain=True)
