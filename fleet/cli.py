@@ -16,6 +16,7 @@ from io_drivers.modbus_server import ModbusServer
 from plc_runtime.cli import (
     EXIT_ERROR,
     CliError,
+    OneLineParser,
     add_run_options,
     one_line_warning,
     positive,
@@ -34,7 +35,7 @@ PROGRAMS = {"demo": demo_program.build}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="plc-runtime", description="A PLC-style scan-cycle runtime for AGV fleets."
     )
     sub = parser.add_subparsers(dest="command", required=True)

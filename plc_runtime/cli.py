@@ -19,7 +19,7 @@ import sys
 import time
 import unicodedata
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, NoReturn
 
 from rich.console import Console
 from rich.live import Live
@@ -27,7 +27,7 @@ from rich.table import Table
 
 from .clock import PacedClock, VirtualClock, WallClock
 from .io import IoDriver
-from .runtime import Runtime
+from .runtime import MAX_TIME, Runtime
 
 EXIT_FAULT = 1
 EXIT_ERROR = 2
@@ -53,7 +53,8 @@ def positive(kind: type, least: float | None = None, most: float | None = None) 
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+            number = "a whole number" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"not {number}: {text!r}") from None
         if not (math.isfinite(value) and value > 0):
             raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text!r}")
         if least is not None and value < least:
@@ -139,7 +140,7 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
     )
     run.add_argument(
         "--watchdog",
-        type=positive(float),
+        type=positive(float, most=MAX_TIME * 1e3),
         help="maximum cycle time in ms (default: the program's)",
     )
     run.add_argument(
@@ -193,6 +194,15 @@ def one_line(text: str, most: int | None = None) -> str:
     characters if given."""
     text = terminal_text(text).replace("\n", "\\n")
     return text if most is None or len(text) <= most else text[:most] + "..."
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line on stderr, as every other error
+    of the command line is: the message and where to find the options, not the whole usage
+    (``--help`` shows it), with what the user typed escaped."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 ProgramBuilder = Callable[..., Runtime]

@@ -653,8 +653,19 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
         (["vehicles", "--plant", "model-plant", "--period", "5"], "--period: must be at most 1"),
         (["vehicles", "--plant", "model-plant", "--duration", "1e9"], "must be at most 1e+07"),
         (["vehicles", "--plant", "model-plant", "--seed", "-1"], "--seed: must be a whole number"),
+        (["run", "--program", "demo", "--watchdog", "7e6"], "--watchdog: must be at most 6e+06"),
+        (["route", "model-plant", "--from", "0", "--to", "5", "--budget", "1.5"], "whole number"),
     ],
-    ids=["speed", "duration", "cycles", "vehicles-period", "vehicles-duration", "vehicles-seed"],
+    ids=[
+        "speed",
+        "duration",
+        "cycles",
+        "vehicles-period",
+        "vehicles-duration",
+        "vehicles-seed",
+        "watchdog-ms",
+        "budget",
+    ],
 )
 def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
     """A pace at which no cycle ends (it overflowed the sleep), a run of centuries, a
@@ -663,7 +674,22 @@ def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):
 
     with pytest.raises(SystemExit) as stop:
         main(args)
-    assert stop.value.code == 2 and message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and message in err and err.count("\n") == 1
+
+
+def test_usage_errors_are_one_line_with_what_was_typed_escaped(capsys):
+    """argparse prints the whole usage before its error; the command line's other errors are
+    one line, and so are these, with an escape sequence typed (or pasted) shown, not run."""
+    from fleet.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["run", "fleet.toml", "\x1b[2J"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert err == (
+        "plc-runtime: error: unrecognized arguments: \\x1b[2J (see plc-runtime --help)\n"
+    )
 
 
 @pytest.mark.parametrize(

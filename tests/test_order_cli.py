@@ -270,7 +270,8 @@ def test_numbers_are_read_as_order_files_read_them(capsys, option, value, wrong)
         main(["order", "add", "--url", f"http://127.0.0.1:{closed_port()}",
               *(part for pair in argv.items() for part in pair)])  # fmt: skip
     assert exc.value.code == 2
-    assert capsys.readouterr().err.splitlines()[-1].endswith(f"argument {option}: {wrong}")
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.endswith(f"argument {option}: {wrong} (see plc-runtime order add --help)")
 
 
 def test_ids_that_look_like_markup_are_shown_literally(ctl, capsys):
