@@ -181,6 +181,53 @@ at_s = 0
     assert p.orders.book.get("ok").state is OrderState.FINISHED
 
 
+def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, made):
+    """two_stage: a vehicle carries its active order and holds a next one when a blockade
+    cuts the next order's Get station off. The next order must not stay with the vehicle
+    (which would drive for a station it can never reach): it goes back to the pool, where
+    the route check reports it UNROUTABLE; the active order is delivered."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    p.orders.submit(TransportOrder("B", 29, 27))
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(
+        lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
+    )
+    links = sorted({b for (a, b) in cfg.plant.arc_index if a == 29})
+    for b in links:
+        p.blockades.block(29, b)
+    run(p, 120)
+    a, b = p.orders.book.get("A"), p.orders.book.get("B")
+    assert a.state is OrderState.FINISHED
+    assert b.state is OrderState.UNROUTABLE and "station 29" in b.reason
+    assert b.assigned is None and runner.next is None and runner.active is None
+
+
+def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, made):
+    """The dispatcher gave a next order while the charge allowed it; on the way the charge
+    reads far lower (to 8 %, below critical). Once the active order is delivered the
+    vehicle goes charging and the next order goes back to the pool, not onto an empty
+    battery."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    p.orders.submit(TransportOrder("B", 29, 27))
+    runner, agv = p.orders.runners[1], p.fleet.vehicles[1]
+    assert p.rt.run_until(
+        lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
+    )
+    agv.battery.charge_as = 0.08 * agv.battery.params.capacity_as
+    assert p.rt.run_until(lambda: runner.active is None, max_cycles=4000)
+    run(p, 60)
+    assert p.orders.book.get("A").state is OrderState.FINISHED
+    b = p.orders.book.get("B")
+    assert b.state is OrderState.DISPATCHABLE and b.assigned is None
+    assert runner.phase in ("to_charger", "charging") and runner.min_battery == 8
+
+
 def test_a_low_battery_vehicle_finishes_its_order_then_charges_and_comes_back(tmp_path, made):
     extra = "[battery]\ngood = 35\nsufficient = 36\nfull = 42\n"
     cfg = config("id,get,put\na,20,29\nb,22,27\n", tmp_path, vehicles=((1, 0),), extra=extra)

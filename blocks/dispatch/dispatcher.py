@@ -171,13 +171,18 @@ class Dispatcher(FunctionBlock):
         if not blockades_changed:
             return
         for runner in self.runners.values():
-            order = runner.active
-            if order is None or runner.current is None:
-                continue
+            self._check_active(ctx, runner)
+            self._check_next(ctx, runner)
+
+    def _check_active(self, ctx: CycleContext, runner: OrderRunner) -> None:
+        """After a blockade: an active order whose next station the vehicle can no longer
+        reach fails (load on board) or goes back to the pool (not picked up yet)."""
+        order = runner.active
+        if order is not None and runner.current is not None:
             loaded = runner.phase in ("to_put", "put_queue", "put")
             station = order.put if loaded else order.get
             if self.reach.reaches(runner.current, station):
-                continue
+                return
             if loaded:
                 self.book.transition(
                     order,
@@ -189,6 +194,20 @@ class Dispatcher(FunctionBlock):
             else:
                 runner.frozen = False  # not picked up yet: another vehicle may still get there
                 self._give_back(ctx, runner)
+
+    def _check_next(self, ctx: CycleContext, runner: OrderRunner) -> None:
+        """After a blockade: a next order the vehicle can no longer drive (from where its
+        active order ends, or from where it stands) goes back to the pool, where the route
+        check finds another vehicle for it or reports it UNROUTABLE."""
+        order = runner.next
+        if order is None or runner.current is None:
+            return
+        start = runner.active.put if runner.active is not None else runner.current
+        if self.reach.reaches(start, order.get) and self.reach.reaches(order.get, order.put):
+            return
+        runner.next, order.assigned = None, None
+        self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "cut off by a blockade")
+        self.reassigned += 1
 
     def _unroutable(self, order: TransportOrder) -> str | None:
         if not self.reach.reaches(order.get, order.put):

@@ -295,7 +295,13 @@ class OrderRunner(FunctionBlock):
         self.withdrawn(ctx)
         if self.active is None and self.next is not None:
             order, self.next = self.next, None
-            self._activate(ctx, order)
+            if self.battery is not None and not self.charging.may_take(self.battery):
+                # the charge fell faster than the dispatcher expected when it gave the order:
+                # the vehicle goes charging, and the order to whoever can drive it
+                order.assigned = None
+                self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "battery low")
+            else:
+                self._activate(ctx, order)
         if self.active is not None:
             self._drive_order(ctx)
         else:
