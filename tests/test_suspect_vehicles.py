@@ -276,3 +276,51 @@ def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program
     p.rt.run(duration=120)
     assert p.sequencers[2].stations_visited > visited
     assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+@pytest.mark.parametrize("traffic", ["reactive", "time_windows"])
+@pytest.mark.parametrize("fault", ["dead_after", "stall_after"])
+def test_a_vehicle_that_stops_for_good_mid_route_is_driven_round(traffic, fault):
+    """Vehicle 2 falls silent (stale) or stalls (fault) on its way into the middle of a
+    grid, keeping the node ahead of it; vehicle 1's shortest way crosses that node. It must
+    replan round it after its wait, not wait for ever because the node's holder is
+    "driving": one out of service makes no way, whatever it holds."""
+    from fleet_scenarios import make_config
+    from test_tw_traffic import grid_with_stations
+
+    from vehicles.fleet import Faults
+
+    plant = grid_with_stations(7, 5, set(), {(3, 0): 2, (6, 2): 3})
+    cell = {(int(n.x), int(n.y)): n.id for n in plant.nodes}
+    cfg = make_config(
+        plant,
+        {1: cell[(3, 4)], 2: cell[(0, 2)]},
+        {"a": [2], "b": [3]},
+        {2: [cell[(3, 0)]], 3: [cell[(6, 2)]]},
+        vehicle_recipes={1: ["a"], 2: ["b"]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        rounds=1,
+        traffic=traffic,
+        watchdog=10.0,
+    )
+    p = FleetProgram(cfg)
+    try:
+        p.rt.start()
+        p.rt.image.write("agv1.hold", 1)  # vehicle 1 sets off once vehicle 2 has stopped
+        stopped_at = None
+        for _ in range(round(60 / cfg.cycle_time)):
+            p.rt.step()
+            assert p.rt.state == "RUN", p.rt.fault_reason
+            if stopped_at is None and p.fleet.vehicles[2].target == cell[(3, 2)]:
+                stopped_at = p.fleet.time
+                p.fleet.faults[2] = Faults(**{fault: stopped_at})
+                p.rt.image.write("agv1.hold", 0)
+        assert stopped_at is not None
+        assert p.controls[2].state == ("stale" if fault == "dead_after" else "fault")
+        assert cell[(3, 2)] in [int(plant.ids[n]) for n in p.reservation.holds[2]]
+        assert [r.vehicle for r in p.completed] == [1]
+        assert p.monitor.head_on == 0 and p.monitor.node == 0
+    finally:
+        p.close()

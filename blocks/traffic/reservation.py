@@ -80,6 +80,9 @@ class ReservationMatrix(FunctionBlock):
         # node index -> the standing vehicle told to wait for it (set by the resolver each scan)
         self.awaited: dict[int, int] = {}
         self.moving_on: set[int] = set()  # standing vehicles told to move, waiting for the node
+        # vehicles out of service (offline, stale, fault, suspect): their holds stay, but
+        # whatever they hold, they make no way (set by each vehicle's control every scan)
+        self.out_of_service: set[int] = set()
         # single-vehicle areas: node index -> area index (NO_AREA: none; a list, as single
         # elements are read faster from it than from an array), and per area the vehicles
         # occupying it (normally at most one)
@@ -240,7 +243,11 @@ class ReservationMatrix(FunctionBlock):
         return w
 
     def making_way(self, vehicle: int) -> bool:
-        """Is ``vehicle`` driving (released beyond its node) or told to move on?"""
+        """Is ``vehicle`` driving (released beyond its node) or told to move on? Not while
+        it is out of service: one that fell silent or stalled mid-route keeps the nodes
+        ahead of it, and whoever waits for them must replan in time, not wait for ever."""
+        if vehicle in self.out_of_service:
+            return False
         return len(self.holds[vehicle]) > 1 or vehicle in self.moving_on
 
     def claim(self, vehicle: int, node: int) -> None:

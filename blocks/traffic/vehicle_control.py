@@ -65,6 +65,8 @@ from .reservation import ReservationMatrix
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
 NO_ROUTE_RETRY_NS = 1_000_000_000
 YIELD_NS = 20_000_000_000  # giving way after a back-off ends after this at the latest
+# states in which a vehicle makes no way, whatever it holds (others replan around it)
+OUT_OF_SERVICE = frozenset(("offline", "stale", "fault", "suspect"))
 RECOVER_S = 2.0  # a suspect vehicle reporting a node it holds this long returns to service
 
 
@@ -155,6 +157,13 @@ class VehicleControl(FunctionBlock):
 
     # ----- the scan ------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
+        self._scan(ctx)
+        if self.state in OUT_OF_SERVICE:
+            self.reservation.out_of_service.add(self.vehicle)
+        else:
+            self.reservation.out_of_service.discard(self.vehicle)
+
+    def _scan(self, ctx: CycleContext) -> None:
         # the record's fields as Python ints in one call (a numpy field read each costs more)
         current, reported_next, _state, _battery, _speed, flags = self.records.inputs(
             self.vehicle
