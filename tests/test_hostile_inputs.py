@@ -859,3 +859,23 @@ def test_terminal_text_escapes_only_what_could_drive_a_terminal():
     assert [terminal_text(t) for t in kept] == kept
     assert terminal_text("a\x1b[2Jb\tc") == "a\\x1b[2Jb\\tc"
     assert terminal_text("r\u202eev\u2028\udce4") == "r\\u202eev\\u2028\\udce4"
+
+
+def test_ctrl_c_while_the_command_is_still_being_imported_is_one_line(monkeypatch, capsys):
+    """Importing the command line takes a second or more: a Ctrl-C then, before any
+    command has set up its own handling, ends the command with exit code 130 and one line,
+    not a traceback. (Made deterministic: the import of fleet.cli is what is interrupted.)"""
+    import importlib.abc
+
+    from fleet import console
+
+    class Interrupted(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "fleet.cli":
+                raise KeyboardInterrupt
+            return None
+
+    monkeypatch.delitem(sys.modules, "fleet.cli", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [Interrupted(), *sys.meta_path])
+    assert console.main() == 130
+    assert capsys.readouterr().err == "plc-runtime: interrupted\n"
