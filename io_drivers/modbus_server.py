@@ -225,14 +225,26 @@ def is_loopback(host: str) -> bool:
 _CONNECTION: ContextVar[_Connection | None] = ContextVar("modbus_connection", default=None)
 
 
+# While the server starts: what pymodbus logs of a failure (why the bind failed, which its
+# exception leaves out), to be said in the one error line instead of a stray log line.
+_STARTING: ContextVar[list[str] | None] = ContextVar("modbus_starting", default=None)
+
+
 class _QuietWhileServing(logging.Filter):
     """pymodbus logs some refusals itself (an undecodable frame, a failing request), some
     with frame dumps or a traceback. While one of our connections handles a request, the
-    connection's own line replaces them. pymodbus' debug output and the logging of its
-    clients (the vehicle link) are left alone."""
+    connection's own line replaces them; while the server starts, its error does.
+    pymodbus' debug output and the logging of its clients (the vehicle link) are left
+    alone."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return record.levelno < logging.WARNING or _CONNECTION.get() is None
+        if record.levelno < logging.WARNING:
+            return True
+        starting = _STARTING.get()
+        if starting is not None:
+            starting.append(record.getMessage())
+            return False
+        return _CONNECTION.get() is None
 
 
 logging.getLogger("pymodbus.logging").addFilter(_QuietWhileServing())
@@ -733,7 +745,15 @@ class _ModbusThread:
             custom_pdu=_UNSUPPORTED_PDUS,
         )
         # background=True: returns once listening; raises RuntimeError if bind fails
-        await server.serve_forever(background=True)
+        starting: list[str] = []
+        token = _STARTING.set(starting)
+        try:
+            await server.serve_forever(background=True)
+        except RuntimeError as exc:
+            why = starting[-1].removeprefix("Failed to start server ") if starting else exc
+            raise RuntimeError(str(why)) from None
+        finally:
+            _STARTING.reset(token)
         listener = server.transport  # asyncio.Server
         self.port = listener.sockets[0].getsockname()[1]
         self._ready.set()

@@ -392,14 +392,20 @@ def test_a_failing_callback_is_one_log_line_and_exception_4(caplog):
     assert "Traceback" not in caplog.text
 
 
-def test_busy_port_is_a_clear_startup_error(served):
+def test_busy_port_is_a_clear_startup_error(served, caplog):
+    """The error says why (pymodbus' own exception does not), and nothing else is logged:
+    on the command line that is one line."""
     _rt, server, _client = served
     other = runtime()
     other.add_driver(ModbusServer(port=server.port))
     other.add_task("main", [Probe(lambda ctx: None)])
-    with pytest.raises(StartupError, match=f"Modbus server on 127.0.0.1:{server.port}"):
+    caplog.set_level(logging.WARNING)
+    with pytest.raises(
+        StartupError, match=f"Modbus server on 127.0.0.1:{server.port}: .*address already in use"
+    ):
         other.start()
     other.stop()
+    assert not [r for r in caplog.records if r.name.startswith("pymodbus")]
 
 
 # ----- connections ------------------------------------------------------------------------
