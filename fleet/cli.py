@@ -107,7 +107,7 @@ def _run(args: argparse.Namespace) -> int:
         raise CliError(f"--web serves the fleet program's API and page, not {args.program!r}")
     given = [
         "--" + name.replace("_", "-")
-        for name in ("traffic", "dispatch", "vehicles_count")
+        for name in ("traffic", "dispatch", "vehicles_count", "out")
         if getattr(args, name) is not None
     ]
     if given:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
+from io_drivers.can_bus import interface_problem
 from io_drivers.protocol import MAX_NODE_ID
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
@@ -170,6 +171,11 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         raise ConfigError(f"{source}: {exc}") from None
     except RecursionError:
         raise ConfigError(f"{source}: nested too deeply") from None
+    if "plant" not in doc and {"nodes", "edges"} & doc.keys():
+        raise ConfigError(
+            f"{source}: a plant file, not a fleet configuration; a configuration names it: "
+            '[plant] file = "..." (docs/fleet-config.md)'
+        )
     top = TableReader(source, doc, "")
     plant = _plant(TableReader(source, top.get("plant", dict), "plant."), base or Path("."))
     runtime = TableReader(source, top.get("runtime", dict, {}), "runtime.")
@@ -259,6 +265,8 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
             modbus_endpoint(cfg.bus_channel)
         except ConfigError as exc:
             raise bus.fail("channel", str(exc)) from None
+    elif (problem := interface_problem(cfg.bus_interface)) is not None:
+        raise bus.fail("interface", f"{problem}, or modbus")
     problems = standing_steps(cfg)
     if problems:
         raise ConfigError(f"{source}: vehicles: {problems[0]}")

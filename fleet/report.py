@@ -11,11 +11,12 @@ removed.
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import os
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
@@ -245,26 +246,47 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
 
 EVENTS_IN_SUMMARY = 200  # the newest events; event_counts counts them all
 OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png", "orders.csv")
+LOCK_FILE = ".plc-runtime.lock"
 
 
-def check_out_dir(out_dir: Path) -> None:
-    """Make sure the results can be written before a run starts, not after it finished.
+def claim_out_dir(out_dir: Path) -> IO[bytes]:
+    """Make sure the results can be written before a run starts, not after it finished,
+    and that no other run writes its results into the same folder meanwhile (one run's
+    summary beside another's drawing would describe neither).
 
-    Creates the folder and tries a file in it; an existing output file that is not a
-    writable file (a folder of that name, no permission) is refused too."""
+    Creates the folder and takes an exclusive lock on a file in it, ``.plc-runtime.lock``,
+    held until :func:`release_out_dir` (or, however the process ends, until it ends); an
+    existing output file that is not a writable file (a folder of that name, no
+    permission) is refused too."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"--out {out_dir}: a file, not a folder")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / ".plc-runtime-write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
+        lock = open(out_dir / LOCK_FILE, "ab")  # held for the whole run
     except OSError as exc:
         raise ConfigError(
             f"--out {out_dir}: cannot write results there: {exc.strerror or exc}"
         ) from None
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ConfigError(
+            f"--out {out_dir}: another run is writing its results there; give another folder"
+        ) from None
     for name in OUTPUT_FILES:
         path = out_dir / name
         if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
+            lock.close()
             raise ConfigError(f"--out {out_dir}: {name} exists and cannot be overwritten")
+    return lock
+
+
+def release_out_dir(lock: IO[bytes]) -> None:
+    """The results are written: the lock file goes (a run leaves only its results behind),
+    then the lock."""
+    Path(lock.name).unlink(missing_ok=True)
+    lock.close()
 
 
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:
@@ -282,6 +304,8 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
     write_csv(program, files["recipes"])
     if program.orders is not None:
         files["orders"] = write_orders_csv(program.orders, out_dir / "orders.csv")
+    else:  # an earlier run's orders beside this run's data would seem to be this run's
+        (out_dir / "orders.csv").unlink(missing_ok=True)
     _write_summary(result, files)
     routes = out_dir / "routes.png"
     try:

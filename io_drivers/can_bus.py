@@ -29,6 +29,15 @@ def frames_carried(seconds: float) -> int:
     return max(MIN_FRAMES_PER_READ, math.ceil(seconds * CAN_FRAMES_PER_S))
 
 
+def interface_problem(interface: str) -> str | None:
+    """Why ``interface`` is no python-can interface, or None: a typo is told at once, with
+    the names that exist, not as a failure to open it once the run is set up."""
+    if interface in can.interfaces.VALID_INTERFACES:
+        return None
+    known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+    return f"unknown CAN interface {interface!r} (python-can has: {known})"
+
+
 class BusOpenError(ValueError):
     """The bus could not be opened; the message names interface, channel and cause."""
 

@@ -116,6 +116,75 @@ def test_a_configuration_saved_with_a_byte_order_mark_loads(tmp_path):
         load_config(path)
 
 
+def test_an_output_folder_holds_one_runs_results(tmp_path, capsys):
+    """Another run writing into the same folder is refused before anything runs, and an
+    earlier run's orders.csv does not stay beside the results of a run without orders."""
+    import fcntl
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "orders.csv").write_text("id,get,put\nfrom-an-earlier-run,20,21\n")
+    with open(out / ".plc-runtime.lock", "ab") as other:  # another run, holding the lock
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert main(["run", "--cycles", "10", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err == (
+            f"plc-runtime: error: --out {out}: another run is writing its results there; "
+            "give another folder\n"
+        )
+        assert (out / "orders.csv").exists()  # refused: nothing touched
+    assert main(["run", "--cycles", "10", "--json", "--out", str(out)]) == 0
+    assert "orders" not in json.loads(capsys.readouterr().out)["files"]
+    assert not (out / "orders.csv").exists()
+    assert main(["run", "--cycles", "10", "--out", str(out)]) == 0  # the lock was let go
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--bus", "bogus:x"], "--bus 'bogus:x': unknown CAN interface 'bogus' (python"),
+        (["run", "--dispatch", "dhht"], "--dispatch: default.toml has no vehicles taking"),
+        (["run", "--program", "demo", "--out", "o"], "--out: for the fleet program, not 'demo'"),
+        (["run", "PLANT"], "a plant file, not a fleet configuration; a configuration names"),
+        (["tags", "PLANT"], "a plant file, not a fleet configuration; a configuration names"),
+        (["plant", "show", "CONFIG"], "(this looks like a fleet configuration: its plant is"),
+        (["plant", "validate", "."], ": a folder, not a plant file"),
+        (["run", "--out", "FILE"], "a file, not a folder"),
+        (["vehicles", "--plant", "model-plant", "--bus", "vcan:0"], "unknown CAN interface"),
+    ],
+    ids=[
+        "bus",
+        "dispatch",
+        "demo-out",
+        "run-plant",
+        "tags-plant",
+        "show-config",
+        "dir",
+        "out",
+        "vehicles-bus",
+    ],  # fmt: skip
+)
+def test_mistaken_inputs_are_named_for_what_they_are(args, message, tmp_path, capsys):
+    """A plant where a configuration belongs (and the other way round), a folder for a
+    file, an interface python-can does not have, an option that would be ignored: one
+    line that says what it is."""
+    examples = DEFAULT_CONFIG.parent.parent / "examples"
+    (tmp_path / "FILE").write_text("")
+    known = {"PLANT": examples / "plants" / "workshop.toml", "CONFIG": DEFAULT_CONFIG}
+    args = [str(known.get(a, tmp_path / a if a in ("FILE", ".") else a)) for a in args]
+    assert main([*args, *(["--cycles", "1"] if args[0] == "run" else [])]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+
+
+def test_an_empty_token_is_named_empty(monkeypatch, capsys):
+    monkeypatch.setenv("PLC_RUNTIME_TOKEN", "")
+    assert main(["run", "--web", "127.0.0.1:0", "--cycles", "1"]) == 2
+    assert capsys.readouterr().err == (
+        "plc-runtime: error: PLC_RUNTIME_TOKEN is empty: give a token, or unset it for a new one\n"
+    )
+
+
 def test_two_vehicles_starting_in_one_single_vehicle_area_are_refused(tmp_path):
     examples = DEFAULT_CONFIG.parent.parent / "examples"
     plant = (examples / "plants" / "distribution-centre.toml").resolve()

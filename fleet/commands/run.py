@@ -36,6 +36,7 @@ from typing import Any
 from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
+from io_drivers.can_bus import interface_problem
 from plc_runtime.cli import CliError, drive, duration_cycles
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
@@ -54,10 +55,11 @@ from ..config import (
 )
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
-from ..report import check_out_dir, summary, write_all
+from ..report import claim_out_dir, release_out_dir, summary, write_all
 from ..web import options as web
 
 VEHICLES_READY_TIMEOUT = 20.0
+DEFAULT_OUT = "out"
 
 
 class FleetRunError(ConfigError):
@@ -77,7 +79,9 @@ class Setup:
 def add_options(run: argparse.ArgumentParser) -> None:
     """The fleet's own options of ``run``."""
     run.add_argument(
-        "--out", default="out", help="fleet: folder for summary.json, recipes.csv, routes.png"
+        "--out",
+        help="fleet: folder for summary.json, recipes.csv, routes.png and orders.csv "
+        "(default: out)",
     )
     run.add_argument(
         "--bus",
@@ -130,6 +134,11 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     if args.traffic is not None:
         cfg.traffic = args.traffic
     if args.dispatch is not None:
+        if not cfg.order_vehicles:
+            raise CliError(
+                f"--dispatch: {cfg.source} has no vehicles taking transport orders "
+                "(docs/fleet-config.md, Transport orders)"
+            )
         cfg.dispatch.strategy = args.dispatch
     if args.vehicles_count is not None:
         first_vehicles(cfg, args.vehicles_count)
@@ -154,8 +163,8 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         raise CliError(
             f"--retain {args.retain}: that is the configuration file; name a file of its own"
         )
-    out = Path(args.out)
-    check_out_dir(out)
+    out = Path(args.out if args.out is not None else DEFAULT_OUT)
+    out_lock = claim_out_dir(out)
     broken = liveness.violations(cfg)
     if broken:
         warnings.warn(
@@ -222,6 +231,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         result["conflict_monitor"] = "simulated positions, in the vehicles' process"
         result["faults"]["injected"] = monitor.get("faults_injected")
     write_all(program, out, result)
+    release_out_dir(out_lock)
     if args.json:
         print(json.dumps(result))
     else:
@@ -285,6 +295,8 @@ def parse_bus(spec: str) -> tuple[str, str]:
         raise FleetRunError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
     if interface == MODBUS:
         modbus_endpoint(channel)
+    elif (problem := interface_problem(interface)) is not None:
+        raise FleetRunError(f"--bus {spec!r}: {problem}, or modbus")
     return interface, channel
 
 

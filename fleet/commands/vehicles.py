@@ -87,12 +87,16 @@ def check_writable(name: str) -> None:
 
 
 def parse_link(spec: str) -> tuple[str, str]:
+    from io_drivers.can_bus import interface_problem
     from vehicles.runner import parse_bus
 
     try:
-        return parse_bus(spec)
+        interface, channel = parse_bus(spec)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+    if interface != MODBUS and (problem := interface_problem(interface)) is not None:
+        raise ConfigError(f"--bus {spec!r}: {problem}, or modbus")
+    return interface, channel
 
 
 def shared_link(

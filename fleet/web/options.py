@@ -76,6 +76,8 @@ def web_options(args: argparse.Namespace, cfg: FleetConfig) -> WebOptions | None
         token, where = os.environ.get(TOKEN_ENV), TOKEN_ENV
     if token is None:
         return WebOptions(host, port, new_token(), True)
+    if not token:
+        raise CliError(f"{where} is empty: give a token, or unset it for a new one")
     counted = len(token.rstrip("="))  # padding adds nothing to guess
     if counted < MIN_TOKEN_CHARS or not bearer_token(token):
         raise CliError(

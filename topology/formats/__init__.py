@@ -20,6 +20,8 @@ LOADERS = {".toml": load_toml, ".json": load_json, ".nodes": load_nodes}
 def load(path: str | Path, cell_size: float = 1.0) -> Plant:
     """Load a plant file of any supported format; TopologyError naming the file on any problem."""
     path = Path(path)
+    if path.is_dir():
+        raise TopologyError("a folder, not a plant file", str(path))
     suffix = path.suffix.lower()
     if suffix == ".map":
         return load_map(path, cell_size)

@@ -218,9 +218,17 @@ def from_dict(data: Any, source: str) -> Plant:
         raise TopologyError("expected a table/object with 'nodes' and 'edges'", source)
     unknown = set(data) - TOP_KEYS
     if unknown:
-        raise TopologyError(f"unknown top-level key(s): {_key_list(unknown)}", source)
+        hint = (
+            " (this looks like a fleet configuration: its plant is the file or sample its "
+            "[plant] table names)"
+            if "plant" in unknown
+            else ""
+        )
+        raise TopologyError(f"unknown top-level key(s): {_key_list(unknown)}{hint}", source)
     for key in ("nodes", "edges"):
-        if not isinstance(data.get(key), list):
+        if key not in data:
+            raise TopologyError(f"missing: a plant needs [[{key}]] tables", source, key)
+        if not isinstance(data[key], list):
             raise TopologyError(f"'{key}' must be a list of tables", source, key)
     name = _typed(data.get("name", Path(source).stem), str, "name", source, "name")
     functions: dict[int, str] = {}
