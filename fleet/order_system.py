@@ -5,7 +5,11 @@ Orders come from the configuration's order file and the seed's generator (each r
 ``lead_s`` before its start, as the seed's warehouse system does), and at run time from
 :meth:`OrderSystem.submit` / :meth:`OrderSystem.withdraw`: any thread may call them; the
 change is applied at the next scan, between two scans' blocks, so it never races the
-program, and a bad order is refused with the book's error and changes nothing.
+program, and a bad order is refused with the book's error and changes nothing. Nothing
+of the caller's is kept: a submitted order is copied into built-in values when it is
+submitted, and the Future ends with a copy of the book's order, so no caller can change
+the book behind the scan's back. Whatever a request raises while it is taken in is that
+request's answer, never a fault of the scan.
 
 The intake's work per scan is bounded (a scan has a watchdog): an order file of 100,000
 orders due at once is released ``RELEASE_BUDGET`` orders a scan, in the feed's order.
@@ -23,7 +27,15 @@ from blocks.dispatch.estimates import SectionEstimates
 from blocks.dispatch.executor import Claims, OrderRunner, area_entries
 from blocks.dispatch.generator import OrderFeed, generate_orders
 from blocks.dispatch.order_file import load_orders
-from blocks.dispatch.orders import OrderBook, OrderError, TransportOrder, check_order
+from blocks.dispatch.orders import (
+    OrderBook,
+    OrderError,
+    TransportOrder,
+    check_order,
+    order_copy,
+    plain_order,
+    plain_value,
+)
 from blocks.dispatch.reachability import Reachability
 from blocks.dispatch.station_schedule import StationSchedule
 from blocks.routing.constraints import RoutingConstraints
@@ -126,14 +138,17 @@ class OrderIntake(FunctionBlock):
                 action, arg, done = self.requests.get_nowait()
             except queue.Empty:
                 return
+            if not done.set_running_or_notify_cancel():
+                continue  # the caller cancelled it before this scan: it is never applied
             try:
                 result = (
                     self._add(arg, ctx.time) if action == "add" else self._withdraw(arg, ctx.time)
                 )
-            except OrderError as exc:
+                answer = order_copy(result)
+            except Exception as exc:  # whatever the request raised is its answer, not a fault
                 done.set_exception(exc)
             else:
-                done.set_result(result)
+                done.set_result(answer)
 
     def _add(self, order: TransportOrder, now_s: float) -> TransportOrder:
         check_order(order)  # first: whatever came from outside, only OrderError from here on
@@ -144,7 +159,9 @@ class OrderIntake(FunctionBlock):
     def _withdraw(self, order_id: str, now_s: float) -> TransportOrder:
         """Withdraw an order of the book, or a configured one not released yet: that one
         goes in the book WITHDRAWN (its history says when), and is never released."""
-        if isinstance(order_id, str) and order_id in self.pending:
+        if not isinstance(order_id, str):  # never an id: not hashed, it may not be hashable
+            raise OrderError(order_id, "id", "no such order")
+        if order_id in self.pending:
             order = self.pending.pop(order_id)
             return self.book.add(_fresh(order), now_s, withdrawn="withdrawn")
         return self.book.withdraw(order_id, now_s)
@@ -212,17 +229,30 @@ class OrderSystem:
 
     # ----- the entry point for operators and scripts -------------------------------------------
     def submit(self, order: TransportOrder) -> Future:
-        """Queue ``order`` for the book; the Future ends with the order, or the OrderError
-        that refused it (anything that is not a good order), after the next scan."""
-        return self._request("add", order)
+        """Queue a copy of ``order`` for the book; the Future ends with a copy of the order
+        as the book took it, or the OrderError that refused it (anything that is not a good
+        order), after the next scan. The copy is made here, in the caller's thread: changing
+        ``order`` afterwards changes nothing, and a value that cannot be copied costs the
+        caller, not the scan (its Future ends at once with the error)."""
+        try:
+            plain = plain_order(order)
+        except Exception as exc:
+            return _answered(exc)
+        return self._request("add", plain)
 
     def withdraw(self, order_id: str) -> Future:
         """Queue the withdrawal of an open order, or of a configured one not released yet;
-        the Future ends with the order, now WITHDRAWN, or the OrderError that refused it
-        (no such order, or the order is final)."""
-        return self._request("withdraw", order_id)
+        the Future ends with a copy of the order, now WITHDRAWN, or the OrderError that
+        refused it (no such order, or the order is final)."""
+        try:
+            plain = plain_value(order_id)
+        except Exception as exc:
+            return _answered(exc)
+        return self._request("withdraw", plain)
 
     def _request(self, action: str, arg: object) -> Future:
+        """A Future the intake ends; cancelled before the intake takes it, it is never
+        applied."""
         done: Future = Future()
         self.intake.requests.put((action, arg, done))
         return done
@@ -233,6 +263,13 @@ class OrderSystem:
 
     def counts(self) -> Mapping[str, int]:
         return self.book.counts()
+
+
+def _answered(exc: Exception) -> Future:
+    """A Future that has ended with ``exc``."""
+    done: Future = Future()
+    done.set_exception(exc)
+    return done
 
 
 def targets(plant: Plant) -> list[int]:

@@ -2,7 +2,10 @@
 submitted, the Future gets the answer and the scan goes on; a large order file is released a
 bounded number of orders per scan, in its order, and a blockade over it is checked a bounded
 number per scan; an order for a vehicle that runs recipes is refused; a configured order not
-released yet can be withdrawn."""
+released yet can be withdrawn. The book keeps a copy of a submitted order in built-in
+values (a subclass of str, int or float, or a change the caller makes afterwards, reaches no
+block), and a request that raises, or was cancelled, is answered without faulting the
+scan."""
 
 from __future__ import annotations
 
@@ -100,7 +103,8 @@ def test_a_configured_order_not_released_yet_can_be_withdrawn(tmp_path, made):
         "withdrawn",
         [(now, OrderState.RAW), (now, OrderState.WITHDRAWN)],
     )
-    assert p.orders.book.get("later") is order and 2.0 <= now < 10.0
+    stored = p.orders.book.get("later")
+    assert stored is not order and stored.history == order.history and 2.0 <= now < 10.0
     again = p.orders.withdraw("later")
     reuse = p.orders.submit(TransportOrder("later", 21, 25))
     run(p, 0.1)
@@ -113,8 +117,8 @@ def test_a_configured_order_not_released_yet_can_be_withdrawn(tmp_path, made):
     with pytest.raises(OrderError, match="already used by an order that is WITHDRAWN"):
         reuse.result(0)
     run(p, 80)  # well past its release at 10 s: never released, never taken
-    assert ids(p.orders.book) == ["later"] and order.state is OrderState.WITHDRAWN
-    assert len(order.history) == 2 and order.assigned is None
+    assert ids(p.orders.book) == ["later"] and stored.state is OrderState.WITHDRAWN
+    assert len(stored.history) == 2 and stored.assigned is None
     assert p.orders.book.counts()["WITHDRAWN"] == 1
 
 
@@ -189,3 +193,141 @@ def test_a_blockade_over_a_large_backlog_is_checked_a_budget_a_scan_and_gives_ou
         run(p, p.cfg.cycle_time)
         assert book.counts()["UNROUTABLE"] - before <= budget, scan
     assert {o.id for o in book if o.state is OrderState.UNROUTABLE} == cut
+
+
+class HashFails(str):
+    """A str whose hash raises: the book's dict would call it in the scan."""
+
+    def __hash__(self) -> int:
+        raise RuntimeError("hash")
+
+
+class PrintableFails(str):
+    def isprintable(self) -> bool:
+        raise RuntimeError("isprintable")
+
+
+class IntHashFails(int):
+    def __hash__(self) -> int:
+        raise RuntimeError("hash")
+
+
+class Incomparable(float):
+    """Passes check_order (it reads float(value)) but no block can compare it."""
+
+    def _fails(self, other: object) -> bool:
+        raise RuntimeError("compare")
+
+    __lt__ = __le__ = __gt__ = __ge__ = _fails
+
+
+class StateFails(TransportOrder):
+    @property
+    def state(self) -> OrderState:
+        raise RuntimeError("state")
+
+    @state.setter
+    def state(self, value: OrderState) -> None:
+        pass
+
+
+class Unhashable:
+    def __hash__(self) -> int:
+        raise RuntimeError("hash")
+
+
+@pytest.mark.parametrize(
+    "order",
+    [
+        TransportOrder(HashFails("s1"), 20, 25),
+        TransportOrder(PrintableFails("s2"), 20, 25),
+        TransportOrder("s3", IntHashFails(20), 25),
+        TransportOrder("s4", 20, 25, start_s=Incomparable(1.0)),
+        TransportOrder("s5", 20, 25, end_s=Incomparable(900.0), priority=IntHashFails(2)),
+        TransportOrder("s6", 20, 25, vehicle=IntHashFails(2)),
+    ],
+    ids=["id-hash", "id-isprintable", "get-hash", "start-compare", "end-priority", "vehicle"],
+)
+def test_a_subclass_of_a_builtin_is_stored_as_the_builtin_and_the_scan_goes_on(
+    order, tmp_path, made
+):
+    p = start(config(LATER, tmp_path), made)
+    taken = p.orders.submit(order)
+    run(p, 30)  # released, dispatched and driven: the blocks hash and compare what is stored
+    oid = str.__str__(order.id)
+    stored = p.orders.book.get(oid)
+    assert taken.result(0).id == oid
+    for name in ("id", "get", "put", "start_s", "end_s", "priority", "vehicle"):
+        assert type(getattr(stored, name)) in (str, int, float, type(None)), name
+
+
+def test_an_order_whose_field_cannot_be_read_is_refused_naming_it(tmp_path, made):
+    p = start(config(LATER, tmp_path), made)
+    refused = p.orders.submit(StateFails("odd", 20, 25))
+    good = p.orders.submit(TransportOrder("good", 20, 25))
+    run(p, 0.1)
+    with pytest.raises(OrderError) as err:
+        refused.result(0)
+    assert str(err.value) == "order 'odd': field 'state': cannot be read (RuntimeError)"
+    assert good.result(0).id == "good" and ids(p.orders.book) == ["good"]
+
+
+def test_a_withdrawal_of_an_odd_id_is_answered_and_the_scan_goes_on(tmp_path, made):
+    p = start(config(LATER, tmp_path), made)
+    p.orders.submit(TransportOrder("w1", 20, 25))
+    run(p, 0.1)
+    unhashable = p.orders.withdraw(Unhashable())
+    subclass = p.orders.withdraw(HashFails("w1"))
+    run(p, 0.1)
+    with pytest.raises(OrderError, match="field 'id': no such order"):
+        unhashable.result(0)
+    assert subclass.result(0).state is OrderState.WITHDRAWN
+    assert p.orders.book.get("w1").state is OrderState.WITHDRAWN
+
+
+def test_the_caller_cannot_change_an_order_it_submitted(tmp_path, made):
+    p = start(config(LATER, tmp_path), made)
+    mine = TransportOrder("mine", 21, 23, start_s=1000.0)  # waits in the book a while
+    taken = p.orders.submit(mine)
+    mine.put = 99999  # before the scan took it in
+    run(p, 0.1)
+    answer = taken.result(0)
+    mine.get, mine.start_s = 99998, math.nan
+    answer.get = 99997  # the answer is a copy too
+    answer.history.clear()
+    run(p, 5)  # the dispatcher reads the stored order every round
+    stored = p.orders.book.get("mine")
+    assert stored is not mine and stored is not answer
+    assert (stored.get, stored.put, stored.start_s) == (21, 23, 1000.0)
+    assert [state for _, state in stored.history] == [OrderState.RAW, OrderState.DISPATCHABLE]
+
+
+def test_a_request_that_raises_gets_its_error_and_the_next_one_is_taken(
+    tmp_path, made, monkeypatch
+):
+    p = start(config(LATER, tmp_path), made)
+    book = p.orders.book
+    add = book.add
+
+    def add_or_fail(order, now_s, withdrawn=None):
+        if order.id == "fails":
+            raise RuntimeError("a fault in the book")
+        return add(order, now_s, withdrawn)
+
+    monkeypatch.setattr(book, "add", add_or_fail)
+    failing = p.orders.submit(TransportOrder("fails", 20, 25))
+    good = p.orders.submit(TransportOrder("good", 20, 25))
+    run(p, 0.1)
+    with pytest.raises(RuntimeError, match="a fault in the book"):
+        failing.result(0)
+    assert good.result(0).id == "good" and ids(book) == ["good"]
+
+
+def test_a_request_cancelled_before_the_scan_took_it_is_never_applied(tmp_path, made):
+    p = start(config(LATER, tmp_path), made)
+    given_up = p.orders.submit(TransportOrder("given-up", 20, 25))
+    assert given_up.cancel()
+    kept = p.orders.submit(TransportOrder("kept", 20, 25))
+    run(p, 0.1)
+    assert kept.result(0).id == "kept" and ids(p.orders.book) == ["kept"]
+    assert not kept.cancel()  # decided: too late to cancel

@@ -84,6 +84,22 @@ TRANSITIONS: dict[OrderState, frozenset[OrderState]] = {
     **{state: frozenset() for state in FINAL_STATES},
 }
 
+# the fields an order from outside sets: what it asks for, and the run-time fields that must
+# be fresh (``reason`` is the book's to set)
+NEW_ORDER_FIELDS = (
+    "id",
+    "get",
+    "put",
+    "start_s",
+    "end_s",
+    "priority",
+    "vehicle",
+    "state",
+    "history",
+    "sections",
+    "assigned",
+)
+
 SECTIONS = ("Go_To_Cluster", "Go_To_Get", "Get_Queue", "Get", "Go_To_Put", "Put_Queue", "Put")
 LOADING = SECTIONS.index("Get")  # from this section on the load is the vehicle's
 
@@ -177,6 +193,70 @@ def check_order(order: object) -> None:
         raise OrderError(oid, "state", f"a new order must be RAW and unused, it is {what}")
 
 
+def plain_order(order: object) -> TransportOrder:
+    """A new TransportOrder holding ``order``'s fields as built-in values, for an order from
+    outside the scan (not yet checked: ``check_order`` refuses what is wrong with it).
+
+    The book keeps the copy, so the caller cannot change a stored order afterwards (the
+    scan's blocks trust a stored order's stations and times). A subclass of str, int or
+    float becomes that built-in type: one may redefine hashing, comparing or
+    ``isprintable``, which the book and the dispatcher call in the scan. A field that
+    cannot be read (a subclass's property raising) is an OrderError naming it."""
+    if not isinstance(order, TransportOrder):
+        raise OrderError(None, "order", f"must be a TransportOrder, got {type(order).__name__}")
+    values: dict[str, object] = {}
+    for name in NEW_ORDER_FIELDS:
+        try:
+            value = getattr(order, name)
+        except Exception as exc:
+            raise OrderError(
+                values.get("id"), name, f"cannot be read ({type(exc).__name__})"
+            ) from None
+        # the run-time fields only have to be fresh: a copy of an empty list or dict is
+        # empty, a non-empty one or another type is refused by check_order as it is
+        if name == "history" and type(value) is list:
+            value = list(value)
+        elif name == "sections" and type(value) is dict:
+            value = dict(value)
+        elif name != "state":  # an OrderState stays one (check_order compares identity)
+            value = plain_value(value)
+        values[name] = value
+    return TransportOrder(**values)  # type: ignore[arg-type]
+
+
+def plain_value(value: object) -> object:
+    """``value`` as the built-in type if it is an instance of a subclass of str, int or
+    float (whose methods it may redefine); anything else as it is, a bool included."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str):
+        return str.__str__(value)  # the base class's own copy, whatever the subclass defines
+    if isinstance(value, int):
+        return int.__int__(value)
+    if isinstance(value, float):
+        return float.__float__(value)
+    return value
+
+
+def order_copy(order: TransportOrder) -> TransportOrder:
+    """A copy of a stored order as it is now, sharing nothing that changes: what an order
+    handed out of the scan is, so nobody outside can change the book through it."""
+    return TransportOrder(
+        order.id,
+        order.get,
+        order.put,
+        order.start_s,
+        order.end_s,
+        order.priority,
+        order.vehicle,
+        order.state,
+        list(order.history),
+        {name: list(times) for name, times in order.sections.items()},
+        order.assigned,
+        order.reason,
+    )
+
+
 class OrderBook:
     """The pool of orders of a run, open and final: the dispatcher takes orders from it, the
     executors record their progress in it, reports read it.
@@ -199,6 +279,9 @@ class OrderBook:
         self.vehicles = None if vehicles is None else frozenset(vehicles)
         self.recipe_vehicles = frozenset(recipe_vehicles)
         self._orders: dict[str, TransportOrder] = {}
+        # the same orders in the order added: orders never leave the book, so an order's
+        # position never changes and a page of the book is a slice of this list
+        self._added: list[TransportOrder] = []
         # the DISPATCHABLE ones, in the order added: a scan asks for them every cycle, and a
         # long run's book is mostly final orders
         self._dispatchable: dict[str, TransportOrder] = {}
@@ -237,6 +320,7 @@ class OrderBook:
             )
         _check_time(order, now_s)
         self._orders[oid] = order
+        self._added.append(order)
         self._counts[order.state.value] += 1
         order.history.append((now_s, OrderState.RAW))
         if withdrawn is None:
@@ -271,6 +355,14 @@ class OrderBook:
 
     def __len__(self) -> int:
         return len(self._orders)
+
+    def page(self, offset: int, limit: int) -> list[TransportOrder]:
+        """Orders ``offset`` .. ``offset + limit - 1`` in the order added (fewer at the end).
+        A slice: it costs the orders it holds, not the offset, so a page deep in a long run's
+        book costs a scan no more than the first one."""
+        if offset < 0 or limit < 0:
+            raise ValueError(f"a page needs offset >= 0 and limit >= 0, got {offset}, {limit}")
+        return self._added[offset : offset + limit]
 
     def dispatchable(self) -> list[TransportOrder]:
         """Orders waiting for a vehicle: DISPATCHABLE and not assigned, in the order they

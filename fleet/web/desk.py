@@ -20,12 +20,12 @@ client that got an error knows that nothing changed.
 
 The work per quiet point is bounded: requests are answered in arrival order until
 ``budget`` orders have been copied (at least one request per tick), the rest wait for the
-next tick; a page of the list holds at most ``MAX_PAGE`` orders.
+next tick; a page of the list holds at most ``MAX_PAGE`` orders and costs only those,
+whatever its offset (a page is a slice of the book, not a walk to the offset).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 import queue
 import threading
@@ -186,7 +186,14 @@ class OrderDesk(Desk):
 
     # ----- the HTTP side (any thread) -----------------------------------------------------
     def ask_page(self, offset: int, limit: int) -> Future:
-        """Orders ``offset`` .. ``offset + limit - 1`` (``limit`` at most MAX_PAGE)."""
+        """Orders ``offset`` .. ``offset + limit - 1``. ValueError at once for an offset
+        outside 0 .. MAX_OFFSET or a limit outside 1 .. MAX_PAGE: a page's work in the
+        scan is bounded by MAX_PAGE orders."""
+        if not (0 <= offset <= MAX_OFFSET and 1 <= limit <= MAX_PAGE):
+            raise ValueError(
+                f"a page needs 0 <= offset <= {MAX_OFFSET} and 1 <= limit <= {MAX_PAGE},"
+                f" got offset {offset}, limit {limit}"
+            )
         return self._ask(lambda done: self._page(done, offset, limit))
 
     def ask_order(self, order_id: str) -> Future:
@@ -200,9 +207,10 @@ class OrderDesk(Desk):
 
     # ----- the scan side ------------------------------------------------------------------
     def _page(self, done: Future, offset: int, limit: int) -> int:
-        orders = tuple(
-            OrderView.of(o) for o in itertools.islice(self._book, offset, offset + limit)
-        )
+        """The page is a slice of the book (``OrderBook.page``), so its work is the orders
+        it copies whatever the offset, and that is what it costs the budget (an empty page
+        beyond the end costs one, as any request)."""
+        orders = tuple(OrderView.of(o) for o in self._book.page(offset, limit))
         done.set_result(Page(len(self._book), offset, orders))
         return max(1, len(orders))
 
