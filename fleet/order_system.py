@@ -220,6 +220,7 @@ class OrderSystem:
                 put_s=d.put_s,
                 park=d.park,
                 on_section=self.dispatcher.section_done,
+                out_of_service_s=d.out_of_service_s,
             )
 
     def distance(self, a: int, b: int) -> float:

@@ -55,6 +55,7 @@ class DispatchConfig:
     mean_speed: float = 1.0
     park: bool = True
     capacity_per_h: float = 60.0
+    out_of_service_s: float = 60.0
 
 
 @dataclass
@@ -175,6 +176,7 @@ def parse_dispatch(r: TableReader) -> DispatchConfig:
         mean_speed=r.number("mean_speed", 1.0, 0.01, 100.0),
         park=r.get("park", bool, True),
         capacity_per_h=r.number("capacity_per_h", 60.0, 0.001, 1e6),
+        out_of_service_s=r.number("out_of_service_s", 60.0, 0.0, 86400.0),
     )
     if cfg.strategy not in STRATEGIES:
         raise r.fail("strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}")

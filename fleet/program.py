@@ -39,7 +39,7 @@ from blocks.traffic.records import (
 from blocks.traffic.reservation import ReservationMatrix
 from blocks.traffic.sipp import TurnTimes
 from blocks.traffic.tw_traffic import TimeWindowTraffic
-from blocks.traffic.vehicle_control import VehicleControl
+from blocks.traffic.vehicle_control import OUT_OF_SERVICE, VehicleControl
 from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
@@ -111,6 +111,7 @@ class FleetCycle(FunctionBlock):
                     arrived=control.arrived,
                     current=control.current,
                     battery=self.battery(control.vehicle),
+                    in_service=control.state not in OUT_OF_SERVICE,
                 )
             else:
                 seq(ctx, arrived=control.arrived, current=control.current)
@@ -384,18 +385,16 @@ class FleetProgram:
         """May the dispatcher give this vehicle an order? Not while it is offline, stale,
         faulty, suspect or held by an operator."""
         state = self.controls[vehicle].state
-        return state not in ("offline", "stale", "fault", "suspect") and (
-            vehicle not in self.commands.held
-        )
+        return state not in OUT_OF_SERVICE and vehicle not in self.commands.held
 
     def _battery(self, vehicle: int) -> int | None:
         """The vehicle's charge in %, None until its first info frame."""
         battery = int(self.records.inputs(vehicle)["battery"])
         return None if battery == BATTERY_UNKNOWN else battery
 
-    def _occupied(self, node: int, vehicle: int) -> bool:
-        """Whether a vehicle other than ``vehicle`` holds ``node``, or is in its area."""
-        return self.reservation.blocker(vehicle, self.cfg.plant.index[node]) is not None
+    def _occupied(self, node: int, vehicle: int) -> int | None:
+        """The vehicle other than ``vehicle`` that holds ``node`` or is in its area, if any."""
+        return self.reservation.blocker(vehicle, self.cfg.plant.index[node])
 
     def _taken_by_other(self, vehicle: int):
         def taken(station: int) -> bool:

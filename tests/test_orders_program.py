@@ -5,6 +5,7 @@ and the independent monitor counts no conflict."""
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -99,6 +100,27 @@ def test_every_order_runs_its_life_cycle_and_sections_with_each_strategy(
     monkeypatch.setattr("topology.draw.draw", lambda plant, path, **kw: drawn.append(kw) or path)
     write_drawing(p, tmp_path / "routes.png")
     assert drawn[0]["title"] == "workshop: 3 AGVs, 5 orders in 240 s"
+
+
+def test_no_scan_walks_the_whole_order_book(tmp_path, made, monkeypatch):
+    """A long run's book holds every order it ever had (a million, mostly final): the scan
+    looks at the orders that changed, never at all of them. dhht counts each Get station's
+    orders as they come, and its rates are the book's all the same."""
+    from blocks.dispatch.orders import OrderBook
+
+    cfg = config(ORDERS, tmp_path)
+    cfg.dispatch.strategy = "dhht"
+    p = start(cfg, made)
+
+    def walked(_book):
+        raise AssertionError("a scan walked the whole order book")
+
+    with monkeypatch.context() as m:
+        m.setattr(OrderBook, "__iter__", walked)
+        run(p, 240)
+    assert p.orders.book.counts()["FINISHED"] == 5
+    counted = p.orders.dispatcher._supply  # what its last round's rates came from
+    assert counted == Counter(o.get for o in p.orders.book)
 
 
 def test_orders_come_and_go_at_run_time_through_the_entry_point(tmp_path, made):
@@ -226,6 +248,35 @@ def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, m
     b = p.orders.book.get("B")
     assert b.state is OrderState.DISPATCHABLE and b.assigned is None
     assert runner.phase in ("to_charger", "charging") and runner.min_battery == 8
+
+
+@pytest.mark.parametrize("dead_s", [8, 14])
+def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
+    """Vehicle 1 falls silent for good: at 8 s driving empty to station 20 (released into
+    it), at 14 s loading there. A minute later it gives its orders up: one not picked up
+    goes back to the pool, where it waits while the station stays held by the silent
+    vehicle (nobody queues for it for ever); one with the load on board fails. Its next
+    order goes to another vehicle, and its other claims are freed."""
+    extra = (
+        "out_of_service_s = 30\n"  # (into [dispatch], the table config() ends with)
+        f"[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = {dead_s}\n"
+    )
+    p = start(config(ORDERS, tmp_path, extra=extra), made)
+    run(p, 300)
+    book, runner = p.orders.book, p.orders.runners[1]
+    assert p.controls[1].state == "stale"
+    assert runner.active is None and runner.next is None
+    o1 = book.get("o1")
+    assert o1.state is (OrderState.FAILED if dead_s == 14 else OrderState.DISPATCHABLE)
+    assert "vehicle 1 out of service" in o1.reason
+    given_up = [t for t, state in o1.history if state is o1.state][-1]
+    assert dead_s + 30 <= given_up < dead_s + 32  # silent, then stale within a second
+    assert all(len(times) == 2 for times in o1.sections.values())  # none left open
+    assert {o.id for o in book if o.state is OrderState.FINISHED} == {"o2", "o3", "o4", "o5"}
+    assert all(r.active is None for r in p.orders.runners.values())  # nobody waits for 20
+    held = {place for place, v in p.orders.claims.holder.items() if v == 1}
+    assert held == ({20} if dead_s == 14 else set())
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 
 def test_a_low_battery_vehicle_finishes_its_order_then_charges_and_comes_back(tmp_path, made):

@@ -27,7 +27,7 @@ either, and a charging one only once its charge is sufficient.
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 
 from plc_runtime import CycleContext, FunctionBlock, Output
@@ -103,6 +103,8 @@ class Dispatcher(FunctionBlock):
         self.capacity_per_h = capacity_per_h
         self.pool_limit = pool_limit
         self.stats: dict[int, StationStats] = {}
+        self._supply: Counter[int] = Counter()  # dhht: orders per Get station so far
+        self._supply_counted = 0  # of the book's orders, in the order added
         self._round = None
         self._working: StationSchedule | None = None
         self._last_round_ns: int | None = None
@@ -340,6 +342,8 @@ class Dispatcher(FunctionBlock):
                 or order.assigned is not None
                 or not free
                 or not self.reach.reaches(runner.current, order.get)
+                or runner.claims.stuck(order.get)
+                or runner.claims.stuck(order.put)
             ):
                 continue
             if runner.active is None:
@@ -375,11 +379,14 @@ class Dispatcher(FunctionBlock):
             self._origin.pop(order.id, None)
 
     def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:
+        """Each Get station's supply rate: the orders it has had so far per hour. The count
+        is kept up to date with the orders added since the last round (the book only grows),
+        so a round costs the new orders, not the run's whole book."""
+        for order in self.book.page(self._supply_counted, len(self.book) - self._supply_counted):
+            self._supply[order.get] += 1
+        self._supply_counted = len(self.book)
         hours = max(ctx.time / 3600.0, 1.0 / 60.0)
-        counts: dict[int, int] = {}
-        for order in self.book:
-            counts[order.get] = counts.get(order.get, 0) + 1
-        for station, n in counts.items():
+        for station, n in self._supply.items():
             s = self.stats.setdefault(station, StationStats(pickups_s=[]))
             s.supply_per_h = n / hours
         return self.stats

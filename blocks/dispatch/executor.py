@@ -84,16 +84,27 @@ class Claims:
     chargers, parking positions. A station's waiting vehicles are served in the order they
     asked, so a vehicle in its queue is never overtaken by one arriving later.
 
-    ``occupied(place, vehicle)`` says whether another vehicle than ``vehicle`` stands on
-    the place (or in its single-vehicle area) right now, as the reservations know it: a
-    place is given only when it is physically empty too. A vehicle can be on a place it
+    ``occupied(place, vehicle)`` names the vehicle other than ``vehicle`` that stands on
+    the place (or in its single-vehicle area) right now, as the reservations know it (None:
+    nobody): a place is given only when it is physically empty too. A vehicle can be on a place it
     holds no claim of (it was pushed aside onto it, or it is a recipe vehicle), and one
     sent to a dead-end spur with someone in it would stand face to face with it."""
 
-    def __init__(self, occupied: Callable[[int, int], bool] | None = None) -> None:
+    def __init__(self, occupied: Callable[[int, int], int | None] | None = None) -> None:
         self.holder: dict[int, int] = {}
         self.waiting: dict[int, list[int]] = {}
-        self.occupied = occupied or (lambda _place, _vehicle: False)
+        self.occupied = occupied or (lambda _place, _vehicle: None)
+        # vehicles out of service long enough to have given their orders up
+        self.out_of_service: set[int] = set()
+
+    def stuck(self, place: int) -> bool:
+        """Whether ``place`` is claimed, or stood on, by a vehicle that has been out of
+        service long enough to give its orders up: nobody can be served there until it
+        comes back or is taken away."""
+        if not self.out_of_service:
+            return False
+        oos = self.out_of_service
+        return self.holder.get(place) in oos or self.occupied(place, 0) in oos
 
     def claim(self, place: int, vehicle: int) -> bool:
         """Take ``place`` if it is free and nobody asked before; else join its queue."""
@@ -165,6 +176,7 @@ class OrderRunner(FunctionBlock):
     battery = Input(
         None, doc="state of charge in %, from the vehicle's info frames; None: none yet"
     )
+    in_service = Input(True, doc="FALSE while the vehicle is offline, stale, faulty or suspect")
 
     target = Output(None, doc="the node the vehicle should drive to")
     fixed_route = Output(None, doc="never set: orders are planned, not driven on fixed lanes")
@@ -188,6 +200,7 @@ class OrderRunner(FunctionBlock):
     charging_since = Static(None)  # when the current charger visit began (s)
     topping_up = Static(False)  # charging by choice while idle, not by need: still available
     battery_at_start = Static(None)
+    out_since_ns = Static(None)  # out of service since then (None: in service)
 
     def __init__(
         self,
@@ -202,6 +215,7 @@ class OrderRunner(FunctionBlock):
         park: bool = True,
         near_m: float = 20.0,
         on_section: Callable[[TransportOrder, str, float, float], None] | None = None,
+        out_of_service_s: float = 60.0,
     ) -> None:
         super().__init__()
         self.vehicle = vehicle
@@ -214,6 +228,8 @@ class OrderRunner(FunctionBlock):
         self.park = park
         self.near_m = near_m
         self.on_section = on_section  # a finished section: (order, name, start_s, end_s)
+        # out of service this long, the vehicle gives its orders up (it may never come back)
+        self.out_of_service_ns = round(out_of_service_s * 1e9)
         self.queues = plant.queues
         self.zones = {
             s: frozenset().union(*(plant.zones.get(f, ()) for f in plant.node(s).functions)) | {s}
@@ -248,7 +264,7 @@ class OrderRunner(FunctionBlock):
         else:
             self.next = order
 
-    def give_back(self, ctx: CycleContext) -> list[TransportOrder]:
+    def give_back(self, ctx: CycleContext, why: str = "reassigned") -> list[TransportOrder]:
         """The orders the dispatcher may still move to another vehicle: the next order, and
         the active one while the vehicle has not entered its Get zone. They are dispatchable
         again; the vehicle keeps driving until it gets one."""
@@ -259,26 +275,79 @@ class OrderRunner(FunctionBlock):
         if self.active is not None and not self.frozen:
             back.append(self.active)
             self.active = None
-            self._forget()
+            self._let_go()
             self.phase, self.section = "idle", ""
         for order in back:
             order.assigned = None
-            self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "reassigned")
+            self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, why)
         return back
 
     def withdrawn(self, ctx: CycleContext) -> None:
-        """Drop orders that were withdrawn or failed meanwhile (the book's state says so)."""
+        """Drop orders that were withdrawn or failed meanwhile (the book's state says so);
+        the section that was running ends now (it is not learned from: it was cut short)."""
         if self.next is not None and self.next.state.final:
             self.next = None
         if self.active is not None and self.active.state.final:
+            if self.section and len(self.active.sections.get(self.section, ())) == 1:
+                self.book.end_section(self.active, self.section, ctx.time)
             self.active, self.hold, self.section = None, False, ""
-            self._forget()
+            self._let_go()
             self.phase = "idle"
+
+    def _given_up(self, ctx: CycleContext) -> bool:
+        """The vehicle is silent, stalled or suspect. A short outage (a spoofed frame, a
+        link dropping out for a second) changes nothing; once it has lasted
+        ``out_of_service_s`` the vehicle gives its orders up, since it may never come back:
+        those not picked up go back to the pool, one with its load on board fails. It keeps
+        the claims of where it stands (``_let_go``), frees the others, and until it is back
+        in service nothing new is started for it, and its places count as stuck."""
+        if self.out_since_ns is None:
+            self.out_since_ns = ctx.time_ns
+        if ctx.time_ns - self.out_since_ns < self.out_of_service_ns:
+            return False
+        if self.vehicle not in self.claims.out_of_service:
+            self.claims.out_of_service.add(self.vehicle)
+            self._give_up(ctx)
+        return True
+
+    def _give_up(self, ctx: CycleContext) -> None:
+        why = f"vehicle {self.vehicle} out of service"
+        if self.active is not None and self.phase in ("get", "to_put", "put_queue", "put"):
+            self.book.transition(
+                self.active, OrderState.FAILED, ctx.time, f"{why} with the load on board"
+            )
+            self.withdrawn(ctx)
+        self.frozen = False
+        self.give_back(ctx, why)
+        self._let_go()
+        self.hold, self.phase, self.target = False, "idle", self.current
+
+    def _let_go(self) -> None:
+        """Give up the claims of an order that ended early, but those of where the vehicle
+        stands: the place it stands on, and a station whose area it is in, which it keeps
+        until it has left the area, as after a visit (a vehicle sent into a station's spur
+        past it would meet it face to face)."""
+        for station, holder in self.claims.holder.items():
+            if (
+                holder == self.vehicle
+                and station in self.zones
+                and self.current in self._area(station)
+            ):
+                self.leaving = station
+                break
+        self._forget()
+        self.place = None  # (a queue or parking place it stands on is given up as it leaves)
 
     # ----- the scan --------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
         if self.current is None:
             return
+        if self.in_service:
+            self.out_since_ns = None
+            self.claims.out_of_service.discard(self.vehicle)
+        elif self._given_up(ctx):
+            self.withdrawn(ctx)
+            return  # nothing new for a vehicle that may never come back
         if self.battery is not None:  # (no reading yet is not an empty battery)
             self.min_battery = min(self.min_battery, self.battery)
         if self.leaving is not None and self.current not in self._area(self.leaving):
@@ -293,6 +362,16 @@ class OrderRunner(FunctionBlock):
             self.charging_s += ctx.time - self.charging_since
             self.charging_since = None
         self.withdrawn(ctx)
+        if self.active is not None and self.phase in ("to_get", "get_queue"):
+            order = self.active
+            if self.claims.stuck(order.get) or self.claims.stuck(order.put):
+                # not picked up yet: it waits in the pool, not in a queue for ever
+                self.active, self.frozen = None, False
+                self._let_go()
+                self.phase, self.section = "idle", ""
+                order.assigned = None
+                why = "a station is held by a vehicle out of service"
+                self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, why)
         if self.active is None and self.next is not None:
             order, self.next = self.next, None
             if self.battery is not None and not self.charging.may_take(self.battery):
@@ -533,8 +612,8 @@ class OrderRunner(FunctionBlock):
     def _charge(self, ctx: CycleContext) -> None:
         if self.place not in self.chargers or not self._holds(self.place):
             free = [c for c in self.chargers if self.claims.free(c, self.vehicle)]
-            if not free:
-                self.phase, self.target = "to_charger", self.current  # waits for a charger
+            if not free:  # it waits where it is for a charger, holding none
+                self.phase, self.target, self.place = "to_charger", self.current, None
                 return
             self.place = min(free, key=lambda c: self.distance(self.current, c))
             self._forget()
