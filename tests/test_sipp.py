@@ -493,6 +493,9 @@ def test_a_windowed_plan_keeps_every_rule_before_its_cut_off(
         before.nodes[n] = [w for w in windows if w[0] < until]
     for key, windows in others.segments.items():
         before.segments[key] = [w for w in windows if w[0] < until]
+    lasting = PlanMonitor(GAP)  # the vehicles that stand for good from before the cut-off
+    for n, windows in others.nodes.items():
+        lasting.nodes[n] = [w for w in windows if w[0] < until and w[1] == math.inf]
     ids = [int(i) for i in plant.ids]
     start, goal = rng.choice(ids), rng.choice(ids)
     if not others.node_free(start, 0.0, 0.0):
@@ -517,6 +520,10 @@ def test_a_windowed_plan_keeps_every_rule_before_its_cut_off(
     nodes, segments = windows_before(plan, until)
     for n, a, d in nodes:
         assert before.node_free(n, a, d, 1), (n, a, d)
+    # past the cut-off too, it keeps off the nodes where a vehicle stands for good from
+    # before it, but for its goal
+    for n, a, d in plan.node_windows():
+        assert n == goal or lasting.node_free(n, a, d, 1), (n, a, d)
     for u, v, s, e in segments:
         assert before.segment_free(u, v, s, e, 1), (u, v, s, e)
     if plain.plan is not None:
@@ -524,17 +531,22 @@ def test_a_windowed_plan_keeps_every_rule_before_its_cut_off(
 
 
 def as_windowed(plant, search: SafeIntervalSearch, plan: TimedPlan, until: float) -> float:
-    """When ``plan`` arrives if, from its first node reached at or past ``until``, it
-    goes on down the distances instead (its own arrival if it arrives before)."""
+    """When ``plan`` arrives if, from its first node reached at or past ``until`` from
+    which a way down the distances is open (round the vehicles that stand for good), it
+    goes on down them instead (its own arrival if it arrives before, or no such way is
+    open from any of its nodes)."""
     past = next((i for i, a in enumerate(plan.arrive) if a >= until), None)
     if past is None:
         return plan.arrival
-    node, arc = plant.idx(plan.nodes[past]), -1  # -1: it starts there (past the cut-off)
-    if past > 0:
-        before = plant.idx(plan.nodes[past - 1])
-        arc = next(a for v, a, _ in plant.neighbors[before] if v == node)
-    tail = search.descent(node, arc, plan.arrive[past])
-    return plan.arrive[past] if tail is None else tail.arrive[-1]
+    for i in range(past, len(plan.nodes)):
+        node, arc = plant.idx(plan.nodes[i]), -1  # -1: it starts there (past the cut-off)
+        if i > 0:
+            before = plant.idx(plan.nodes[i - 1])
+            arc = next(a for v, a, _ in plant.neighbors[before] if v == node)
+        tail = search.descent(node, arc, plan.arrive[i])
+        if tail is not None:
+            return tail.arrive[-1]
+    return plan.arrival
 
 
 def test_a_windowed_search_ends_at_its_cut_off_and_goes_on_down_the_distances():
@@ -723,3 +735,81 @@ def test_a_budget_counts_the_walks_down_the_distances():
             break
     assert search.plan is not None and search.plan.nodes[-1] == 1599
     assert search.descended > 5 * 78 and steps > 5  # several walks, over several steps
+
+
+def ring(m: int) -> Plant:
+    """A two-way ring of ``m`` nodes 1 m apart."""
+    r = m / (2 * math.pi)
+    nodes = [
+        Node(k, "", r * math.cos(2 * math.pi * k / m), r * math.sin(2 * math.pi * k / m))
+        for k in range(m)
+    ]
+    return Plant.build(nodes, [Edge(k, (k + 1) % m, 1.0) for k in range(m)], name="ring")
+
+
+def test_past_its_cut_off_a_search_goes_round_a_vehicle_that_stands_for_good():
+    """On a ring of 40, vehicle 2 stands on node 2 for good; the way from node 0 to node 5
+    round the other side takes 35 s, longer than the 10 s window. Past the cut-off a
+    vehicle that stands for good is still in the way (like a blockade), so the plan goes
+    the long way round at once, as without a cut-off, instead of waiting on node 0 for the
+    cut-off and then driving through node 2. A vehicle that will only arrive after the
+    cut-off to stay for good is ignored as every window from then on."""
+    plant = ring(40)
+    kw = {"speed": 1.0, "turns": TurnTimes(0.0, 0.0)}
+    table = TimeWindowTable(GAP)
+    table.book(2, [(2, -1.0, math.inf)], [])  # it has stood there since before now
+    for until in (10.0, 0.0, math.inf):
+        search = SafeIntervalSearch(plant, table, 1, 0, 5, 0.0, until=until, **kw)
+        search.step(None)
+        plan = search.plan
+        assert plan is not None, until
+        assert plan.nodes == (0, *range(39, 4, -1)) and plan.arrival == 35.0, until
+        assert plan.claims[1] == 0.0  # it sets off now
+    assert search.descent(plant.idx(1), -1, 20.0) is None  # every shortest way is closed
+    later = TimeWindowTable(GAP)
+    later.book(2, [(2, 12.0, math.inf)], [])
+    plan = plan_path(plant, later, 1, 0, 5, 0.0, until=10.0, **kw)
+    assert plan is not None and plan.nodes == (0, 1, 2, 3, 4, 5)
+
+
+def test_past_its_cut_off_the_way_down_the_distances_turns_off_round_one_that_stands():
+    """Across an empty 6 x 6 grid the way down the distances from corner 0 to corner 35
+    goes straight along the top row first; with vehicles standing for good on nodes 3 and
+    8 it takes another shortest way (same length, down earlier), turning back from node 2
+    whose every shortest way on is closed, which it remembers."""
+    plant = grid(np.ones((6, 6)))
+    table = TimeWindowTable(GAP)
+    table.book(2, [(3, -1.0, math.inf)], [])
+    table.book(3, [(8, -1.0, math.inf)], [])
+    search = SafeIntervalSearch(
+        plant, table, 1, 0, 35, 0.0, speed=1.0, turns=TURNS, heading=(1.0, 0.0), until=0.0
+    )
+    tail = search.descent(plant.idx(0), -1, 0.0)
+    assert tail is not None and len(tail.nodes) == 10  # a shortest way
+    assert tail.nodes[:2] == [plant.idx(1), plant.idx(7)] and plant.idx(2) in search._stuck
+    search.step(None)
+    assert search.plan is not None and not {3, 8} & set(search.plan.nodes)
+    check_drivable(plant, search.plan, 0, 35, 0.0, (1.0, 0.0))
+
+
+def test_a_goal_behind_a_vehicle_that_stands_for_good_has_no_plan_and_the_search_ends():
+    """In a corridor of 6 cells vehicle 2 stands for good on cell 3, between vehicle 1
+    (cell 0) and its goal (cell 5): past the cut-off it is still in the way, so there is
+    no plan, found after a search of the few cells on this side (not a plan through it).
+    On the goal itself, or anywhere in the goal's area, a vehicle that stands for good is
+    no obstacle past the cut-off: the plan waits for the cut-off and drives in."""
+    corridor = grid(np.ones((1, 6)))
+    kw = {"speed": 1.0, "turns": TURNS, "until": 10.0}
+    table = TimeWindowTable(GAP)
+    table.book(2, [(3, 0.0, math.inf)], [])
+    search = SafeIntervalSearch(corridor, table, 1, 0, 5, 0.0, **kw)
+    assert search.step(None) and search.plan is None and search.expansions < 20
+    assert "no conflict-free path" in search.reason
+    on_goal = TimeWindowTable(GAP)
+    on_goal.book(2, [(5, 0.0, math.inf)], [])
+    plan = plan_path(corridor, on_goal, 1, 0, 5, 0.0, **kw)
+    assert plan is not None and plan.nodes == tuple(range(6)) and plan.claims[-1] >= 10.0
+    in_area = TimeWindowTable(GAP, {4: "s", 5: "s"})
+    in_area.book(2, [(4, 0.0, math.inf)], [])
+    plan = plan_path(corridor, in_area, 1, 0, 5, 0.0, **kw)
+    assert plan is not None and plan.nodes == tuple(range(6)) and plan.claims[-2] >= 10.0

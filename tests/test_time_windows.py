@@ -131,10 +131,20 @@ def test_safe_intervals_are_the_gaps_between_other_vehicles_windows():
 
 
 def test_a_cut_off_ignores_later_windows_and_ends_every_window_there():
+    """Every window ends at the cut-off at the latest, but one that never ends and began
+    before it: that vehicle stands there for good, in the way past the cut-off too
+    (unless ``lasting=False``, as for a search's goal)."""
     t = table()
     t.book(1, [(5, 2.0, 4.0)], [])
     t.book(2, [(5, 10.0, math.inf)], [])
-    assert t.safe_intervals(5, until=12.0) == [(-math.inf, 1.0), (5.0, 9.0), (12.0, math.inf)]
+    assert t.safe_intervals(5, until=12.0) == [(-math.inf, 1.0), (5.0, 9.0)]
+    assert t.safe_intervals(5, until=12.0, lasting=False) == [
+        (-math.inf, 1.0),
+        (5.0, 9.0),
+        (12.0, math.inf),
+    ]
+    assert t.stands_for_good(5, before=12.0) and not t.stands_for_good(5, 2, 12.0)
+    assert not t.stands_for_good(5, before=10.0) and not t.stands_for_good(6)
     assert t.safe_intervals(5, until=10.0) == [(-math.inf, 1.0), (5.0, math.inf)]
     assert t.safe_intervals(5, until=3.0) == [(-math.inf, 1.0), (3.0, math.inf)]
     t.book(3, [], [(2, 1, 0.0, 20.0)])  # a long oncoming traversal
@@ -144,6 +154,25 @@ def test_a_cut_off_ignores_later_windows_and_ends_every_window_there():
     t.book(4, [], [(1, 2, 30.0, 40.0)])  # a window starting after the cut-off is ignored
     assert t.earliest_entry(1, 2, 25.0, 16.0) == 31.0  # too slow to lead it: behind it
     assert t.earliest_entry(1, 2, 25.0, 16.0, until=28.0) == 25.0
+
+
+def test_who_stands_for_good_is_known_per_node_and_area_until_released():
+    t = TimeWindowTable(0.5, {7: "s", 8: "s"})
+    t.book(1, [(7, 1.0, math.inf), (3, 0.0, 1.0)], [(3, 7, 0.0, 1.0)])
+    assert t.stands_for_good(8) and t.stands_for_good(7) and not t.stands_for_good(3)
+    assert t.safe_intervals(8, until=5.0) == [(-math.inf, 0.5)]
+    t.expire(100.0)  # a window that never ends does not expire
+    assert t.stands_for_good(7)
+    t.book(1, [(7, 1.0, 9.0)], [])
+    assert not t.stands_for_good(7)
+    t.book(2, [(4, 0.0, math.inf)], [])
+    t.release(2)
+    assert not t.stands_for_good(4)
+    # one that stands only until further notice is expected gone past a cut-off
+    t.book(3, [(4, 0.0, math.inf)], [], lasting=False)
+    assert not t.stands_for_good(4)
+    assert t.safe_intervals(4, until=5.0) == [(-math.inf, -0.5), (5.0, math.inf)]
+    assert t.safe_intervals(4) == [(-math.inf, -0.5)]
 
 
 def test_earliest_entry_waits_for_the_oncoming_vehicle_and_keeps_behind_the_leader():

@@ -1260,3 +1260,81 @@ def test_a_round_takes_on_as_many_searches_as_its_budget_gets_through_in_replan_
     assert tw._fit(ctx) == 400  # 800 x 30 scans / 60
     tw._work_per_search = 1e6
     assert tw._fit(ctx) == 8
+
+
+def ring_of_forty_with_a_silent_vehicle(stands_at: int, window_s: float) -> FleetProgram:
+    """A two-way ring of 40 nodes 1 m apart, stations 5 (function 2) and 20 (function 3).
+    Vehicle 1 at node 0 wants node 5; vehicle 2 is held at ``stands_at`` and falls silent
+    after 1 s: it stands there for good."""
+    m = 40
+    r = m / (2 * math.pi)
+    nodes = [
+        Node(
+            k,
+            f"r{k}",
+            r * math.cos(2 * math.pi * k / m),
+            r * math.sin(2 * math.pi * k / m),
+            "station" if k in (5, 20) else "transit",
+            (2,) if k == 5 else (3,) if k == 20 else (),
+        )
+        for k in range(m)
+    ]
+    plant = Plant.build(
+        nodes, [Edge(k, (k + 1) % m, 1.0) for k in range(m)], name="ring40", functions={2: "a"}
+    )
+    cfg = make_config(
+        plant,
+        {1: 0, 2: stands_at},
+        {"a": [2], "b": [3]},
+        {2: [5], 3: [20]},
+        vehicle_recipes={1: ["a"], 2: ["b"]},
+        strategy="nearest",
+        processing_s=1.0,
+        cycle_time=0.05,
+        rounds=1,
+        traffic="time_windows",
+        faults={2: Faults(dead_after=1.0)},
+        watchdog=10.0,
+    )
+    cfg.time_windows.window_s = window_s
+    p = FleetProgram(cfg)
+    p.rt.start()
+    p.rt.image.write("agv2.hold", 1)  # vehicle 2 stands where it is, then falls silent
+    return p
+
+
+@pytest.mark.parametrize("window_s", [30.0, 86400.0])
+def test_a_vehicle_goes_the_long_way_round_one_that_stands_for_good_past_the_cut_off(window_s):
+    """Vehicle 2 stands on node 2, silent, for good: the short way from node 0 to node 5 is
+    closed, and the way round the other side (35 m, about 70 s) is longer than the conflict
+    window (30 s). Past the cut-off the search meets nobody, but a vehicle that stands for
+    good is in the way then too: vehicle 1 goes the long way round, as with no cut-off,
+    instead of planning to wait for the cut-off and then drive through vehicle 2 (a plan
+    that only waits, rejected: it stood for good and was reported stranded)."""
+    p = ring_of_forty_with_a_silent_vehicle(2, window_s)
+    try:
+        run(p, 150)
+    finally:
+        p.close()
+    assert p.controls[2].state == "stale"
+    assert sum(r.vehicle == 1 for r in p.completed) == 1
+    assert p.controls[1].current == 5
+    assert p.traffic.stranded_at == {} and p.traffic.failed == 0
+    assert not [e for e in p.events.events if "FAULT" in e.text]
+
+
+def test_a_vehicle_whose_goal_another_stands_on_for_good_is_reported_and_the_planner_ends():
+    """Vehicle 2 stands for good on node 5, vehicle 1's only station. Past the cut-off
+    the goal is free as before (a vehicle on its goal now is no reason to find no path to
+    it): vehicle 1 drives up to it (the short way: nobody else stands for good in it) and
+    waits there; its plans then only wait for the cut-off, so it is reported stranded
+    (its goal occupied for good, the seed's rule), and every round ends."""
+    p = ring_of_forty_with_a_silent_vehicle(5, 30.0)
+    try:
+        run(p, 120)
+    finally:
+        p.close()
+    assert sum(r.vehicle == 1 for r in p.completed) == 0
+    assert p.controls[1].current == 4
+    assert p.traffic.stranded_at == {1: 4}
+    assert p.traffic.rounds > 20

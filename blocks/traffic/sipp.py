@@ -55,13 +55,22 @@ with arrival claims the search checks it.
 
 ``until`` makes the plan *windowed*, as rolling-horizon planners do: conflicts are resolved
 only before that time, and from then on the vehicle meets nobody (the table's windows are cut
-there). Only the part of such a plan that starts before ``until`` may be booked; the rest is
-a route to be planned again. It keeps a search from failing, or exploring the whole plant,
-because of where others will be long after the plan is replaced anyway. Past the cut-off
-the search does not explore either: from the first states there a plan goes on down the
-distances to the goal (:meth:`SafeIntervalSearch.descent`), and the search returns the
-cheapest plan of that shape. Across the 99 x 138 warehouse a 30 s cut-off takes a
-sixteenth of the expansions a search (bench/windowed_search.py).
+there) but the vehicles that stand where they are for good (a node window that never ends,
+begun before the cut-off: a vehicle silent, faulty, held, without a plan, or staying at its
+goal), which stay in the way like a blockade. Only the part of such a plan that starts
+before ``until`` may be booked; the rest is a route to be planned again. It keeps a search
+from failing, or exploring the whole plant, because of where others will be long after the
+plan is replaced anyway. Past the cut-off the search does not explore either: from the
+first states there a plan goes on down the distances to the goal
+(:meth:`SafeIntervalSearch.descent`), round the vehicles that stand for good where a
+shortest way allows, and the search returns the cheapest plan of that shape. Across the
+99 x 138 warehouse a 30 s cut-off takes a sixteenth of the expansions a search
+(bench/windowed_search.py). Where those vehicles close every shortest way, the search
+explores on past the cut-off, as round a blockade, and goes the long way round: without
+them, every plan would wait for the cut-off and then drive through a vehicle that never
+leaves (rejected as a plan that only waits, the vehicle would be stranded for good). The
+goal is the exception (its area with it): a vehicle standing on it now is no reason to find
+no path to it, so past the cut-off it is free as before.
 
 The search runs in bounded steps (:meth:`step`, ``budget`` expansions or their worth),
 like the A* block, and publishes only a complete plan. A goal is reached when the vehicle can stay there for
@@ -230,6 +239,8 @@ class SafeIntervalSearch:
         self._seconds: dict[int, float] = {}
         self._heading = heading
         self._goal = plant.idx(goal)
+        # past the cut-off, whoever stands for good on the goal (its area) is no obstacle
+        self._goal_key = table.resources.get(goal, goal)
         # labels, by id: the state (node index, arc in, interval), cost, arrival, and the
         # label it came from with the time it set off from there (None: the start)
         self._labels: list[tuple[tuple[int, int, int], float, float, tuple[int, float] | None]] = []
@@ -374,10 +385,20 @@ class SafeIntervalSearch:
     def _intervals(self, node: int) -> list[tuple[float, float]]:
         out = self._safe.get(node)
         if out is None:
+            at = self.geometry.ids[node]
+            lasting = self.table.resources.get(at, at) != self._goal_key
             out = self._safe[node] = self.table.safe_intervals(
-                self.geometry.ids[node], self.vehicle, self.until
+                at, self.vehicle, self.until, lasting
             )
         return out
+
+    def _walled(self, node: int) -> bool:
+        """Is ``node`` (an index) closed past the cut-off: another vehicle stands there for
+        good from before it (never the goal, nor its area)?"""
+        table, at = self.table, self.geometry.ids[node]
+        return table.resources.get(at, at) != self._goal_key and table.stands_for_good(
+            at, self.vehicle, self.until
+        )
 
     def _h(self, node: int) -> float:
         """The heuristic in seconds: the distance to the goal at top speed."""
@@ -388,58 +409,84 @@ class SafeIntervalSearch:
 
     def descent(self, node: int, arc_in: int, t: float) -> Tail | None:
         """The way on from ``node`` (reached at ``t`` along ``arc_in``) past the cut-off,
-        where the vehicle meets nobody: down the distances to the goal, straight on where
-        a shortest way allows it. None where the allowed arcs leave no shortest way (a
-        blockade the distances do not know): the search then goes on as before the cut-off.
+        where the vehicle meets nobody but those that stand for good: down the distances to
+        the goal, straight on where a shortest way allows it, round those vehicles where
+        another shortest way does. None where the allowed arcs and those vehicles leave no
+        shortest way (a blockade the distances do not know): the search then goes on as
+        before the cut-off.
 
         This is what makes a windowed search cheap: it ends soon after the cut-off instead
         of exploring, turn by turn, the many equally short ways to a far goal. Past the
         cut-off a plan takes this one way, turns and arc weights paid: cheaper ways on
         (fewer turns, lighter arcs) are not looked for, since the plan is made again
-        before it gets there."""
-        geometry, row, allowed, stuck = self.geometry, self._row, self.allowed, self._stuck
-        first = node
-        nodes, arrive, depart, extra = [], [], [], 0.0
-        seen = {node}  # a zero-length arc is a shortest way both ways: never back
-        for _ in range(self.plant.n):
-            if node == self._goal:
-                # none if it starts there: it could not stay, so it searches on
-                return Tail(nodes, arrive, depart, extra) if nodes else None
-            here = row[node].item()
-            if node in stuck or not math.isfinite(here):
-                break  # no way down from here, or no way to the goal at all
-            self.descended += 1
-            best = None
-            for v, arc, length in self.plant.neighbors[node]:
-                if v in seen or (allowed is not None and not allowed[arc]):
-                    continue
-                # on a shortest way, but for the rounding of the distances to float32
-                # (a relative 1.2e-7 each)
-                if abs(here - length - row[v].item()) > 1e-6 * max(1.0, here):
-                    continue
-                if arc_in < 0:
-                    turn = self.turns.between(self._heading, geometry.direction[arc])
-                else:
-                    turn = geometry.turn(self.turns, arc_in, arc)
-                if best is None or turn < best[0]:
-                    best = (turn, v, arc, length)
-            if best is None:
-                break
-            turn, node, arc_in, length = best
-            seen.add(node)
-            travel = length / min(self.speed, geometry.max_speed[arc_in])
-            depart.append(t + turn)
-            t += turn + travel
-            nodes.append(node)
-            arrive.append(t)
-            if self.weights is not None:
-                extra += (self.weights[arc_in] - 1.0) * travel
-        # no way down from any node this walk passed either (from another heading one might
-        # turn off elsewhere, but then the search explores instead: never a wrong plan), so
-        # a closed way the distances do not know costs one walk, not one for every state
-        stuck.add(first)
-        stuck.update(nodes)
+        before it gets there.
+
+        The way is followed depth first, the least turn first at each node: where every
+        shortest way on from a node is closed, it turns back to the node before and tries
+        its next one. A node with no way down from it (from any heading) is remembered, so
+        all the walks of a search that end nowhere take one step per node together, not
+        one walk for every state."""
+        if node == self._goal:
+            return None  # it could not stay there (or it would have been done): search on
+        stuck = self._stuck
+        if node in stuck:
+            return None
+        # the nodes of the way so far: [node, arc in, arrival, set-off from the node
+        # before, weight paid so far, its shortest ways on (least turn first), next to try]
+        way = [[node, arc_in, t, t, 0.0, self._down(node, arc_in), 0]]
+        on_way = {node}  # a zero-length arc is a shortest way both ways: never back
+        geometry, weights, speed = self.geometry, self.weights, self.speed
+        while way:
+            top = way[-1]
+            here, _, t, _, extra, options, i = top
+            while i < len(options) and (options[i][1] in stuck or options[i][1] in on_way):
+                i += 1
+            if i == len(options):
+                stuck.add(here)  # no way down from here
+                on_way.discard(here)
+                way.pop()
+                continue
+            top[6] = i + 1
+            turn, v, arc, length = options[i]
+            travel = length / min(speed, geometry.max_speed[arc])
+            if weights is not None:
+                extra += (weights[arc] - 1.0) * travel
+            set_off = t + turn
+            if v == self._goal:
+                nodes = [step[0] for step in way[1:]] + [v]
+                arrive = [step[2] for step in way[1:]] + [set_off + travel]
+                depart = [step[3] for step in way[1:]] + [set_off]
+                return Tail(nodes, arrive, depart, extra)
+            on_way.add(v)
+            way.append([v, arc, set_off + travel, set_off, extra, self._down(v, arc), 0])
         return None
+
+    def _down(self, node: int, arc_in: int) -> list[tuple[float, int, int, float]]:
+        """The shortest ways on from ``node`` (reached along ``arc_in``) that are open past
+        the cut-off: (turn, next node, arc, length), the least turn first (in the plant's
+        order where turns tie)."""
+        row = self._row
+        here = row[node].item()
+        if not math.isfinite(here):
+            return []  # no way to the goal at all
+        self.descended += 1
+        geometry, allowed, out = self.geometry, self.allowed, []
+        for v, arc, length in self.plant.neighbors[node]:
+            if allowed is not None and not allowed[arc]:
+                continue
+            # on a shortest way, but for the rounding of the distances to float32
+            # (a relative 1.2e-7 each)
+            if abs(here - length - row[v].item()) > 1e-6 * max(1.0, here):
+                continue
+            if self._walled(v):
+                continue  # a vehicle stands there for good
+            if arc_in < 0:
+                turn = self.turns.between(self._heading, geometry.direction[arc])
+            else:
+                turn = geometry.turn(self.turns, arc_in, arc)
+            out.append((turn, v, arc, length))
+        out.sort(key=lambda option: option[0])  # stable: the plant's order where turns tie
+        return out
 
     def _finish(self, label: int | None, reason: str | None, tail: Tail | None = None) -> None:
         """Done: the plan to ``label`` (and on along ``tail``), or no plan for ``reason``."""

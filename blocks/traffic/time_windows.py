@@ -28,8 +28,13 @@ the area (``resources``: node id -> area key), so the node rule holds for the ar
 whole: another vehicle's window anywhere in it keeps a vehicle out of all of it. One
 vehicle's windows on the area's nodes touch one after the other while it drives inside.
 
-A window that never ends (``end = inf``) is a vehicle staying at its goal; nobody can be
-planned through that node after its arrival until the vehicle is given a new plan.
+A window that never ends (``end = inf``) is a vehicle staying at its goal, or standing
+where it is for good (silent, faulty, held, without a plan); nobody can be planned through
+that node after its arrival until the vehicle is given a new plan. Such a node window stays
+whole past a windowed plan's cut-off too (:meth:`TimeWindowTable.safe_intervals`): a
+vehicle that stands for good is in the way then as now, like a blockade. One booked as
+standing only until further notice (``lasting=False``: it will go on soon, when is not
+known yet) ends at the cut-off as every other window.
 
 The gap is never zero: two vehicles passing one node at the same instant have windows of no
 length that touch, and only a gap tells them apart. On a unit-time grid a gap of one step is
@@ -86,6 +91,9 @@ class TimeWindowTable:
         self._segments: dict[tuple[int, int], list[_Stored]] = {}
         # what each vehicle booked: the keys, so release never scans the whole table
         self._booked: dict[int, tuple[list[Hashable], list[tuple[int, int]]]] = {}
+        # node key -> (start, vehicle) of each node window there that never ends: who
+        # stands there for good, looked up in one step past a windowed plan's cut-off
+        self._lasting: dict[Hashable, list[tuple[float, int]]] = {}
 
     # ----- reading -------------------------------------------------------------------------
     def node_windows(self, node: int) -> tuple[Window, ...]:
@@ -107,7 +115,11 @@ class TimeWindowTable:
         )
 
     def safe_intervals(
-        self, node: int, vehicle: int | None = None, until: float = math.inf
+        self,
+        node: int,
+        vehicle: int | None = None,
+        until: float = math.inf,
+        lasting: bool = True,
     ) -> list[tuple[float, float]]:
         """The intervals in which ``vehicle`` may stand on ``node``: the gaps between the
         other vehicles' windows, each kept ``gap`` clear of them. Sorted, disjoint, possibly of
@@ -115,22 +127,43 @@ class TimeWindowTable:
         never ends.
 
         ``until``: conflicts are resolved only before that time (a windowed plan). Windows
-        starting at or after it are ignored and every window ends there at the latest, so the
-        node is free from ``until`` on."""
+        starting at or after it are ignored and every other window ends there at the latest,
+        so the node is free from ``until`` on, unless a window that never ends began before
+        it: a vehicle that stands there for good is in the way past the cut-off too
+        (``lasting=False``: it is not, the node is free from ``until`` on whatever stands
+        there; a search's goal, see :class:`SafeIntervalSearch`)."""
         out: list[tuple[float, float]] = []
         free_from = -math.inf
-        for start, end, owner in self._nodes.get(self.resources.get(node, node), ()):
+        key = self.resources.get(node, node)
+        for start, end, owner in self._nodes.get(key, ()):
             if owner == vehicle:
                 continue
             if start >= until:
                 break  # sorted by start: all the rest start later
             if start - self.gap >= free_from - EPS:  # (of no length: passing through is safe)
                 out.append((free_from, start - self.gap))
+            if end == math.inf and lasting and self._stays(key, owner):
+                return out  # there for good, past the cut-off too
             free_from = max(free_from, min(end + self.gap, until))
             if free_from == math.inf:
                 return out
         out.append((free_from, math.inf))
         return out
+
+    def _stays(self, key: Hashable, vehicle: int) -> bool:
+        """Is ``vehicle``'s window that never ends on ``key`` one for good?"""
+        return any(owner == vehicle for _, owner in self._lasting.get(key, ()))
+
+    def stands_for_good(
+        self, node: int, vehicle: int | None = None, before: float = math.inf
+    ) -> bool:
+        """Does a vehicle other than ``vehicle`` stand on ``node`` (anywhere in its area)
+        for good, from a time before ``before`` on (a node window that never ends)? One
+        look-up, whatever the node's other windows."""
+        lasting = self._lasting.get(self.resources.get(node, node))
+        return lasting is not None and any(
+            owner != vehicle and start < before for start, owner in lasting
+        )
 
     def earliest_entry(
         self,
@@ -192,12 +225,16 @@ class TimeWindowTable:
         nodes: Iterable[tuple[int, float, float]],
         segments: Iterable[tuple[int, int, float, float]],
         check: bool = True,
+        lasting: bool = True,
     ) -> None:
         """Replace ``vehicle``'s windows by these: (node, start, end) and (a, b, start, end).
         All or nothing: on a conflict with another vehicle's window, WindowConflict names
         it and the table, the vehicle's old windows included, is left as it was.
         ``check=False`` books without the rules: for windows that are consistent by
-        construction (a search's result, or what vehicles have already been given)."""
+        construction (a search's result, or what vehicles have already been given).
+        ``lasting=False``: its node windows that never end are a vehicle that stands there
+        only until further notice (it is expected to go on soon, when is not known): past
+        a cut-off they end as every other window does."""
         nodes, segments = list(nodes), list(segments)
         for node, start, end in nodes if check else ():
             _check_interval(start, end, f"node {node}")
@@ -229,6 +266,8 @@ class TimeWindowTable:
         nodes = [(self.resources.get(n, n), start, end) for n, start, end in nodes]
         for node, start, end in nodes:
             bisect.insort(self._nodes.setdefault(node, []), (start, end, vehicle))
+            if end == math.inf and lasting:
+                self._lasting.setdefault(node, []).append((start, vehicle))
         for a, b, start, end in segments:
             bisect.insort(self._segments.setdefault((a, b), []), (start, end, vehicle))
         self._booked[vehicle] = ([n for n, _, _ in nodes], [(a, b) for a, b, _, _ in segments])
@@ -238,6 +277,8 @@ class TimeWindowTable:
         nodes, segments = self._booked.pop(vehicle, ((), ()))
         for node in set(nodes):
             _drop(self._nodes, node, lambda w: w[2] == vehicle)
+            if node in self._lasting:
+                _drop(self._lasting, node, lambda w: w[1] == vehicle)
         for key in set(segments):
             _drop(self._segments, key, lambda w: w[2] == vehicle)
 
