@@ -9,6 +9,18 @@ from dataclasses import dataclass, field
 from fleet.config import FleetConfig, parse_config
 from fleet.program import FleetProgram
 
+# The smallest fleet job: vehicle 1 drilling on the thesis's model plant (add to it).
+ONE_DRILL = """
+[plant]
+sample = "model-plant"
+[[recipes]]
+name = "drill"
+functions = [2, 1]
+[[vehicles]]
+id = 1
+start = 0
+"""
+
 
 def config(text: str) -> FleetConfig:
     return parse_config(text, "test.toml")

@@ -6,27 +6,17 @@ from __future__ import annotations
 import json
 
 import pytest
+from fleet_scenarios import ONE_DRILL
 
 from fleet import report
 from fleet.config import parse_config
 from fleet.program import FleetProgram
 from plc_runtime.clock import VirtualClock
 
-CONFIG = """
-[plant]
-sample = "model-plant"
-[[recipes]]
-name = "drill"
-functions = [2, 1]
-[[vehicles]]
-id = 1
-start = 0
-"""
-
 
 @pytest.fixture(scope="module")
 def program() -> FleetProgram:
-    cfg = parse_config(CONFIG)
+    cfg = parse_config(ONE_DRILL)
     cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
     program = FleetProgram(cfg, clock=VirtualClock())
     try:

@@ -7,6 +7,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from fleet_scenarios import ONE_DRILL
 from matplotlib.collections import LineCollection
 from matplotlib.colors import to_hex
 
@@ -198,15 +199,8 @@ def test_the_fleet_report_hands_over_whole_routes_and_lifted_blockades(tmp_path,
     import fleet.report as report
 
     cfg = parse_config(
-        """
-        [plant]
-        sample = "model-plant"
-        [[recipes]]
-        name = "drill"
-        functions = [2, 1]
-        [[vehicles]]
-        id = 1
-        start = 0
+        ONE_DRILL
+        + """
         [[vehicles]]
         id = 2
         start = 10
@@ -247,18 +241,7 @@ def test_segments_an_operator_closes_and_reopens_are_in_the_summary_and_drawing(
     import fleet.report as report
     from fleet.tags import CLOSE, REOPEN
 
-    cfg = parse_config(
-        """
-        [plant]
-        sample = "model-plant"
-        [[recipes]]
-        name = "drill"
-        functions = [2, 1]
-        [[vehicles]]
-        id = 1
-        start = 0
-        """
-    )
+    cfg = parse_config(ONE_DRILL)
     cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
     program = FleetProgram(cfg, clock=VirtualClock())
     image = program.rt.image
