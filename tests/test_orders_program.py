@@ -257,12 +257,15 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     goes back to the pool, where it waits while the station stays held by the silent
     vehicle (nobody queues for it for ever); one with the load on board fails. Its next
     order goes to another vehicle, and its other claims are freed."""
-    extra = (
-        "out_of_service_s = 30\n"  # (into [dispatch], the table config() ends with)
+    extra = (  # (into [dispatch], the table config() ends with; no recomputing of next
+        # orders on a late section, so vehicle 1 still holds its next order when it gives up)
+        "out_of_service_s = 30\ndeviation = 100\n"
         f"[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = {dead_s}\n"
     )
     p = start(config(ORDERS, tmp_path, extra=extra), made)
-    run(p, 300)
+    run(p, dead_s + 29)
+    held_next = p.orders.runners[1].next
+    run(p, 300 - dead_s - 29)
     book, runner = p.orders.book, p.orders.runners[1]
     assert p.controls[1].state == "stale"
     assert runner.active is None and runner.next is None
@@ -273,6 +276,9 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     assert dead_s + 30 <= given_up < dead_s + 32  # silent, then stale within a second
     assert all(len(times) == 2 for times in o1.sections.values())  # none left open
     assert {o.id for o in book if o.state is OrderState.FINISHED} == {"o2", "o3", "o4", "o5"}
+    if dead_s == 14:  # it held o5 as its next order until it gave up
+        assert held_next is not None and held_next.id == "o5"
+        assert book.get("o5").assigned != 1
     assert all(r.active is None for r in p.orders.runners.values())  # nobody waits for 20
     held = {place for place, v in p.orders.claims.holder.items() if v == 1}
     assert held == ({20} if dead_s == 14 else set())

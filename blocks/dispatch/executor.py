@@ -86,9 +86,9 @@ class Claims:
 
     ``occupied(place, vehicle)`` names the vehicle other than ``vehicle`` that stands on
     the place (or in its single-vehicle area) right now, as the reservations know it (None:
-    nobody): a place is given only when it is physically empty too. A vehicle can be on a place it
-    holds no claim of (it was pushed aside onto it, or it is a recipe vehicle), and one
-    sent to a dead-end spur with someone in it would stand face to face with it."""
+    nobody): a place is given only when it is physically empty too. A vehicle can be on a
+    place it holds no claim of (it was pushed aside onto it, or it is a recipe vehicle), and
+    one sent to a dead-end spur with someone in it would stand face to face with it."""
 
     def __init__(self, occupied: Callable[[int, int], int | None] | None = None) -> None:
         self.holder: dict[int, int] = {}
@@ -270,17 +270,23 @@ class OrderRunner(FunctionBlock):
         again; the vehicle keeps driving until it gets one."""
         back = []
         if self.next is not None:
-            back.append(self.next)
-            self.next = None
-        if self.active is not None and not self.frozen:
-            back.append(self.active)
-            self.active = None
-            self._let_go()
-            self.phase, self.section = "idle", ""
-        for order in back:
+            order, self.next = self.next, None
             order.assigned = None
             self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, why)
+            back.append(order)
+        if self.active is not None and not self.frozen:
+            back.append(self.active)
+            self._drop_active(ctx, why)
         return back
+
+    def _drop_active(self, ctx: CycleContext, why: str) -> None:
+        """The active order, not picked up yet, goes back to the pool."""
+        order = self.active
+        self.active, self.frozen = None, False
+        self._let_go()
+        self.phase, self.section = "idle", ""
+        order.assigned = None
+        self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, why)
 
     def withdrawn(self, ctx: CycleContext) -> None:
         """Drop orders that were withdrawn or failed meanwhile (the book's state says so);
@@ -362,16 +368,13 @@ class OrderRunner(FunctionBlock):
             self.charging_s += ctx.time - self.charging_since
             self.charging_since = None
         self.withdrawn(ctx)
-        if self.active is not None and self.phase in ("to_get", "get_queue"):
-            order = self.active
-            if self.claims.stuck(order.get) or self.claims.stuck(order.put):
-                # not picked up yet: it waits in the pool, not in a queue for ever
-                self.active, self.frozen = None, False
-                self._let_go()
-                self.phase, self.section = "idle", ""
-                order.assigned = None
-                why = "a station is held by a vehicle out of service"
-                self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, why)
+        order = self.active
+        if (
+            order is not None
+            and self.phase in ("to_get", "get_queue")
+            and (self.claims.stuck(order.get) or self.claims.stuck(order.put))
+        ):  # not picked up yet: it waits in the pool, not in a queue for ever
+            self._drop_active(ctx, "a station is held by a vehicle out of service")
         if self.active is None and self.next is not None:
             order, self.next = self.next, None
             if self.battery is not None and not self.charging.may_take(self.battery):
