@@ -203,6 +203,7 @@ class OrderSystem:
             self.estimates,
             self.charging,
             available,
+            claims=self.claims,
             budget=d.budget,
             interval_s=d.interval_s,
             deviation=d.deviation,

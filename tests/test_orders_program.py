@@ -18,6 +18,7 @@ from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_drawing
 from plc_runtime.errors import ConfigError
+from vehicles.fleet import Faults
 
 WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
 STATIONS = list(range(20, 30))  # the workshop's ten stations
@@ -283,6 +284,44 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     held = {place for place, v in p.orders.claims.holder.items() if v == 1}
     assert held == ({20} if dead_s == 14 else set())
     assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+@pytest.mark.parametrize("strategy", ["nearest_idle", "dhht", "two_stage"])
+def test_an_order_at_a_station_out_of_service_does_not_starve_the_others(strategy, tmp_path, made):
+    """Vehicle 1 falls silent driving into station 20 and gives o1 up; o1 then waits, the
+    most urgent order, for a station nobody can use. It must not take a round's free
+    vehicle every round: vehicle 2 drives the later orders, which need other stations."""
+    extra = "out_of_service_s = 30\n[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = 8\n"
+    cfg = config("id,get,put,start_s,end_s\no1,20,29,0,300\n", tmp_path, ((1, 0), (2, 11)), extra)
+    cfg.dispatch.strategy = strategy
+    p = start(cfg, made)
+    run(p, 100)
+    assert p.orders.book.get("o1").state is OrderState.DISPATCHABLE
+    for k, (get, put) in enumerate([(22, 27), (24, 21), (26, 23)]):
+        p.orders.submit(TransportOrder(f"n{k}", get, put, 0.0, 5000.0))
+    run(p, 400)
+    book = p.orders.book
+    assert [book.get(f"n{k}").state for k in range(3)] == [OrderState.FINISHED] * 3
+    assert book.get("o1").state is OrderState.DISPATCHABLE  # station 20 is still held
+
+
+def test_a_vehicle_back_from_an_outage_on_its_charger_charges_there(tmp_path, made):
+    """Silent for 90 s while charging on the workshop's only charger, it gave its claims
+    up but that of the charger it stands on; back, it charges there again (it used to
+    wait for a free charger, its own not counting as one)."""
+    extra = "[battery]\ngood = 35\nsufficient = 40\nfull = 60\n"
+    cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0), (2, 11)), extra=extra)
+    cfg.battery.start = {1: 30.0, 2: 90.0}
+    p = start(cfg, made)
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(lambda: runner.phase == "charging", max_cycles=round(300 / 0.05))
+    charger = runner.current
+    p.fleet.faults[1] = Faults(dead_after=p.fleet.time)
+    run(p, 90)
+    assert runner.phase == "idle" and p.orders.claims.holder.get(charger) == 1
+    p.fleet.faults.pop(1)
+    run(p, 20)
+    assert runner.phase == "charging" and runner.place == charger == runner.current
 
 
 def test_a_low_battery_vehicle_finishes_its_order_then_charges_and_comes_back(tmp_path, made):

@@ -34,7 +34,7 @@ from plc_runtime import CycleContext, FunctionBlock, Output
 
 from .charging import ChargePolicy
 from .estimates import SectionEstimates
-from .executor import OrderRunner
+from .executor import Claims, OrderRunner
 from .orders import OrderBook, OrderState, TransportOrder
 from .reachability import Reachability
 from .station_schedule import StationSchedule, live_schedule
@@ -75,6 +75,7 @@ class Dispatcher(FunctionBlock):
         estimates: SectionEstimates,
         charging: ChargePolicy,
         available: Callable[[int], bool],
+        claims: Claims | None = None,
         budget: int = 500,
         interval_s: float = 1.0,
         deviation: float = 0.3,
@@ -97,6 +98,9 @@ class Dispatcher(FunctionBlock):
         self.estimates = estimates
         self.charging = charging
         self.available = available
+        # the places vehicles hold: an order at a station a vehicle out of service holds
+        # waits (none given: no such vehicles)
+        self.claims = claims if claims is not None else Claims()
         self.budget = budget
         self.interval_ns = round(interval_s * 1e9)
         self.deviation = deviation
@@ -296,12 +300,17 @@ class Dispatcher(FunctionBlock):
                 self.runners, self.estimates, self.schedule.buffer_s, ctx.time
             )
         vehicles, orders = self._candidates(ctx, finish), self._pool(ctx)
-        # (an order not rechecked since the blockades changed may be cut off: not given out)
+        # (an order not rechecked since the blockades changed may be cut off, and one at a
+        # station a vehicle out of service holds cannot be served: neither is given out,
+        # or a round would give it again and again to a vehicle that could do another)
+        stuck = self.claims.stuck
         orders = [
             o
             for o in orders
             if self.reach.reaches(o.get, o.put)
             and any(self.reach.reaches(c.node, o.get) for c in vehicles)
+            and not stuck(o.get)
+            and not stuck(o.put)
         ]
         if not vehicles or not orders:
             self._working = None
@@ -342,8 +351,8 @@ class Dispatcher(FunctionBlock):
                 or order.assigned is not None
                 or not free
                 or not self.reach.reaches(runner.current, order.get)
-                or runner.claims.stuck(order.get)
-                or runner.claims.stuck(order.put)
+                or self.claims.stuck(order.get)
+                or self.claims.stuck(order.put)
             ):
                 continue
             if runner.active is None:

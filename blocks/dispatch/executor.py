@@ -614,7 +614,8 @@ class OrderRunner(FunctionBlock):
 
     def _charge(self, ctx: CycleContext) -> None:
         if self.place not in self.chargers or not self._holds(self.place):
-            free = [c for c in self.chargers if self.claims.free(c, self.vehicle)]
+            # (one it holds already counts: it may stand on it, back from an outage)
+            free = [c for c in self.chargers if self._holds(c) or self.claims.free(c, self.vehicle)]
             if not free:  # it waits where it is for a charger, holding none
                 self.phase, self.target, self.place = "to_charger", self.current, None
                 return
