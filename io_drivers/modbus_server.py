@@ -750,8 +750,11 @@ class _ModbusThread:
         try:
             await server.serve_forever(background=True)
         except RuntimeError as exc:
-            why = starting[-1].removeprefix("Failed to start server ") if starting else exc
-            raise RuntimeError(str(why)) from None
+            # (pymodbus' logging may be off: another part of the process can set its level)
+            why = starting[-1].removeprefix("Failed to start server ") if starting else None
+            problem = why or _bind_problem(self.host, self.requested_port) or exc
+            raise RuntimeError(str(problem)) from None
+
         finally:
             _STARTING.reset(token)
         listener = server.transport  # asyncio.Server
@@ -765,6 +768,16 @@ class _ModbusThread:
             for _ in range(3):  # let transports' close callbacks run
                 await asyncio.sleep(0)
             self._open.clear()
+
+
+def _bind_problem(host: str, port: int) -> str | None:
+    """Why ``host:port`` cannot be listened on, as the OS says it (None: it can now)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    try:
+        with socket.create_server((host, port), family=family):
+            return None
+    except OSError as exc:
+        return f"cannot listen on {host}:{port}: {exc.strerror or exc}"
 
 
 # %MW<first>..%MW<last>: a range of marker words for writable_extra
