@@ -55,9 +55,9 @@ with arrival claims the search checks it.
 
 ``until`` makes the plan *windowed*, as rolling-horizon planners do: conflicts are resolved
 only before that time, and from then on the vehicle meets nobody (the table's windows are cut
-there) but the vehicles that stand where they are for good (a node window that never ends,
-begun before the cut-off: a vehicle silent, faulty, held, without a plan, or staying at its
-goal), which stay in the way like a blockade. Only the part of such a plan that starts
+there) but the vehicles that stand where they are for good (a node window booked for good,
+begun before the cut-off: a vehicle out of service), which stay in the way like a
+blockade. Only the part of such a plan that starts
 before ``until`` may be booked; the rest is a route to be planned again. It keeps a search
 from failing, or exploring the whole plant, because of where others will be long after the
 plan is replaced anyway. Past the cut-off the search does not explore either: from the

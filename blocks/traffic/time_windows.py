@@ -29,12 +29,12 @@ whole: another vehicle's window anywhere in it keeps a vehicle out of all of it.
 vehicle's windows on the area's nodes touch one after the other while it drives inside.
 
 A window that never ends (``end = inf``) is a vehicle staying at its goal, or standing
-where it is for good (silent, faulty, held, without a plan); nobody can be planned through
-that node after its arrival until the vehicle is given a new plan. Such a node window stays
-whole past a windowed plan's cut-off too (:meth:`TimeWindowTable.safe_intervals`): a
-vehicle that stands for good is in the way then as now, like a blockade. One booked as
-standing only until further notice (``lasting=False``: it will go on soon, when is not
-known yet) ends at the cut-off as every other window.
+where it is until further notice (out of service, without a plan); nobody can be planned through
+that node after its arrival until the vehicle is given a new plan. A window booked as for
+good (``lasting``: a vehicle out of service) stays whole past a windowed plan's cut-off too
+(:meth:`TimeWindowTable.safe_intervals`): that vehicle is in the way then as now, like a
+blockade. Any other (``lasting=False``: it will go on, when is not known yet) ends at the
+cut-off as every other window.
 
 The gap is never zero: two vehicles passing one node at the same instant have windows of no
 length that touch, and only a gap tells them apart. On a unit-time grid a gap of one step is

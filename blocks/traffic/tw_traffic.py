@@ -26,11 +26,10 @@ the vehicles that have somewhere to go one after another through the free window
    timed along its nodes instead (:func:`time_route`). Only the steps that start within
    ``horizon_s`` are booked; beyond them nothing is released before the next round. With
    ``window_s`` set, plans are windowed too: conflicts are resolved only up to the round's
-   cut-off (``window_s`` ahead, and past every committed window), but a vehicle that
-   stands for good (silent, faulty, suspect, held, with nothing to do, or without a plan)
-   stays in the way past it too, so plans go round it as round a blockade instead of
-   waiting for the cut-off to drive through it; one that stays only at or on its way to
-   its goal, to go on when given the next one, is expected gone by then. A vehicle
+   cut-off (``window_s`` ahead, and past every committed window), but a vehicle out of
+   service (silent, stalled, suspect), which stands for good, stays in the way past it
+   too, so plans go round it as round a blockade instead of waiting for the cut-off to
+   drive through it; any other vehicle is expected gone by then. A vehicle
    without a plan stands at its frontier, booked for good where nobody was planned
    across it already. When its plan fails
    because vehicles planned before it cross its frontier before it can get away, they
@@ -136,9 +135,9 @@ class _Entry:
     booked_ahead: float | None = None
     hold_end: float = math.inf  # the end of its frontier window before it was planned
     fixed: list[int] | None = None  # a given route after the frontier (a return lane)
-    # where it stays (ends inf), it stays for good, in the way past the cut-off too (not
-    # only until further notice)
-    lasting: bool = True
+    # out of service: where it stays (ends inf), it stays for good, in the way past the
+    # cut-off too (else only until further notice: free from the cut-off on)
+    lasting: bool = False
     starts: list[float] = field(default_factory=list)  # the windows' starts in this round
 
 
@@ -616,12 +615,11 @@ class TimeWindowTraffic(FunctionBlock):
                     committed.append(steps[k])
                     labels.append(old[k])
         entry = _Entry(v, committed, labels, [], offset, len(held), goal=goal, kept=kept)
-        # where it stays, it stays for good (in the way past the cut-off too: silent,
-        # faulty, suspect, held, or with nothing to do), unless it still has a goal: at it
-        # or about to reach it, it goes on when given the next one, soon
-        entry.lasting = (
-            control.goal is None or control.state in WALLS or control.suspect or control.hold
-        )
+        # out of service (silent, stalled, suspect), it stays where it is for good: in the
+        # way past the cut-off too. Any other vehicle goes on when it is given a plan or its
+        # next goal: treated as a wall past the cut-off, the plans of a busy plant went the
+        # long way round vehicles that were gone long before they got there.
+        entry.lasting = control.state in WALLS or control.suspect
         entry.booked_ahead = booked_ahead
         self._time_committed(entry)
         if goal is not None and control.fixed_route is not None:
@@ -1029,7 +1027,6 @@ class TimeWindowTraffic(FunctionBlock):
         ):
             return
         entry.ends[-1] = math.inf
-        entry.lasting = True  # no plan: the vehicles planned after it go round it
         self._book_committed(entry)
 
     def _stage(self, ctx: CycleContext, budget: int) -> None:
