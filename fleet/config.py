@@ -44,6 +44,19 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")  # where simulated Modbus vehicles 
 MAX_CONFIG_BYTES = 4 * 2**20
 
 
+def parse_bus(spec: str) -> tuple[str, str]:
+    """``INTERFACE:CHANNEL`` of ``--bus``: a python-can interface, or ``modbus`` with
+    ``HOST:BASE_PORT``; ConfigError naming the option and what is wrong."""
+    interface, sep, channel = spec.partition(":")
+    if not sep or not interface or not channel:
+        raise ConfigError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
+    if interface == MODBUS:
+        modbus_endpoint(channel)
+    elif (problem := interface_problem(interface)) is not None:
+        raise ConfigError(f"--bus {spec!r}: {problem}, or modbus")
+    return interface, channel
+
+
 def modbus_endpoint(channel: str) -> tuple[str, int]:
     """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v."""
     host, sep, port = channel.rpartition(":")

@@ -20,14 +20,6 @@ from .fleet import Faults, Fleet
 from .modbus_endpoint import VehicleModbusEndpoints
 
 
-def parse_bus(spec: str) -> tuple[str, str]:
-    """'interface:channel' (e.g. socketcan:vcan0, udp_multicast:239.74.163.2, virtual:agv)."""
-    interface, sep, channel = spec.partition(":")
-    if not sep or not interface or not channel:
-        raise ValueError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
-    return interface, channel
-
-
 def default_starts(plant: Plant, count: int) -> dict[int, int]:
     """Vehicles 1..count on distinct nodes: entries first, then parking, chargers, transit."""
     order = ("entry", "parking", "charger", "transit", "station", "exit")

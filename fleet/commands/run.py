@@ -36,7 +36,6 @@ from typing import Any
 from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
-from io_drivers.can_bus import interface_problem
 from plc_runtime.cli import CliError, drive, duration_cycles
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
@@ -52,6 +51,7 @@ from ..config import (
     idle_settings,
     load_config,
     modbus_endpoint,
+    parse_bus,
 )
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
@@ -287,17 +287,6 @@ def plan(args: argparse.Namespace, cfg: FleetConfig) -> Setup:
             "for vehicles on another host use --vehicles external"
         )
     return Setup(bus, WallClock(spin=args.spin / 1e3, rt=args.rt), False, True)
-
-
-def parse_bus(spec: str) -> tuple[str, str]:
-    interface, sep, channel = spec.partition(":")
-    if not sep or not interface or not channel:
-        raise FleetRunError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
-    if interface == MODBUS:
-        modbus_endpoint(channel)
-    elif (problem := interface_problem(interface)) is not None:
-        raise FleetRunError(f"--bus {spec!r}: {problem}, or modbus")
-    return interface, channel
 
 
 def start_vehicles(

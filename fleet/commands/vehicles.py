@@ -14,7 +14,7 @@ from typing import Any
 from plc_runtime.cli import MAX_DURATION_S, whole
 from plc_runtime.errors import ConfigError
 
-from ..config import LOOPBACK, MODBUS, modbus_endpoint
+from ..config import LOOPBACK, MODBUS, modbus_endpoint, parse_bus
 from ..route import load_plant
 
 # A simulation step: below a tenth of a millisecond the loop only spins; above a second a
@@ -86,19 +86,6 @@ def check_writable(name: str) -> None:
         raise ConfigError(f"--monitor-out {name}: not writable")
 
 
-def parse_link(spec: str) -> tuple[str, str]:
-    from io_drivers.can_bus import interface_problem
-    from vehicles.runner import parse_bus
-
-    try:
-        interface, channel = parse_bus(spec)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    if interface != MODBUS and (problem := interface_problem(interface)) is not None:
-        raise ConfigError(f"--bus {spec!r}: {problem}, or modbus")
-    return interface, channel
-
-
 def shared_link(
     bus: tuple[str, str] | None, modbus_base_port: int | None, where: str
 ) -> tuple[str | None, str | None, int | None]:
@@ -138,7 +125,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
     if args.config and args.count is not None:
         raise ConfigError("--count applies with --plant: a configuration names its vehicles")
     status_period, faults, params, charges = 0.1, None, None, None
-    bus = parse_link(args.bus) if args.bus else None
+    bus = parse_bus(args.bus) if args.bus else None
     where = "--bus"
     if args.config:
         from ..config import load_config
