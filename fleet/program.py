@@ -36,10 +36,10 @@ from blocks.traffic.records import (
     RecordArea,
     VehicleRecordsView,
 )
-from blocks.traffic.reservation import ReservationMatrix
+from blocks.traffic.reservation import OUT_OF_SERVICE, ReservationMatrix
 from blocks.traffic.sipp import TurnTimes
 from blocks.traffic.tw_traffic import TimeWindowTraffic
-from blocks.traffic.vehicle_control import OUT_OF_SERVICE, VehicleControl
+from blocks.traffic.vehicle_control import VehicleControl
 from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime

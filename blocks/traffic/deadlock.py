@@ -59,14 +59,13 @@ from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
-from .reservation import ReservationMatrix
+from .reservation import OUT_OF_SERVICE, ReservationMatrix
 from .vehicle_control import VehicleControl
 
 MAX_BACK_OFFS = 8  # back-offs for one cycle without progress: then it is a livelock
 RETRY_S = 1.0  # a cycle nobody could leave is tried again this often
 RETRY_NS = round(RETRY_S * 1e9)
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
-WALLS = frozenset(("offline", "stale", "fault", "suspect"))
 
 
 class _Ranks(dict[int, tuple]):
@@ -255,7 +254,7 @@ class DeadlockResolver(FunctionBlock):
         index, pushes = self.plant.index, self.pushes_allowed
         standing, pushable = {}, set()
         for v, c in self.controls.items():
-            if c.released or c.current is None or c.state in WALLS:
+            if c.released or c.current is None or c.state in OUT_OF_SERVICE:
                 continue
             standing[v] = index[c.current]
             if pushes and not (c.hold or c.arrived) and c.fixed_route is None:
@@ -343,7 +342,7 @@ class DeadlockResolver(FunctionBlock):
             return False  # it waits on this decision: waiting for it would be a circle
         standing = self._standing_now
         if holder not in standing:
-            return self.controls[holder].state not in WALLS  # driving: it leaves by itself
+            return self.controls[holder].state not in OUT_OF_SERVICE  # driving: it leaves by itself
         if len(chain) >= MAX_CHAIN:
             return holder in self._next and self._next[holder] != standing[holder]
         if holder in self._next:

@@ -48,6 +48,11 @@ from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 
 FREE = -1
+
+# the states of a vehicle out of service (never heard from, silent, faulty, suspect): it
+# stands where it is and makes no way, whatever it holds, until it is back
+OUT_OF_SERVICE = frozenset(("offline", "stale", "fault", "suspect"))
+
 NO_AREA = -1
 
 

@@ -91,11 +91,10 @@ from topology import Plant
 
 from .pass_order import PassOrder
 from .path_heat import heat_weights, usage_along_distances
-from .reservation import ReservationMatrix
+from .reservation import OUT_OF_SERVICE, ReservationMatrix
 from .sipp import ArcGeometry, SafeIntervalSearch, TimedPlan, TurnTimes, time_route
 from .time_windows import TimeWindowTable
 
-WALLS = ("offline", "stale", "fault", "suspect")
 # who a round plans first, among vehicles whose plan did not fail last round: "release",
 # the seed's rule (the program's priority: the oldest task first); "nearest_goal", the
 # vehicle with the least way left to its goal first, the program's priority breaking ties
@@ -414,7 +413,12 @@ class TimeWindowTraffic(FunctionBlock):
     @staticmethod
     def _moving_goal(control) -> int | None:
         """Where a vehicle wants to drive now; None: it stays where it is."""
-        if control.state in WALLS or control.suspect or control.hold or control.goal is None:
+        if (
+            control.state in OUT_OF_SERVICE
+            or control.suspect
+            or control.hold
+            or control.goal is None
+        ):
             return None
         if control.frontier == control.goal and control.fixed_route is None:
             return None  # there (a route that passed its goal and comes back is dropped)
@@ -619,7 +623,7 @@ class TimeWindowTraffic(FunctionBlock):
         # way past the cut-off too. Any other vehicle goes on when it is given a plan or its
         # next goal: treated as a wall past the cut-off, the plans of a busy plant went the
         # long way round vehicles that were gone long before they got there.
-        entry.lasting = control.state in WALLS or control.suspect
+        entry.lasting = control.state in OUT_OF_SERVICE or control.suspect
         entry.booked_ahead = booked_ahead
         self._time_committed(entry)
         if goal is not None and control.fixed_route is not None:

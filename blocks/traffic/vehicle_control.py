@@ -60,13 +60,11 @@ from .records import (
     STALE,
     VehicleRecordsView,
 )
-from .reservation import ReservationMatrix
+from .reservation import OUT_OF_SERVICE, ReservationMatrix
 
 RESEND_AFTER_NS = 300_000_000  # a command the vehicle shows no sign of: send it again
 NO_ROUTE_RETRY_NS = 1_000_000_000
 YIELD_NS = 20_000_000_000  # giving way after a back-off ends after this at the latest
-# states in which a vehicle makes no way, whatever it holds (others replan around it)
-OUT_OF_SERVICE = frozenset(("offline", "stale", "fault", "suspect"))
 RECOVER_S = 2.0  # a suspect vehicle reporting a node it holds this long returns to service
 
 
