@@ -34,6 +34,7 @@ the vehicles that have somewhere to go one after another through the free window
    across it already. When its plan fails
    because vehicles planned before it cross its frontier before it can get away, they
    give way: their plans are dropped and made again after its own (:meth:`_yield_to`).
+   No search enters a dead end another vehicle is bound for (:meth:`_close_pockets`).
 3. **Swap**: a fresh :class:`PassOrder` from the round's windows: committed visits in the
    order they had, planned ones by the time they claim the node. Each vehicle's control
    gets its route from wherever it has been released to meanwhile. A vehicle that took a
@@ -88,6 +89,7 @@ from blocks.routing.constraints import RoutingConstraints, highway_weights
 from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
+from topology.dead_ends import NO_POCKET, dead_end_pockets, pocket_entries
 
 from .pass_order import PassOrder
 from .path_heat import heat_weights, usage_along_distances
@@ -244,6 +246,9 @@ class TimeWindowTraffic(FunctionBlock):
         # steps from each area node out of its area: of two vehicles in one area (put
         # there by an operator), the one nearer the way out leaves first
         self._exit_hops = _exit_hops(plant, self.resources)
+        # dead ends (a station's spur, a queue siding): node index -> its pocket's root
+        self._pocket: list[int] = dead_end_pockets(plant).tolist()
+        self._pocket_entries = pocket_entries(plant, np.asarray(self._pocket))
         self.table = TimeWindowTable(gap_s, self.resources)  # the current plans' windows
         self.order = PassOrder()
         self._lengths = _segment_lengths(plant)
@@ -263,7 +268,9 @@ class TimeWindowTraffic(FunctionBlock):
         self._due_ns = 0
         self._began_ns = 0
         self._min_gap_ns = round(replan_s * 1e9 / 4)
-        self._allowed: list[bool] = []
+        self._allowed: list[bool] = []  # the open arcs this round (blockades closed)
+        self._closed_pockets: set[int] = set()  # this round: pockets some vehicle is bound for
+        self._pocket_allowed: list[bool] = []  # _allowed with those pockets' entries closed
         self._epoch = blockades.epoch
         self._wanted = False
         # the round being planned
@@ -499,10 +506,49 @@ class TimeWindowTraffic(FunctionBlock):
             if entry.goal is not None and not entry.kept:
                 movers.append(entry)
             yield len(entry.committed)
+        self._close_pockets()
         self._weights = self._arc_weights()
         late = self._late
         self._queue = sorted(movers, key=lambda e: (e.vehicle not in late, *self._urgency(e)))
         self._late = set()
+
+    def _close_pockets(self) -> None:
+        """Close to this round's searches every dead end a vehicle is bound for (its goal
+        lies in it), but to the vehicles bound for it or in it. A dead end is nobody's way
+        through, only a place to wait, and a vehicle planned to wait in one another vehicle
+        is sent to (a station's spur: the next vehicle that station serves) can only come
+        out through the node that vehicle waits on in front of it. Both then wait for ever
+        once the one inside has no plan for a round: the plans past the cut-off do not see
+        it (the reactive resolver never pushes a vehicle into an area, for the same
+        reason)."""
+        pocket, index = self._pocket, self.plant.index
+        closed = set()
+        for control in self.controls.values():
+            goal = control.goal
+            if goal is not None and goal in index and pocket[index[goal]] != NO_POCKET:
+                closed.add(pocket[index[goal]])
+        self._closed_pockets = closed
+        allowed = self._allowed
+        if closed:
+            allowed = list(allowed)
+            for root in closed:
+                for arc in self._pocket_entries.get(root, ()):
+                    allowed[arc] = False
+        self._pocket_allowed = allowed
+
+    def _allowed_for(self, entry: _Entry) -> list[bool]:
+        """The arcs ``entry``'s search may use: the round's, with the dead ends closed
+        (:meth:`_close_pockets`) but for the one its goal lies in and the one it stands in."""
+        index, pocket = self.plant.index, self._pocket
+        own = {pocket[index[entry.goal]], pocket[index[entry.committed[-1]]]}
+        own &= self._closed_pockets
+        if not own:
+            return self._pocket_allowed
+        allowed = list(self._pocket_allowed)
+        for root in own:
+            for arc in self._pocket_entries.get(root, ()):
+                allowed[arc] = self._allowed[arc]
+        return allowed
 
     def _urgency(self, entry: _Entry) -> tuple:
         """Sort key of who is planned first (``plan_order``). Nearest the goal first lets
@@ -909,7 +955,7 @@ class TimeWindowTraffic(FunctionBlock):
             turns=self.turns,
             to_goal=row,
             hold_s=self.goal_hold_s,
-            allowed=self._allowed,
+            allowed=self._allowed_for(entry),
             geometry=self.geometry,
             until=self._until,
             weights=self._weights,
