@@ -67,6 +67,7 @@ class EventLog(FunctionBlock):
         self._deadlocks_seen = 0
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
+        self._loads = dict.fromkeys(sequencers, "")  # the order whose load was left on board
         self._blocked: set[tuple[int, int]] = set()
         # every segment closed or reopened, whoever did it: (time_s, "closed" | "reopened", a, b)
         self.segment_changes: deque[tuple[float, str, int, int]] = deque(maxlen=capacity)
@@ -96,6 +97,7 @@ class EventLog(FunctionBlock):
                 elif before in ALARM_STATES and before != "offline":
                     self.add(now, "recovered", v, f"{before} -> {state}")
         self._started = True
+        self._loads_left(now)
         if self.traffic is not None:
             self._strandings(now)
         if self._epoch == self.blockades.epoch:
@@ -111,6 +113,20 @@ class EventLog(FunctionBlock):
             self.segment_changes.append((round(now, 3), "reopened", a, b))
             self.lifted.add((a, b))
         self._blocked = blocked
+
+    def _loads_left(self, now: float) -> None:
+        """An order ended without its Put (withdrawn, failed): its load is still on the
+        vehicle, which takes no order until an operator confirms it was taken off."""
+        for v, job in self.sequencers.items():
+            left = job.load if getattr(job, "load_left", False) else ""
+            if left != self._loads[v]:
+                self._loads[v] = left
+                if left:
+                    text = (
+                        f"load of order {left} left on board: no order until it is taken off "
+                        f"and the vehicle acknowledged (agv{v}.ack)"
+                    )
+                    self.add(now, "vehicle", v, text)
 
     def _strandings(self, now: float) -> None:
         """Time-window traffic found no path for a vehicle for longer than its wait

@@ -407,14 +407,29 @@ class FleetProgram:
         return taken
 
     def _acknowledge(self, ctx: CycleContext, vehicle: int) -> str | None:
-        """An operator's acknowledge of a suspect vehicle (the ``agvN.ack`` tag), logged."""
-        control = self.controls[vehicle]
+        """An operator's acknowledge of a vehicle (the ``agvN.ack`` tag), logged: after
+        looking at it, the operator confirms that a suspect vehicle stands where it
+        reports (it returns to service), and that a load its order left on board (the
+        order was withdrawn or failed before its Put) was taken off (it takes orders
+        again). Returns why nothing was acknowledged, or None."""
+        control, job = self.controls[vehicle], self.jobs[vehicle]
+        unloaded = isinstance(job, OrderRunner) and job.load_left
+        if unloaded:
+            order = job.load
+            job.unloaded()
+            self.events.add(ctx.time, "recovered", vehicle, f"load of order {order} taken off")
+            if not control.suspect:
+                return None
         reason = control.suspect_reason
         why = control.acknowledge(ctx)
         if why is None:
             text = f"acknowledged at node {control.current} (was: {reason})"
             self.events.add(ctx.time, "recovered", vehicle, text)
+        elif unloaded:
+            self.events.add(ctx.time, "vehicle", vehicle, f"acknowledge of suspect refused: {why}")
         else:
+            if why == "not suspect" and isinstance(job, OrderRunner):
+                why = "not suspect, and no load left on board"
             self.events.add(ctx.time, "vehicle", vehicle, f"acknowledge refused: {why}")
         return why
 

@@ -197,14 +197,15 @@ VEHICLE_FIELDS = tuple(
             (
                 "ack",
                 "UINT",
-                "operator: a new nonzero value acknowledges a suspect vehicle where it reports",
+                "operator: a new nonzero value acknowledges the vehicle: a suspect one stands "
+                "where it reports, a load its order left on board was taken off",
                 True,
             ),
             (
                 "ack_result",
                 "UINT",
-                f"result of the last ack: {ACK_DONE} back in service, {ACK_REFUSED} refused "
-                "(not suspect, or its node is held by another: see the event log)",
+                f"result of the last ack: {ACK_DONE} done, {ACK_REFUSED} refused (nothing to "
+                "acknowledge, or its node is held by another: see the event log)",
                 False,
             ),
         )

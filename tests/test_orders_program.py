@@ -17,6 +17,7 @@ from fleet import liveness
 from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_drawing
+from fleet.tags import ACK_DONE, ACK_REFUSED
 from plc_runtime.errors import ConfigError
 from vehicles.fleet import Faults
 
@@ -249,6 +250,47 @@ def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, m
     b = p.orders.book.get("B")
     assert b.state is OrderState.DISPATCHABLE and b.assigned is None
     assert runner.phase in ("to_charger", "charging") and runner.min_battery == 8
+
+
+def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_path, made):
+    """two_stage: vehicle 1 carries order A's load and holds B as its next order when A is
+    withdrawn. The load is still on its deck, so it must not drive for B's Get with it: B
+    goes back to the pool, and the vehicle takes no order (the only vehicle: B waits) until
+    an operator has taken the load off and acknowledged the vehicle through its tag. Then
+    it takes B and delivers it."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    p.orders.submit(TransportOrder("B", 29, 27))
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(
+        lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
+    )
+    assert runner.load == "A" and not runner.load_left  # on board, for its own order
+    p.orders.withdraw("A")
+    run(p, 120)
+    book = p.orders.book
+    a, b = book.get("A"), book.get("B")
+    assert a.state is OrderState.WITHDRAWN and runner.load == "A" and runner.load_left
+    assert b.state is OrderState.DISPATCHABLE and b.assigned is None and "load on board" in b.reason
+    assert runner.active is None and runner.next is None
+    left = [e for e in p.events.events if "left on board" in e.text]
+    assert [(e.vehicle, e.kind) for e in left] == [(1, "vehicle")]
+    assert "order A" in left[0].text and "agv1.ack" in left[0].text
+    p.rt.image.write("agv1.ack", 1)  # as an HMI would, once the load is off
+    run(p, 120)
+    assert p.rt.image.read("agv1.ack_result") == ACK_DONE
+    assert any(
+        e.kind == "recovered" and "load of order A taken off" in e.text for e in p.events.events
+    )
+    assert runner.load == "" and book.get("B").state is OrderState.FINISHED
+    assert book.get("B").history[-1][0] > left[0].time_s + 120  # not a moment before
+    # nothing left to confirm: a new ack value is refused, and says why
+    p.rt.image.write("agv1.ack", 2)
+    run(p, 0.1)
+    assert p.rt.image.read("agv1.ack_result") == ACK_REFUSED
+    assert p.events.events[-1].text == "acknowledge refused: not suspect, and no load left on board"
 
 
 @pytest.mark.parametrize("dead_s", [8, 14])

@@ -19,7 +19,8 @@ The dispatcher decides *what* a vehicle does; routing and traffic decide *how* i
    lists as the vehicles stand (:func:`live_schedule`), so a late vehicle or a queue in
    front of a station is priced in.
 
-Vehicles that are offline, stale, faulty or suspect take nothing (``available``); a vehicle
+Vehicles that are offline, stale, faulty or suspect take nothing (``available``), nor does
+one with a load left on board by an order that ended without its Put; a vehicle
 whose battery would end an order below the ChargePolicy's ``good`` level takes nothing
 either, and a charging one only once its charge is sufficient.
 """
@@ -259,7 +260,7 @@ class Dispatcher(FunctionBlock):
         order's Put station at its estimated ``finish``."""
         out = []
         for v, r in self.runners.items():
-            if r.current is None or r.battery is None or not self.available(v):
+            if r.current is None or r.battery is None or not self.available(v) or r.load_left:
                 continue  # (a vehicle whose charge is not known yet takes nothing)
             # (a vehicle charging by choice while idle stays available as if it were not)
             charging = r.phase in ("to_charger", "charging") and not r.topping_up
@@ -346,6 +347,7 @@ class Dispatcher(FunctionBlock):
         for a in assignments:
             runner, order = self.runners[a.vehicle], a.order
             free = runner.active is None or (runner.next is None and runner.frozen)
+            free = free and not runner.load_left
             if (
                 order.state is not OrderState.DISPATCHABLE
                 or order.assigned is not None

@@ -30,6 +30,12 @@ reservations) decide how it drives; this block only sets the target and the hold
 an order a vehicle charges when its ChargePolicy says it must, tops up when it is below
 ``sufficient`` and a charger is to spare (still available for orders), and otherwise parks at
 a free parking position, out of the others' way.
+
+A load stays on board when its order ends without its Put (withdrawn, or failed: a
+blockade cut the Put station off, the vehicle was out of service too long). The vehicle
+then takes no order, next or new, until an operator confirms the load was taken off
+(:meth:`unloaded`, the vehicle's acknowledge): given one, it would drive to a Get station
+with a load already on its deck. Meanwhile it parks, and charges when it must.
 """
 
 from __future__ import annotations
@@ -189,6 +195,12 @@ class OrderRunner(FunctionBlock):
     charges = Output(0, doc="visits to a charger")
     charging_s = Output(0.0, doc="time spent on a charger, finished visits")
     min_battery = Output(100, doc="the lowest state of charge seen, %")
+    load = Output(
+        "",
+        doc="the order whose load is on board ('' when none): from the end of its Get to the "
+        "end of its Put, or, when the order ended without its Put, until an operator "
+        "confirms the load was taken off",
+    )
 
     active = Static(None)  # the order being driven (TransportOrder)
     next = Static(None)  # the order after it, changeable until taken up
@@ -253,6 +265,20 @@ class OrderRunner(FunctionBlock):
     @property
     def busy(self) -> bool:
         return self.active is not None
+
+    @property
+    def load_left(self) -> bool:
+        """A load is on board whose order ended without its Put: no order for this vehicle
+        until an operator confirms it was taken off."""
+        return bool(self.load) and (self.active is None or self.active.id != self.load)
+
+    def unloaded(self) -> str | None:
+        """An operator confirms the load left on board was taken off: the vehicle takes
+        orders again. Returns why not (None: done)."""
+        if not self.load_left:
+            return "no load left on board"
+        self.load = ""
+        return None
 
     def take(self, ctx: CycleContext, order: TransportOrder) -> None:
         """The dispatcher gives ``order`` to this vehicle: active if it has none, else next."""
@@ -377,7 +403,11 @@ class OrderRunner(FunctionBlock):
             self._drop_active(ctx, "a station is held by a vehicle out of service")
         if self.active is None and self.next is not None:
             order, self.next = self.next, None
-            if self.battery is not None and not self.charging.may_take(self.battery):
+            if self.load_left:
+                # its last order ended with the load on board: not one more on top of it
+                order.assigned = None
+                self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "load on board")
+            elif self.battery is not None and not self.charging.may_take(self.battery):
                 # the charge fell faster than the dispatcher expected when it gave the order:
                 # the vehicle goes charging, and the order to whoever can drive it
                 order.assigned = None
@@ -495,11 +525,13 @@ class OrderRunner(FunctionBlock):
         order = self.active
         self.hold = False
         if self.phase == "get":
+            self.load = order.id
             self.leaving = order.get  # its claim ends when the vehicle has left the station
             self.phase, self.target = "to_put", order.put
             self._next_section(ctx, "Go_To_Put")
             return
         self.leaving = order.put
+        self.load = ""
         self._end(ctx)
         self.book.transition(order, OrderState.FINISHED, ctx.time)
         if self.battery_at_start is not None and self.battery is not None:

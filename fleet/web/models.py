@@ -166,6 +166,11 @@ class VehicleOut(BaseModel):
     fault: bool
     suspect: bool = Field(description="an implausible report: stopped (docs/security.md)")
     suspect_reason: str
+    load: str | None = Field(
+        description="the order whose load is on board (null: none). Not its active order: "
+        "the order ended without its Put (withdrawn, failed), so the vehicle takes no order "
+        "until the load is taken off and the vehicle acknowledged (agvN.ack)"
+    )
     held: bool = Field(description="an operator holds it")
     waits: int
     replans: int

@@ -106,6 +106,7 @@ class VehicleCopy(NamedTuple):
     next_order: str | None
     recipe: str | None
     suspect_reason: str
+    load: str | None
 
 
 class FleetCopy:
@@ -154,6 +155,7 @@ class FleetCopy:
                     None if runner is None or runner.next is None else runner.next.id,
                     job.recipe_name or None,
                     c.suspect_reason,
+                    None if runner is None else runner.load or None,
                 ),
             )
             for v, c, runner, job in members
@@ -185,6 +187,7 @@ def render_vehicles(copied: tuple[np.ndarray, list[VehicleCopy]]) -> list[dict[s
                 "fault": bool(row[V["fault"]]),
                 "suspect": bool(row[V["suspect"]]),
                 "suspect_reason": c.suspect_reason,
+                "load": c.load,
                 "held": bool(row[V["held"]]),
                 "waits": row[V["waits"]],
                 "replans": row[V["replans"]],

@@ -577,6 +577,7 @@
     const flags = [];
     if (v.held) flags.push("held");
     if (v.suspect) flags.push("suspect");
+    if (v.load && v.load !== v.order) flags.push(`load ${v.load} left on board`);
     if (v.stale) flags.push("stale");
     if (v.fault) flags.push("fault");
     if (!v.online) flags.push("offline");
