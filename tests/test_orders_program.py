@@ -328,17 +328,25 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 
-@pytest.mark.parametrize("strategy", ["nearest_idle", "dhht", "two_stage"])
-def test_an_order_at_a_station_out_of_service_does_not_starve_the_others(strategy, tmp_path, made):
+@pytest.mark.parametrize(
+    ("strategy", "more"), [("nearest_idle", 0), ("dhht", 0), ("two_stage", 0), ("dhht", 150)]
+)
+def test_an_order_at_a_station_out_of_service_does_not_starve_the_others(
+    strategy, more, tmp_path, made
+):
     """Vehicle 1 falls silent driving into station 20 and gives o1 up; o1 then waits, the
     most urgent order, for a station nobody can use. It must not take a round's free
-    vehicle every round: vehicle 2 drives the later orders, which need other stations."""
+    vehicle every round: vehicle 2 drives the later orders, which need other stations.
+    Nor may ``more`` orders for that station, more urgent than the rest and more than a
+    round's pool takes (100), fill the pool: a round passes over them."""
     extra = "out_of_service_s = 30\n[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = 8\n"
     cfg = config("id,get,put,start_s,end_s\no1,20,29,0,300\n", tmp_path, ((1, 0), (2, 11)), extra)
     cfg.dispatch.strategy = strategy
     p = start(cfg, made)
     run(p, 100)
     assert p.orders.book.get("o1").state is OrderState.DISPATCHABLE
+    for k in range(more):
+        p.orders.submit(TransportOrder(f"s{k}", 20, 25, 0.0, 5000.0, priority=5))
     for k, (get, put) in enumerate([(22, 27), (24, 21), (26, 23)]):
         p.orders.submit(TransportOrder(f"n{k}", get, put, 0.0, 5000.0))
     run(p, 400)

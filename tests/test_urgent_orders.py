@@ -126,3 +126,32 @@ def test_rebuild_starts_from_the_given_orders_only():
     index.update(a, 0.0)
     index.rebuild([b], 0.0)
     assert index.most_urgent(5) == [b]
+
+
+@given(
+    st.lists(st.booleans(), min_size=1, max_size=40),
+    st.integers(1, 10),
+    st.integers(0, 15),
+)
+def test_orders_that_cannot_be_given_out_are_passed_over_up_to_a_limit(servable, k, limit):
+    """``accept`` refuses some orders (their station is held by a vehicle out of service):
+    the index gives the k most urgent it accepts, as filtering the sort would, but stops
+    looking once it has passed over ``limit`` refused ones; and nothing leaves the index."""
+    orders = [make(i, 0.0, float(i), 0) for i in range(len(servable))]
+    index = UrgentOrders(startable_only=False)
+    for order in orders:
+        index.update(order, 0.0)
+    ok = {o.id for o, s in zip(orders, servable, strict=True) if s}
+    got = index.most_urgent(k, lambda o: o.id in ok, limit)
+    expected, passed = [], 0
+    for o in sorted(orders, key=urgency):
+        if len(expected) == k:
+            break
+        if o.id in ok:
+            expected.append(o)
+        else:
+            passed += 1
+            if passed > limit:
+                break
+    assert got == expected
+    assert index.most_urgent(len(orders)) == sorted(orders, key=urgency)

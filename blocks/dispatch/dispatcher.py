@@ -57,6 +57,11 @@ ROUTE_BUDGET = 1000
 STARTABLE_BUDGET = 1000
 
 
+# orders a round's pool passes over (they cannot be given out now) before it stops looking:
+# a bound on a scan's work however many orders wait at a station out of service
+PASSED_LIMIT = 1000
+
+
 class Dispatcher(FunctionBlock):
     rounds = Output(0, doc="allocation rounds completed")
     evaluations = Output(0, doc="(vehicle, order) pairs evaluated")
@@ -287,11 +292,27 @@ class Dispatcher(FunctionBlock):
                 self._urgent.update(order, ctx.time)
         self._urgent_revision = self.book.revision
 
-    def _pool(self, ctx: CycleContext) -> list[TransportOrder]:
+    def _pool(self, ctx: CycleContext, vehicles: list[Candidate]) -> list[TransportOrder]:
         """The ``pool_limit`` most urgent waiting orders, as sorting them all would give
-        (orders given back earlier in this scan included)."""
+        (orders given back earlier in this scan included), that can be given out now
+        (:meth:`_servable`); up to :data:`PASSED_LIMIT` that cannot are passed over."""
         self._index_changes(ctx)
-        return self._urgent.most_urgent(self.pool_limit)
+        if not vehicles:
+            return []
+        return self._urgent.most_urgent(
+            self.pool_limit, lambda o: self._servable(o, vehicles), PASSED_LIMIT
+        )
+
+    def _servable(self, order: TransportOrder, vehicles: list[Candidate]) -> bool:
+        """An order not rechecked since the blockades changed may be cut off, and one at a
+        station a vehicle out of service holds cannot be served: neither is given out, or
+        a round would give it again and again to a vehicle that could do another."""
+        return (
+            self.reach.reaches(order.get, order.put)
+            and any(self.reach.reaches(c.node, order.get) for c in vehicles)
+            and not self.claims.stuck(order.get)
+            and not self.claims.stuck(order.put)
+        )
 
     def _start_round(self, ctx: CycleContext) -> None:
         self._last_round_ns = ctx.time_ns
@@ -300,19 +321,8 @@ class Dispatcher(FunctionBlock):
             self._working, finish = live_schedule(
                 self.runners, self.estimates, self.schedule.buffer_s, ctx.time
             )
-        vehicles, orders = self._candidates(ctx, finish), self._pool(ctx)
-        # (an order not rechecked since the blockades changed may be cut off, and one at a
-        # station a vehicle out of service holds cannot be served: neither is given out,
-        # or a round would give it again and again to a vehicle that could do another)
-        stuck = self.claims.stuck
-        orders = [
-            o
-            for o in orders
-            if self.reach.reaches(o.get, o.put)
-            and any(self.reach.reaches(c.node, o.get) for c in vehicles)
-            and not stuck(o.get)
-            and not stuck(o.put)
-        ]
+        vehicles = self._candidates(ctx, finish)
+        orders = self._pool(ctx, vehicles)
         if not vehicles or not orders:
             self._working = None
             return

@@ -21,7 +21,7 @@ share one start time makes them startable over some scans, as they were released
 from __future__ import annotations
 
 import heapq
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from .orders import OrderState, TransportOrder
 
@@ -81,18 +81,33 @@ class UrgentOrders:
                 moved += 1
         return True
 
-    def most_urgent(self, k: int) -> list[TransportOrder]:
+    def most_urgent(
+        self,
+        k: int,
+        accept: Callable[[TransportOrder], bool] | None = None,
+        passed_limit: int = 0,
+    ) -> list[TransportOrder]:
         """The ``k`` most urgent orders in the pool not assigned to a vehicle, most urgent
-        first (only those made startable, if so built)."""
+        first (only those made startable, if so built). With ``accept``, the orders it
+        refuses are passed over, up to ``passed_limit`` of them (a look bounded however
+        many are refused), so that more urgent orders that cannot be given out now do
+        not take the places of those that can."""
         taken: list[tuple[Urgency, int, TransportOrder]] = []
         out: list[TransportOrder] = []
+        passed = 0
         while self._ready and len(out) < k:
             entry = heapq.heappop(self._ready)
             if not self._live(entry[2], entry[1]):
                 continue  # (it left the pool: its entry goes)
             taken.append(entry)
-            if entry[2].assigned is None:
+            if entry[2].assigned is not None:
+                continue
+            if accept is None or accept(entry[2]):
                 out.append(entry[2])
+            else:
+                passed += 1
+                if passed > passed_limit:
+                    break
         for entry in taken:
             heapq.heappush(self._ready, entry)
         return out
