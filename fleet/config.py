@@ -9,8 +9,10 @@ provides, two vehicles on one start node, unknown recipe names.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
@@ -36,7 +38,9 @@ from .orders_config import (
 )
 
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
-VEHICLES_PER_BUS = 126
+VEHICLES_PER_BUS = 126  # vehicle ids on one CAN bus: 7 bits, 0 and 127 taken
+MAX_BUSES = 8  # a configuration's vehicle ids go up to VEHICLES_PER_BUS * MAX_BUSES
+T = TypeVar("T")
 MODBUS = "modbus"  # the bus "interface" that means one Modbus TCP server per vehicle
 LOOPBACK = ("127.0.0.1", "localhost", "::1")  # where simulated Modbus vehicles can serve
 
@@ -45,8 +49,9 @@ MAX_CONFIG_BYTES = 4 * 2**20
 
 
 def parse_bus(spec: str) -> tuple[str, str]:
-    """``INTERFACE:CHANNEL`` of ``--bus``: a python-can interface, or ``modbus`` with
-    ``HOST:BASE_PORT``; ConfigError naming the option and what is wrong."""
+    """``INTERFACE:CHANNEL`` of ``--bus``: a python-can interface with its channel (several,
+    comma-separated, for a fleet on several buses), or ``modbus`` with ``HOST:BASE_PORT``;
+    ConfigError naming the option and what is wrong."""
     interface, sep, channel = spec.partition(":")
     if not sep or not interface or not channel:
         raise ConfigError(f"--bus {spec!r}: expected INTERFACE:CHANNEL, e.g. socketcan:vcan0")
@@ -54,7 +59,54 @@ def parse_bus(spec: str) -> tuple[str, str]:
         modbus_endpoint(channel)
     elif (problem := interface_problem(interface)) is not None:
         raise ConfigError(f"--bus {spec!r}: {problem}, or modbus")
+    elif not all(bus_channels(channel)):
+        raise ConfigError(f"--bus {spec!r}: an empty channel between commas")
     return interface, channel
+
+
+def bus_channels(channel: str) -> list[str]:
+    """The channels of a CAN link, one per bus: ``vcan0,vcan1`` carries vehicles 1..126 on
+    vcan0 and 127..252 on vcan1 (the protocol's ids are 7 bits)."""
+    return [c.strip() for c in channel.split(",")]
+
+
+def bus_of(vehicle: int) -> tuple[int, int]:
+    """(bus, id on that bus) of a vehicle: 126 to a bus, in id order."""
+    return (vehicle - 1) // VEHICLES_PER_BUS, (vehicle - 1) % VEHICLES_PER_BUS + 1
+
+
+def by_bus(values: Mapping[int, T]) -> dict[int, dict[int, T]]:
+    """``values`` by vehicle id, split by bus and keyed by the ids on each bus."""
+    out: dict[int, dict[int, T]] = {}
+    for v, value in values.items():
+        k, local = bus_of(v)
+        out.setdefault(k, {})[local] = value
+    return out
+
+
+def link_problem(interface: str, channel: str, highest: int) -> str | None:
+    """Why the link cannot carry vehicle ids up to ``highest``, or None. The in-process
+    virtual bus makes as many buses as the ids need; any other CAN link needs a channel per
+    126 ids, and a Modbus link a port per vehicle."""
+    if interface == MODBUS:
+        _, base = modbus_endpoint(channel)
+        if base + highest > 65535:
+            return (
+                f"vehicle {highest} would serve on port {base + highest}, past 65535: "
+                "give a lower base port"
+            )
+        return None
+    if interface == "virtual":
+        return None
+    needed, given = bus_of(highest)[0] + 1, len(bus_channels(channel))
+    if given >= needed:
+        return None
+    return (
+        f"vehicle {highest} needs {needed} buses ({VEHICLES_PER_BUS} vehicles a bus: ids "
+        f"1..{VEHICLES_PER_BUS} on the first channel, {VEHICLES_PER_BUS + 1}.."
+        f"{2 * VEHICLES_PER_BUS} on the second, ...), and {channel!r} names {given}: give "
+        "them comma-separated, e.g. vcan0,vcan1"
+    )
 
 
 def modbus_endpoint(channel: str) -> tuple[str, int]:
@@ -280,6 +332,10 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
             raise bus.fail("channel", str(exc)) from None
     elif (problem := interface_problem(cfg.bus_interface)) is not None:
         raise bus.fail("interface", f"{problem}, or modbus")
+    elif not all(bus_channels(cfg.bus_channel)):
+        raise bus.fail("channel", "an empty channel between commas")
+    if (problem := link_problem(cfg.bus_interface, cfg.bus_channel, max(cfg.starts))) is not None:
+        raise bus.fail("channel", problem)
     problems = standing_steps(cfg)
     if problems:
         raise ConfigError(f"{source}: vehicles: {problems[0]}")
@@ -490,7 +546,7 @@ def _vehicles(
         if not isinstance(item, dict):
             raise ConfigError(f"{source}: vehicles[{k}]: expected a table")
         r = TableReader(source, item, f"vehicles[{k}].")
-        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
+        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS * MAX_BUSES)
         start = _node(r, "start", plant)
         own = r.get("recipes", list, None)
         charge = r.number("battery", 100.0, 0.0, 100.0)
@@ -543,7 +599,7 @@ def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
         if not isinstance(item, dict):
             raise ConfigError(f"{reader.source}: faults.vehicles[{k}]: expected a table")
         r = TableReader(reader.source, item, f"faults.vehicles[{k}].")
-        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS)
+        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS * MAX_BUSES)
         if vid not in starts:
             raise r.fail("id", f"no vehicle {vid} in [[vehicles]]")
         if vid in given:  # the later entry would replace the earlier one without a word

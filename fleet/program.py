@@ -48,7 +48,15 @@ from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
 
-from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, modbus_endpoint
+from .config import (
+    VEHICLES_PER_BUS,
+    Blockade,
+    FleetConfig,
+    bus_channels,
+    bus_of,
+    by_bus,
+    modbus_endpoint,
+)
 from .events import EventLog
 from .order_system import OrderSystem, targets
 from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
@@ -152,7 +160,7 @@ class FleetProgram:
         plant = cfg.plant
         vehicles = sorted(cfg.starts)
         self.vehicles = vehicles
-        n_buses = (vehicles[-1] - 1) // VEHICLES_PER_BUS + 1
+        n_buses = bus_of(vehicles[-1])[0] + 1
         interface, channel = bus or (cfg.bus_interface, cfg.bus_channel)
         self.rt = Runtime(
             cycle_time=cfg.cycle_time,
@@ -168,13 +176,12 @@ class FleetProgram:
             },
             tags=fleet_tags(vehicles),
         )
-        areas, placement = [], {}
+        areas, placement = [], {v: bus_of(v) for v in vehicles}
+        on_bus = by_bus(dict.fromkeys(vehicles))
         for k in range(n_buses):
-            local = [v - k * VEHICLES_PER_BUS for v in vehicles if (v - 1) // VEHICLES_PER_BUS == k]
+            local = sorted(on_bus.get(k, ()))
             base = AREA_BYTES * (k + 1)
             areas.append(RecordArea(base, base, max(local) if local else 1))
-            for lv in local:
-                placement[lv + k * VEHICLES_PER_BUS] = (k, lv)
             if local:
                 self.rt.add_driver(self._vehicle_link(interface, channel, k, n_buses, local, base))
         assert all(RECORD * (a.max_vehicle + 1) <= AREA_BYTES for a in areas)
@@ -318,7 +325,7 @@ class FleetProgram:
         return CanDriver(
             local,
             interface=interface,
-            channel=channel if k == 0 else f"{channel}{k}",
+            channel=_channel(channel, k),
             input_base=base,
             output_base=base,
             stale_after=self.cfg.stale_after_s,
@@ -331,38 +338,24 @@ class FleetProgram:
             return  # vehicles on a real bus are someone else's (their own process)
         cfg = self.cfg
         fleets, offsets = [], []
+        starts, faults, charges = by_bus(cfg.starts), by_bus(cfg.faults), by_bus(cfg.battery.start)
         for k in range(n_buses):
-            starts = {
-                v - k * VEHICLES_PER_BUS: cfg.starts[v]
-                for v in self.vehicles
-                if (v - 1) // VEHICLES_PER_BUS == k
-            }
-            if not starts:
+            if k not in starts:
                 continue
             bus = can.Bus(
-                interface="virtual",
-                channel=channel if k == 0 else f"{channel}{k}",
-                receive_own_messages=False,
+                interface="virtual", channel=_channel(channel, k), receive_own_messages=False
             )
             self._sim_buses.append(bus)
             fleets.append(
                 Fleet(
                     cfg.plant,
-                    starts,
+                    starts[k],
                     bus,
                     params=cfg.agv,
                     status_period=cfg.status_period_s,
-                    faults={
-                        v - k * VEHICLES_PER_BUS: f
-                        for v, f in cfg.faults.items()
-                        if (v - 1) // VEHICLES_PER_BUS == k
-                    },
+                    faults=faults.get(k, {}),
                     seed=cfg.seed + k,
-                    charges={
-                        v - k * VEHICLES_PER_BUS: c
-                        for v, c in cfg.battery.start.items()
-                        if (v - 1) // VEHICLES_PER_BUS == k
-                    },
+                    charges=charges.get(k, {}),
                 )
             )
             offsets.append(k * VEHICLES_PER_BUS)
@@ -492,3 +485,10 @@ class _Startup(FunctionBlock):
 
     def cycle(self, ctx: CycleContext) -> None:
         self.table.cycle(ctx)
+
+
+def _channel(channel: str, k: int) -> str:
+    """Bus ``k``'s channel: the k-th of the link's comma-separated channels. The in-process
+    virtual bus may name fewer (one, by default): it numbers the others after the first."""
+    channels = bus_channels(channel)
+    return channels[k] if k < len(channels) else f"{channels[0]}{k}"

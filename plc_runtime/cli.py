@@ -165,11 +165,15 @@ def one_line_warning(message: Warning | str, category: type, *args: Any, **kwarg
 
 # What a terminal must not be given raw: control characters (ESC starts an escape
 # sequence), lone surrogates (not text; printing one fails), line and paragraph separators,
-# and the bidirectional controls that show the text after them reordered. Other characters
+# and the bidirectional controls that show the text after them reordered (the embeddings,
+# overrides and isolates, and the marks LRM, RLM and ALM, which reorder what stands beside
+# them: a name could show as another). Other characters
 # that are not "printable" in Python's sense (no-break spaces, joiners, soft hyphens) are
 # parts of names and paths and stay as they are.
 _UNSAFE_CATEGORIES = frozenset(("Cc", "Cs", "Zl", "Zp"))
-_BIDI_CONTROLS = frozenset(map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A)]))
+_BIDI_CONTROLS = frozenset(
+    map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A), 0x200E, 0x200F, 0x061C])
+)
 
 
 def terminal_text(text: str) -> str:

@@ -859,6 +859,7 @@ def test_terminal_text_escapes_only_what_could_drive_a_terminal():
     assert [terminal_text(t) for t in kept] == kept
     assert terminal_text("a\x1b[2Jb\tc") == "a\\x1b[2Jb\\tc"
     assert terminal_text("r\u202eev\u2028\udce4") == "r\\u202eev\\u2028\\udce4"
+    assert terminal_text("agv\u200f12\u200e3\u061c") == "agv\\u200f12\\u200e3\\u061c"
 
 
 def test_ctrl_c_while_the_command_is_still_being_imported_is_one_line(monkeypatch, capsys):

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import signal
 from collections.abc import Callable, Mapping
+from typing import TypeVar
 
 from io_drivers.can_bus import open_can_bus
+from io_drivers.protocol import MAX_VEHICLE_ID
 from plc_runtime.clock import WallClock
 from topology import Plant
 
@@ -19,16 +21,25 @@ from .agv import AgvParams
 from .fleet import Faults, Fleet
 from .modbus_endpoint import VehicleModbusEndpoints
 
+T = TypeVar("T")
+
 
 def default_starts(plant: Plant, count: int) -> dict[int, int]:
     """Vehicles 1..count on distinct nodes: entries first, then parking, chargers, transit."""
     order = ("entry", "parking", "charger", "transit", "station", "exit")
     nodes = [n.id for role in order for n in plant.nodes if n.role == role]
-    if count > len(nodes) or not 1 <= count <= 126:
-        raise ValueError(
-            f"--count {count}: the plant has {len(nodes)} nodes, and a bus carries 1..126 vehicles"
-        )
+    if count > len(nodes):
+        raise ValueError(f"--count {count}: the plant has {len(nodes)} nodes")
     return {v + 1: nodes[v] for v in range(count)}
+
+
+def _on_bus(values: Mapping[int, T] | None, k: int | None) -> dict[int, T]:
+    """The entries of bus ``k``'s vehicles, keyed by their ids on that bus (``k`` None:
+    all of them, as they are: a Modbus link has no buses)."""
+    if k is None:
+        return dict(values or {})
+    first = k * MAX_VEHICLE_ID
+    return {v - first: x for v, x in (values or {}).items() if first < v <= first + MAX_VEHICLE_ID}
 
 
 def run_fleet(
@@ -42,15 +53,18 @@ def run_fleet(
     faults: Mapping[int, Faults] | None = None,
     modbus_base_port: int | None = None,
     on_ready: Callable[[str], None] | None = None,
-    on_step: Callable[[Fleet], None] | None = None,
+    on_step: Callable[[list[tuple[int, Fleet]]], None] | None = None,
     status_period: float = 0.1,
     params: AgvParams | None = None,
     charges: Mapping[int, float] | None = None,
-) -> Fleet:
+) -> list[tuple[int, Fleet]]:
     """Step the fleet every ``period`` wall-clock seconds until ``duration`` or a signal.
 
     The vehicles talk over the CAN bus ``interface:channel``, or, with ``modbus_base_port``,
-    each through its own Modbus TCP server on 127.0.0.1:(base port + vehicle id).
+    each through its own Modbus TCP server on 127.0.0.1:(base port + vehicle id). A CAN
+    bus carries vehicle ids 1..126: ``channel`` names one channel per bus, comma-separated
+    (vcan0,vcan1: vehicles 127..252 on vcan1 as ids 1..126). Returns each bus's fleet
+    with the offset of its ids (0 for the first).
     """
     stop = False
 
@@ -58,24 +72,42 @@ def run_fleet(
         nonlocal stop
         stop = True
 
-    bus = None if modbus_base_port else open_can_bus(interface, channel)
+    # (bus, channel): None and None for a Modbus link
+    groups: list[tuple[int | None, str | None]] = [(None, None)]
+    if not modbus_base_port:
+        channels = [c.strip() for c in (channel or "").split(",")]
+        needed = (max(starts) - 1) // MAX_VEHICLE_ID + 1
+        if needed > len(channels):
+            raise ValueError(
+                f"vehicle {max(starts)} needs {needed} buses, and {channel!r} names "
+                f"{len(channels)} channel(s)"
+            )
+        groups = [(k, channels[k]) for k in range(needed) if _on_bus(starts, k)]
+    buses, fleets = [], []
     try:
-        fleet = Fleet(
-            plant,
-            starts,
-            bus,
-            params=params,
-            faults=faults,
-            seed=seed,
-            status_period=status_period,
-            charges=charges,
-        )
+        for k, ch in groups:
+            bus = None if ch is None else open_can_bus(interface, ch)
+            if bus is not None:
+                buses.append(bus)
+            fleet = Fleet(
+                plant,
+                _on_bus(starts, k),
+                bus,
+                params=params,
+                faults=_on_bus(faults, k) or None,
+                seed=seed + (k or 0),
+                status_period=status_period,
+                charges=_on_bus(charges, k) or None,
+            )
+            fleets.append(((k or 0) * MAX_VEHICLE_ID, fleet))
     except BaseException:
-        if bus is not None:
+        for bus in buses:
             bus.shutdown()
         raise
     endpoints = (
-        VehicleModbusEndpoints(fleet, base_port=modbus_base_port) if modbus_base_port else None
+        VehicleModbusEndpoints(fleets[0][1], base_port=modbus_base_port)
+        if modbus_base_port
+        else None
     )
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -94,16 +126,17 @@ def run_fleet(
             clock.wait_until(t0 + k * period_ns)
             if endpoints:
                 endpoints.apply()
-            fleet.step(period)
+            for _, fleet in fleets:
+                fleet.step(period)
             if on_step:
-                on_step(fleet)
+                on_step(fleets)
             if endpoints:
                 endpoints.publish()
-        return fleet
+        return fleets
     finally:
         if endpoints:
             endpoints.stop()
-        if bus is not None:
+        for bus in buses:
             bus.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)

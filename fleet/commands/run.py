@@ -49,6 +49,7 @@ from ..config import (
     FleetConfig,
     first_vehicles,
     idle_settings,
+    link_problem,
     load_config,
     modbus_endpoint,
     parse_bus,
@@ -88,7 +89,8 @@ def add_options(run: argparse.ArgumentParser) -> None:
         metavar="INTERFACE:CHANNEL",
         help="fleet: the vehicle link, overriding the configuration's: virtual:agv (in this "
         "process), socketcan:vcan0, udp_multicast:239.74.163.2, or modbus:HOST:BASE_PORT "
-        "(vehicle v serves Modbus TCP on BASE_PORT + v)",
+        "(vehicle v serves Modbus TCP on BASE_PORT + v); one CAN channel per 126 vehicles, "
+        "comma-separated (socketcan:vcan0,vcan1)",
     )
     run.add_argument(
         "--vehicles",
@@ -251,6 +253,8 @@ def plan(args: argparse.Namespace, cfg: FleetConfig) -> Setup:
         raise CliError("--rt and --spin only apply with --realtime")
     bus = parse_bus(args.bus) if args.bus else (cfg.bus_interface, cfg.bus_channel)
     where = "--bus" if args.bus else f"{cfg.source}: bus.interface"
+    if args.bus and (problem := link_problem(*bus, max(cfg.starts))) is not None:
+        raise ConfigError(f"--bus {args.bus}: {problem}")
     in_process = bus[0] == "virtual"
     if args.vehicles == "external":
         if in_process:

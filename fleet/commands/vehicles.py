@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import sys
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ from typing import Any
 from plc_runtime.cli import MAX_DURATION_S, whole
 from plc_runtime.errors import ConfigError
 
-from ..config import LOOPBACK, MODBUS, modbus_endpoint, parse_bus
+from ..config import LOOPBACK, MODBUS, link_problem, modbus_endpoint, parse_bus
 from ..route import load_plant
 
 # A simulation step: below a tenth of a millisecond the loop only spins; above a second a
@@ -43,7 +44,8 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
     link.add_argument(
         "--bus",
         help="INTERFACE:CHANNEL the controller listens on, e.g. socketcan:vcan0 or "
-        "udp_multicast:239.74.163.2 (default with --config: its [bus])",
+        "udp_multicast:239.74.163.2; one channel per 126 vehicles, comma-separated "
+        "(socketcan:vcan0,vcan1) (default with --config: its [bus])",
     )
     link.add_argument(
         "--modbus-base-port",
@@ -148,11 +150,15 @@ def vehicles_command(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
     interface, channel, modbus_base_port = shared_link(bus, args.modbus_base_port, where)
+    link = (MODBUS, f"127.0.0.1:{modbus_base_port}") if modbus_base_port else (interface, channel)
+    if (problem := link_problem(*link, max(starts))) is not None:
+        raise ConfigError(f"{where} {bus[0]}:{bus[1]}: {problem}" if bus else problem)
     monitors: list[ConflictMonitor] = []
 
-    def watch(fleet: Any) -> None:
+    def watch(fleets: list[tuple[int, Any]]) -> None:
         if not monitors:
-            monitors.append(ConflictMonitor(fleet))
+            offsets, each = zip(*fleets, strict=True)
+            monitors.append(ConflictMonitor(list(each), list(offsets)))
         monitors[0].check()
 
     def ready(link: str) -> None:
@@ -163,7 +169,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
         )
 
     try:
-        fleet = run_fleet(
+        fleets = run_fleet(
             plant,
             starts,
             interface,
@@ -187,26 +193,27 @@ def vehicles_command(args: argparse.Namespace) -> int:
             "head_on_conflicts": m.head_on,
             "node_conflicts": m.node,
             "area_conflicts": m.area,
-            "faults_injected": {k: fleet.counters[k] for k in INJECTED},
+            "faults_injected": {k: sum(f.counters[k] for _, f in fleets) for k in INJECTED},
             "events": [e.__dict__ for e in m.events[:100]],
         }
         with open(args.monitor_out, "w", encoding="utf-8") as f:
             json.dump(report, f)
     final = {
-        v: {
+        v + offset: {
             "node": a.node,
             "state": a.state,
             "battery": round(a.battery.percent, 2),
             "driven": a.driven,
         }
+        for offset, fleet in fleets
         for v, a in fleet.vehicles.items()
     }
     if args.json:
-        print(
-            json.dumps(
-                {"time_s": round(fleet.time, 3), "vehicles": final, "counters": fleet.counters}
-            )
-        )
+        counters = Counter()
+        for _, fleet in fleets:
+            counters.update(fleet.counters)
+        time_s = round(fleets[0][1].time, 3)
+        print(json.dumps({"time_s": time_s, "vehicles": final, "counters": dict(counters)}))
     else:
         for v, info in final.items():
             print(

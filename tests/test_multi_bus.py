@@ -1,0 +1,136 @@
+"""Fleets of more than 126 vehicles: a CAN bus carries vehicle ids 1..126 (7 bits), so a
+larger fleet runs on several buses, 126 vehicles to a bus in id order. A configuration
+names one channel per bus, comma-separated; the in-process virtual bus makes as many as
+the ids need; the simulated vehicles of ``plc-runtime vehicles`` split the same way."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import can
+import pytest
+
+from fleet.cli import main
+from fleet.config import bus_of, by_bus, link_problem, load_config
+from fleet.program import FleetProgram
+from io_drivers.protocol import MAX_VEHICLE_ID, STATUS
+from plc_runtime.errors import ConfigError
+from topology import warehouse
+from vehicles.runner import default_starts, run_fleet
+
+WAREHOUSE = Path(__file__).resolve().parent.parent / "examples" / "warehouse.toml"
+
+
+def warehouse_config(tmp_path: Path, count: int, bus: str = "", battery: str = "") -> Path:
+    """examples/warehouse.toml with ``count`` vehicles, ids 1..count."""
+    text = WAREHOUSE.read_text(encoding="utf-8")
+    text = text[: text.index("# 15 vehicles along the top border row")]
+    text = text.replace('[bus]\ninterface = "virtual"\n', "")
+    starts = default_starts(warehouse(), count)
+    for v, node in starts.items():
+        text += f"[[vehicles]]\nid = {v}\nstart = {node}\n"
+        if v == 135 and battery:
+            text += f"battery = {battery}\n"
+        text += "\n"
+    path = tmp_path / "fleet.toml"
+    path.write_text(text + bus, encoding="utf-8")
+    return path
+
+
+def test_ids_split_126_to_a_bus_in_id_order():
+    assert [bus_of(v) for v in (1, 126, 127, 252, 253)] == [
+        (0, 1),
+        (0, 126),
+        (1, 1),
+        (1, 126),
+        (2, 1),
+    ]
+    assert by_bus({1: "a", 127: "b", 130: "c"}) == {0: {1: "a"}, 1: {1: "b", 4: "c"}}
+
+
+def test_a_fleet_of_140_runs_on_two_in_process_buses(tmp_path):
+    """Vehicles 127..140 are ids 1..14 of a second virtual bus: their frames, their
+    battery, their moves; the independent monitor watches both buses as one plant."""
+    cfg = load_config(warehouse_config(tmp_path, 140, battery="55"))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    try:
+        assert [len(f.vehicles) for f in p.fleets] == [126, 14]
+        assert round(p.fleets[1].vehicles[9].battery.percent) == 55  # vehicle 135
+        starts = {v: f.vehicles[v].node for f in p.fleets[1:] for v in f.vehicles}
+        p.rt.start()
+        p.rt.run(cycles=round(30 / cfg.cycle_time))
+        assert p.rt.state == "RUN", p.rt.fault_reason
+        moved = [v for v, node in starts.items() if p.fleets[1].vehicles[v].driven != [node]]
+        assert len(moved) >= 5, moved  # (9: the others wait their turn)
+        assert all(p.controls[v].state != "offline" for v in range(127, 141))
+        assert p.monitor.head_on == 0 and p.monitor.node == 0
+    finally:
+        p.close()
+
+
+@pytest.mark.parametrize(
+    ("bus", "message"),
+    [
+        (
+            '[bus]\ninterface = "socketcan"\nchannel = "vcan0"\n',
+            "bus.channel: vehicle 140 needs 2 buses (126 vehicles a bus: ids 1..126 on the "
+            "first channel, 127..252 on the second, ...), and 'vcan0' names 1",
+        ),
+        ('[bus]\ninterface = "socketcan"\nchannel = "vcan0,"\n', "bus.channel: an empty channel"),
+        (
+            '[bus]\ninterface = "modbus"\nchannel = "127.0.0.1:65400"\n',
+            "vehicle 140 would serve on port 65540, past 65535",
+        ),
+    ],
+)
+def test_a_link_that_cannot_carry_the_fleet_is_named(tmp_path, bus, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_config(warehouse_config(tmp_path, 140, bus))
+
+
+def test_two_channels_carry_the_fleet(tmp_path):
+    cfg = load_config(
+        warehouse_config(tmp_path, 140, '[bus]\ninterface = "socketcan"\nchannel = "vcan0,vcan1"\n')
+    )
+    assert cfg.bus_channel == "vcan0,vcan1"
+    assert link_problem("socketcan", "vcan0", 126) is None
+
+
+def test_run_and_vehicles_name_a_bus_too_few_for_the_fleet(tmp_path, capsys):
+    path = warehouse_config(tmp_path, 140)
+    assert main(["run", str(path), "--bus", "socketcan:vcan0", "--vehicles", "external"]) == 2
+    err = capsys.readouterr().err
+    assert "--bus socketcan:vcan0: vehicle 140 needs 2 buses" in err and len(err.splitlines()) == 1
+    code = main(
+        [
+            "vehicles",
+            "--plant",
+            "warehouse",
+            "--count",
+            "130",
+            "--bus",
+            "udp_multicast:239.74.163.2",
+        ]
+    )
+    assert code == 2
+    assert "vehicle 130 needs 2 buses" in capsys.readouterr().err
+
+
+def test_simulated_vehicles_split_over_the_channels_given():
+    """run_fleet with 130 vehicles on two channels: vehicle 130 reports as id 4 on the
+    second, and the result names each bus's fleet with the offset of its ids."""
+    listener = can.Bus(interface="virtual", channel="split-b", receive_own_messages=False)
+    try:
+        fleets = run_fleet(
+            warehouse(), default_starts(warehouse(), 130), "virtual", "split-a,split-b", 0.01, 0.3
+        )
+        senders = set()
+        while (msg := listener.recv(timeout=0)) is not None:
+            if STATUS < msg.arbitration_id <= STATUS + MAX_VEHICLE_ID:
+                senders.add(msg.arbitration_id - STATUS)
+    finally:
+        listener.shutdown()
+    assert [(offset, len(f.vehicles)) for offset, f in fleets] == [(0, 126), (126, 4)]
+    assert senders == {1, 2, 3, 4}
