@@ -5,11 +5,14 @@ the ids need; the simulated vehicles of ``plc-runtime vehicles`` split the same 
 
 from __future__ import annotations
 
+import json
 import re
+import sys
 from pathlib import Path
 
 import can
 import pytest
+from netns import run_isolated, unavailable
 
 from fleet.cli import main
 from fleet.config import bus_of, by_bus, link_problem, load_config
@@ -134,3 +137,27 @@ def test_simulated_vehicles_split_over_the_channels_given():
         listener.shutdown()
     assert [(offset, len(f.vehicles)) for offset, f in fleets] == [(0, 126), (126, 4)]
     assert senders == {1, 2, 3, 4}
+
+
+@pytest.mark.skipif(unavailable() is not None, reason=unavailable() or "")
+def test_a_realtime_run_of_130_vehicles_on_two_multicast_buses(tmp_path):
+    """Wall clock, the vehicles a child process (``plc-runtime vehicles``, started by the
+    run) on two udp_multicast groups inside a private network namespace: both links carry
+    frames, vehicles of the second bus are planned and driven, and its monitor, watching
+    both buses as one plant, counts no conflict."""
+    text = warehouse_config(tmp_path, 130).read_text(encoding="utf-8")
+    path = tmp_path / "fleet.toml"
+    path.write_text(text.replace("watchdog_ms = 150", "watchdog_ms = 5000"), encoding="utf-8")
+    result = run_isolated(
+        f"{sys.executable} -m fleet run {path} --realtime --duration 15 --json "
+        f"--bus udp_multicast:239.74.163.9,239.74.163.10 --out {tmp_path / 'out'}"
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["clock"] == "wall" and summary["state"] == "RUN"
+    assert "vehicles' process" in summary["conflict_monitor"]
+    assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
+    drivers = summary["drivers"]
+    assert drivers["can0"]["frames_in"] > 0 and drivers["can1"]["frames_in"] > 0, drivers
+    second = [summary["vehicles"][str(v)] for v in range(127, 131)]
+    assert all(v["state"] != "offline" and v["plans"] >= 1 for v in second), second
