@@ -40,6 +40,7 @@ from blocks.traffic.reservation import OUT_OF_SERVICE, ReservationMatrix
 from blocks.traffic.sipp import TurnTimes
 from blocks.traffic.tw_traffic import TimeWindowTraffic
 from blocks.traffic.vehicle_control import VehicleControl
+from io_drivers.can_bus import bus_options
 from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
@@ -331,6 +332,7 @@ class FleetProgram:
             stale_after=self.cfg.stale_after_s,
             max_frames=frames_per_tick(self.cfg.cycle_time, len(local), self.cfg.status_period_s),
             name=f"can{suffix}",
+            **bus_options(interface, k),
         )
 
     def _add_simulation(self, interface: str, channel: str, n_buses: int) -> None:

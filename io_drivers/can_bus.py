@@ -38,6 +38,21 @@ def interface_problem(interface: str) -> str | None:
     return f"unknown CAN interface {interface!r} (python-can has: {known})"
 
 
+# python-can's udp_multicast binds its socket to this port on every address, so a socket
+# receives the datagrams of every group any socket of the machine joined on that port:
+# two buses of one link on two groups would each hear the other's vehicles.
+UDP_MULTICAST_PORT = 43113
+
+
+def bus_options(interface: str | None, bus: int) -> dict[str, Any]:
+    """Options that keep bus number ``bus`` of a link of several buses apart from the
+    others: on udp_multicast a port of its own (the default for the first). Both ends of
+    the link open their buses with them."""
+    if interface == "udp_multicast" and bus > 0:
+        return {"port": UDP_MULTICAST_PORT + bus}
+    return {}
+
+
 class BusOpenError(ValueError):
     """The bus could not be opened; the message names interface, channel and cause."""
 

@@ -17,6 +17,7 @@ from netns import run_isolated, unavailable
 from fleet.cli import main
 from fleet.config import bus_of, by_bus, link_problem, load_config
 from fleet.program import FleetProgram
+from io_drivers.can_bus import bus_options
 from io_drivers.protocol import MAX_VEHICLE_ID, STATUS
 from plc_runtime.errors import ConfigError
 from topology import warehouse
@@ -50,6 +51,13 @@ def test_ids_split_126_to_a_bus_in_id_order():
         (2, 1),
     ]
     assert by_bus({1: "a", 127: "b", 130: "c"}) == {0: {1: "a"}, 1: {1: "b", 4: "c"}}
+    # udp_multicast: each bus after the first on a port of its own, at both ends of the link
+    assert [bus_options("udp_multicast", k) for k in (0, 1, 2)] == [
+        {},
+        {"port": 43114},
+        {"port": 43115},
+    ]
+    assert bus_options("socketcan", 1) == {}
 
 
 def test_a_fleet_of_140_runs_on_two_in_process_buses(tmp_path):
@@ -143,8 +151,8 @@ def test_simulated_vehicles_split_over_the_channels_given():
 def test_a_realtime_run_of_130_vehicles_on_two_multicast_buses(tmp_path):
     """Wall clock, the vehicles a child process (``plc-runtime vehicles``, started by the
     run) on two udp_multicast groups inside a private network namespace: both links carry
-    frames, vehicles of the second bus are planned and driven, and its monitor, watching
-    both buses as one plant, counts no conflict."""
+    frames, vehicles of the second bus are planned and driven, and the vehicles' monitor,
+    watching both buses as one plant, counts no conflict."""
     text = warehouse_config(tmp_path, 130).read_text(encoding="utf-8")
     path = tmp_path / "fleet.toml"
     path.write_text(text.replace("watchdog_ms = 150", "watchdog_ms = 5000"), encoding="utf-8")
@@ -159,5 +167,9 @@ def test_a_realtime_run_of_130_vehicles_on_two_multicast_buses(tmp_path):
     assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
     drivers = summary["drivers"]
     assert drivers["can0"]["frames_in"] > 0 and drivers["can1"]["frames_in"] > 0, drivers
+    # each bus hears only its own vehicles (udp_multicast: a port of its own; on one port the
+    # first bus heard vehicle 127 as a second vehicle 1, out of sequence, and the second
+    # bus's vehicles turned suspect)
+    assert all(d["unknown_vehicle"] == 0 and d["out_of_sequence"] == 0 for d in drivers.values())
     second = [summary["vehicles"][str(v)] for v in range(127, 131)]
-    assert all(v["state"] != "offline" and v["plans"] >= 1 for v in second), second
+    assert all(v["state"] not in ("offline", "suspect") and v["plans"] >= 1 for v in second), second

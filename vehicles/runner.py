@@ -12,7 +12,7 @@ import signal
 from collections.abc import Callable, Mapping
 from typing import TypeVar
 
-from io_drivers.can_bus import open_can_bus
+from io_drivers.can_bus import bus_options, open_can_bus
 from io_drivers.protocol import MAX_VEHICLE_ID
 from plc_runtime.clock import WallClock
 from topology import Plant
@@ -86,7 +86,7 @@ def run_fleet(
     buses, fleets = [], []
     try:
         for k, ch in groups:
-            bus = None if ch is None else open_can_bus(interface, ch)
+            bus = None if ch is None else open_can_bus(interface, ch, **bus_options(interface, k))
             if bus is not None:
                 buses.append(bus)
             fleet = Fleet(
