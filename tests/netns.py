@@ -3,9 +3,11 @@ talk over udp_multicast and nothing leaves the machine. Needs root and util-linu
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
+import sys
 
 
 def unavailable() -> str | None:
@@ -28,3 +30,17 @@ def run_isolated(command: str, timeout: float = 120) -> subprocess.CompletedProc
         timeout=timeout,
         check=False,
     )
+
+
+def realtime_run(arguments: str) -> dict:
+    """``plc-runtime run --realtime --json ARGUMENTS`` in a fresh namespace (the vehicles a
+    child process over udp_multicast): its summary, after the checks every such run must
+    pass: it ended well on the wall clock, and the vehicles' own monitor, which reports
+    into the summary, counted no conflict."""
+    result = run_isolated(f"{sys.executable} -m fleet run --realtime --json {arguments}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads(result.stdout.strip().splitlines()[-1])
+    assert summary["clock"] == "wall" and summary["state"] == "RUN"
+    assert "vehicles' process" in summary["conflict_monitor"]
+    assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
+    return summary

@@ -205,11 +205,8 @@ at_s = 0
     assert p.orders.book.get("ok").state is OrderState.FINISHED
 
 
-def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, made):
-    """two_stage: a vehicle carries its active order and holds a next one when a blockade
-    cuts the next order's Get station off. The next order must not stay with the vehicle
-    (which would drive for a station it can never reach): it goes back to the pool, where
-    the route check reports it UNROUTABLE; the active order is delivered."""
+def carrying_a_with_b_next(tmp_path: Path, made):
+    """two_stage, one vehicle: order A's load on board (to its Put), order B its next one."""
     cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
     p = start(cfg, made)
     run(p, 1)
@@ -219,6 +216,15 @@ def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, ma
     assert p.rt.run_until(
         lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
     )
+    return cfg, p, runner
+
+
+def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, made):
+    """two_stage: a vehicle carries its active order and holds a next one when a blockade
+    cuts the next order's Get station off. The next order must not stay with the vehicle
+    (which would drive for a station it can never reach): it goes back to the pool, where
+    the route check reports it UNROUTABLE; the active order is delivered."""
+    cfg, p, runner = carrying_a_with_b_next(tmp_path, made)
     links = sorted({b for (a, b) in cfg.plant.arc_index if a == 29})
     for b in links:
         p.blockades.block(29, b)
@@ -234,15 +240,8 @@ def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, m
     reads far lower (to 8 %, below critical). Once the active order is delivered the
     vehicle goes charging and the next order goes back to the pool, not onto an empty
     battery."""
-    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
-    p = start(cfg, made)
-    run(p, 1)
-    p.orders.submit(TransportOrder("A", 20, 24))
-    p.orders.submit(TransportOrder("B", 29, 27))
-    runner, agv = p.orders.runners[1], p.fleet.vehicles[1]
-    assert p.rt.run_until(
-        lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
-    )
+    _, p, runner = carrying_a_with_b_next(tmp_path, made)
+    agv = p.fleet.vehicles[1]
     agv.battery.charge_as = 0.08 * agv.battery.params.capacity_as
     assert p.rt.run_until(lambda: runner.active is None, max_cycles=4000)
     run(p, 60)
@@ -258,15 +257,7 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     goes back to the pool, and the vehicle takes no order (the only vehicle: B waits) until
     an operator has taken the load off and acknowledged the vehicle through its tag. Then
     it takes B and delivers it."""
-    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
-    p = start(cfg, made)
-    run(p, 1)
-    p.orders.submit(TransportOrder("A", 20, 24))
-    p.orders.submit(TransportOrder("B", 29, 27))
-    runner = p.orders.runners[1]
-    assert p.rt.run_until(
-        lambda: runner.next is not None and runner.phase == "to_put", max_cycles=4000
-    )
+    _, p, runner = carrying_a_with_b_next(tmp_path, made)
     assert runner.load == "A" and not runner.load_left  # on board, for its own order
     p.orders.withdraw("A")
     run(p, 120)
