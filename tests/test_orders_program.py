@@ -18,6 +18,7 @@ from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_drawing
 from fleet.tags import ACK_DONE, ACK_REFUSED
+from fleet.web.views import FleetCopy, render_vehicles
 from plc_runtime.errors import ConfigError
 from vehicles.fleet import Faults
 
@@ -269,6 +270,9 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     left = [e for e in p.events.events if "left on board" in e.text]
     assert [(e.vehicle, e.kind) for e in left] == [(1, "vehicle")]
     assert "order A" in left[0].text and "agv1.ack" in left[0].text
+    # what the HTTP API and the operator page show of it
+    (view,) = render_vehicles(FleetCopy(p).of([1]))
+    assert view["load"] == "A" and view["order"] is None
     p.rt.image.write("agv1.ack", 1)  # as an HMI would, once the load is off
     run(p, 120)
     assert p.rt.image.read("agv1.ack_result") == ACK_DONE
