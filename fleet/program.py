@@ -403,25 +403,22 @@ class FleetProgram:
 
     def _acknowledge(self, ctx: CycleContext, vehicle: int) -> str | None:
         """An operator's acknowledge of a vehicle (the ``agvN.ack`` tag), logged: after
-        looking at it, the operator confirms that a suspect vehicle stands where it
-        reports (it returns to service), and that a load its order left on board (the
-        order was withdrawn or failed before its Put) was taken off (it takes orders
-        again). Returns why nothing was acknowledged, or None."""
+        looking at it, the operator confirms that a suspect vehicle stands where it reports
+        (it returns to service), or, of a vehicle in service, that a load its order left on
+        board (the order was withdrawn or failed after its Get began) was taken off (it
+        takes orders again). One acknowledge confirms one thing: a vehicle that is both
+        takes a second (a new value) for its load. Returns why not, or None."""
         control, job = self.controls[vehicle], self.jobs[vehicle]
-        unloaded = isinstance(job, OrderRunner) and job.load_left
-        if unloaded:
+        if not control.suspect and isinstance(job, OrderRunner) and job.load_left:
             order = job.load
             job.unloaded()
             self.events.add(ctx.time, "recovered", vehicle, f"load of order {order} taken off")
-            if not control.suspect:
-                return None
+            return None
         reason = control.suspect_reason
         why = control.acknowledge(ctx)
         if why is None:
             text = f"acknowledged at node {control.current} (was: {reason})"
             self.events.add(ctx.time, "recovered", vehicle, text)
-        elif unloaded:
-            self.events.add(ctx.time, "vehicle", vehicle, f"acknowledge of suspect refused: {why}")
         else:
             if why == "not suspect" and isinstance(job, OrderRunner):
                 why = "not suspect, and no load left on board"

@@ -198,7 +198,7 @@ VEHICLE_FIELDS = tuple(
                 "ack",
                 "UINT",
                 "operator: a new nonzero value acknowledges the vehicle: a suspect one stands "
-                "where it reports, a load its order left on board was taken off",
+                "where it reports; else, a load its order left on board was taken off",
                 True,
             ),
             (

@@ -166,3 +166,19 @@ def test_a_realtime_run_of_130_vehicles_on_two_multicast_buses(tmp_path):
     assert all(d["unknown_vehicle"] == 0 and d["out_of_sequence"] == 0 for d in drivers.values())
     second = [summary["vehicles"][str(v)] for v in range(127, 131)]
     assert all(v["state"] not in ("offline", "suspect") and v["plans"] >= 1 for v in second), second
+
+
+def test_without_a_bus_a_fleet_takes_any_id():
+    """Each vehicle its own Modbus server (no bus): ids past 126 are simulated as they are;
+    on a CAN bus an id stays 7 bits."""
+    from vehicles.fleet import Fleet
+
+    plant = warehouse()
+    starts = default_starts(plant, 130)
+    assert max(Fleet(plant, starts, None).vehicles) == 130
+    bus = can.Bus(interface="virtual", channel="seven-bits", receive_own_messages=False)
+    try:
+        with pytest.raises(ValueError, match="vehicle ids are 1..126, got 127"):
+            Fleet(plant, starts, bus)
+    finally:
+        bus.shutdown()

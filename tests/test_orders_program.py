@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_suspect_vehicles import free_node, move_by_hand
 
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
 from fleet import liveness
@@ -257,7 +258,7 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     withdrawn. The load is still on its deck, so it must not drive for B's Get with it: B
     goes back to the pool, and the vehicle takes no order (the only vehicle: B waits) until
     an operator has taken the load off and acknowledged the vehicle through its tag. Then
-    it takes B and delivers it."""
+    it takes B and delivers it. A withdrawal while it loads leaves the load on board too."""
     _, p, runner = carrying_a_with_b_next(tmp_path, made)
     assert runner.load == "A" and not runner.load_left  # on board, for its own order
     p.orders.withdraw("A")
@@ -273,7 +274,16 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     # what the HTTP API and the operator page show of it
     (view,) = render_vehicles(FleetCopy(p).of([1]))
     assert view["load"] == "A" and view["order"] is None
-    p.rt.image.write("agv1.ack", 1)  # as an HMI would, once the load is off
+    # pushed by hand elsewhere meanwhile, it is suspect too: one acknowledge confirms one
+    # thing, where it stands first (the usual acknowledge must not confirm a load unseen)
+    move_by_hand(p, 1, free_node(p))
+    run(p, 1)
+    assert p.controls[1].suspect
+    p.rt.image.write("agv1.ack", 1)
+    run(p, 1)
+    assert p.rt.image.read("agv1.ack_result") == ACK_DONE
+    assert not p.controls[1].suspect and runner.load_left
+    p.rt.image.write("agv1.ack", 2)  # as an HMI would, once the load is off
     run(p, 120)
     assert p.rt.image.read("agv1.ack_result") == ACK_DONE
     assert any(
@@ -282,10 +292,26 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     assert runner.load == "" and book.get("B").state is OrderState.FINISHED
     assert book.get("B").history[-1][0] > left[0].time_s + 120  # not a moment before
     # nothing left to confirm: a new ack value is refused, and says why
-    p.rt.image.write("agv1.ack", 2)
+    p.rt.image.write("agv1.ack", 3)
     run(p, 0.1)
     assert p.rt.image.read("agv1.ack_result") == ACK_REFUSED
     assert p.events.events[-1].text == "acknowledge refused: not suspect, and no load left on board"
+
+
+def test_a_load_being_loaded_when_its_order_is_withdrawn_stays_on_board(tmp_path, made):
+    """Withdrawn while the vehicle loads at its Get station: the load is (partly) on board,
+    so the vehicle takes no order until the operator confirms it was taken off."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(lambda: runner.phase == "get", max_cycles=4000)
+    p.orders.withdraw("A")
+    p.orders.submit(TransportOrder("B", 29, 27))
+    run(p, 60)
+    assert runner.load_left and runner.load == "A" and runner.active is None
+    assert p.orders.book.get("B").state is OrderState.DISPATCHABLE
 
 
 @pytest.mark.parametrize("dead_s", [8, 14])
@@ -320,20 +346,30 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     assert all(r.active is None for r in p.orders.runners.values())  # nobody waits for 20
     held = {place for place, v in p.orders.claims.holder.items() if v == 1}
     assert held == ({20} if dead_s == 14 else set())
+    # loading when it fell silent: that load stays on board, for the operator to confirm
+    assert runner.load_left == (dead_s == 14) and runner.load == ("o1" if dead_s == 14 else "")
     assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 
 @pytest.mark.parametrize(
-    ("strategy", "more"), [("nearest_idle", 0), ("dhht", 0), ("two_stage", 0), ("dhht", 150)]
+    ("strategy", "more", "pinned"),
+    [
+        ("nearest_idle", 0, False),
+        ("dhht", 0, False),
+        ("two_stage", 0, False),
+        ("dhht", 150, False),
+        ("dhht", 150, True),
+    ],
 )
 def test_an_order_at_a_station_out_of_service_does_not_starve_the_others(
-    strategy, more, tmp_path, made
+    strategy, more, pinned, tmp_path, made
 ):
     """Vehicle 1 falls silent driving into station 20 and gives o1 up; o1 then waits, the
     most urgent order, for a station nobody can use. It must not take a round's free
     vehicle every round: vehicle 2 drives the later orders, which need other stations.
     Nor may ``more`` orders for that station, more urgent than the rest and more than a
-    round's pool takes (100), fill the pool: a round passes over them."""
+    round's pool takes (100), fill the pool: a round passes over them; nor as many for
+    other stations that name the silent vehicle as theirs (``pinned``)."""
     extra = "out_of_service_s = 30\n[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = 8\n"
     cfg = config("id,get,put,start_s,end_s\no1,20,29,0,300\n", tmp_path, ((1, 0), (2, 11)), extra)
     cfg.dispatch.strategy = strategy
@@ -341,7 +377,8 @@ def test_an_order_at_a_station_out_of_service_does_not_starve_the_others(
     run(p, 100)
     assert p.orders.book.get("o1").state is OrderState.DISPATCHABLE
     for k in range(more):
-        p.orders.submit(TransportOrder(f"s{k}", 20, 25, 0.0, 5000.0, priority=5))
+        get, put, vehicle = (22, 25, 1) if pinned else (20, 25, None)
+        p.orders.submit(TransportOrder(f"s{k}", get, put, 0.0, 5000.0, 5, vehicle))
     for k, (get, put) in enumerate([(22, 27), (24, 21), (26, 23)]):
         p.orders.submit(TransportOrder(f"n{k}", get, put, 0.0, 5000.0))
     run(p, 400)

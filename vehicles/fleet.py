@@ -81,9 +81,12 @@ class Fleet:
         charges: Mapping[int, float] | None = None,
     ) -> None:
         """``charges``: vehicle -> its battery's charge at the start, in % (default 100)."""
+        # on a CAN bus an id is 7 bits; without one (each vehicle its own Modbus server)
+        # any positive id will do
+        most = MAX_VEHICLE_ID if bus is not None else None
         for vehicle in starts:
-            if not 1 <= vehicle <= MAX_VEHICLE_ID:
-                raise ValueError(f"vehicle ids are 1..{MAX_VEHICLE_ID}, got {vehicle}")
+            if vehicle < 1 or (most is not None and vehicle > most):
+                raise ValueError(f"vehicle ids are 1..{most or 'any'}, got {vehicle}")
         self.plant = plant
         self.vehicles = {
             v: AGV(v, plant, node, params, Battery(battery, (charges or {}).get(v, 100.0) / 100.0))

@@ -304,12 +304,18 @@ class Dispatcher(FunctionBlock):
         )
 
     def _servable(self, order: TransportOrder, vehicles: list[Candidate]) -> bool:
-        """An order not rechecked since the blockades changed may be cut off, and one at a
-        station a vehicle out of service holds cannot be served: neither is given out, or
-        a round would give it again and again to a vehicle that could do another."""
+        """An order not rechecked since the blockades changed may be cut off, one at a
+        station a vehicle out of service holds cannot be served, and one for a vehicle that
+        takes nothing now (busy, charging, out of service, a load left on board) waits for
+        it: none is given out, or a round would give it again and again to a vehicle that
+        could do another, or a pool of them would keep the others out of the rounds."""
         return (
             self.reach.reaches(order.get, order.put)
-            and any(self.reach.reaches(c.node, order.get) for c in vehicles)
+            and any(
+                self.reach.reaches(c.node, order.get)
+                for c in vehicles
+                if order.vehicle is None or order.vehicle == c.vehicle
+            )
             and not self.claims.stuck(order.get)
             and not self.claims.stuck(order.put)
         )

@@ -197,8 +197,8 @@ class OrderRunner(FunctionBlock):
     min_battery = Output(100, doc="the lowest state of charge seen, %")
     load = Output(
         "",
-        doc="the order whose load is on board ('' when none): from the end of its Get to the "
-        "end of its Put, or, when the order ended without its Put, until an operator "
+        doc="the order whose load is on board ('' when none): from the start of its Get to "
+        "the end of its Put, or, when the order ended without its Put, until an operator "
         "confirms the load was taken off",
     )
 
@@ -514,8 +514,9 @@ class OrderRunner(FunctionBlock):
         return self.place
 
     def _arrive(self, ctx: CycleContext, station: int, kind: str) -> None:
-        if kind == "Get" and not self.frozen:
+        if kind == "Get":
             self.frozen = True
+            self.load = self.active.id  # (loading has begun: on board, as far as anyone knows)
         self._next_section(ctx, kind)
         self.stations_visited += 1
         self.phase, self.hold = kind.lower(), True
@@ -525,7 +526,6 @@ class OrderRunner(FunctionBlock):
         order = self.active
         self.hold = False
         if self.phase == "get":
-            self.load = order.id
             self.leaving = order.get  # its claim ends when the vehicle has left the station
             self.phase, self.target = "to_put", order.put
             self._next_section(ctx, "Go_To_Put")

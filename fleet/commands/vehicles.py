@@ -152,7 +152,11 @@ def vehicles_command(args: argparse.Namespace) -> int:
     interface, channel, modbus_base_port = shared_link(bus, args.modbus_base_port, where)
     link = (MODBUS, f"127.0.0.1:{modbus_base_port}") if modbus_base_port else (interface, channel)
     if (problem := link_problem(*link, max(starts))) is not None:
-        raise ConfigError(f"{where} {bus[0]}:{bus[1]}: {problem}" if bus else problem)
+        if args.modbus_base_port is not None:
+            where = f"--modbus-base-port {args.modbus_base_port}"
+        elif bus is not None:
+            where = f"{where} {bus[0]}:{bus[1]}"
+        raise ConfigError(f"{where}: {problem}")
     monitors: list[ConflictMonitor] = []
 
     def watch(fleets: list[tuple[int, Any]]) -> None:

@@ -167,9 +167,10 @@ class VehicleOut(BaseModel):
     suspect: bool = Field(description="an implausible report: stopped (docs/security.md)")
     suspect_reason: str
     load: str | None = Field(
-        description="the order whose load is on board (null: none). Not its active order: "
-        "the order ended without its Put (withdrawn, failed), so the vehicle takes no order "
-        "until the load is taken off and the vehicle acknowledged (agvN.ack)"
+        description="the order whose load is on board, from the start of its Get (null: "
+        "none). When it is not its active order, that order ended without its Put "
+        "(withdrawn, failed): the vehicle takes no order until the load is taken off and "
+        "the vehicle acknowledged (agvN.ack)"
     )
     held: bool = Field(description="an operator holds it")
     waits: int
