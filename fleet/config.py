@@ -9,15 +9,13 @@ provides, two vehicles on one start node, unknown recipe names.
 from __future__ import annotations
 
 import tomllib
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
 
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
-from io_drivers.can_bus import interface_problem
-from io_drivers.protocol import MAX_NODE_ID
+from io_drivers.can_bus import bus_channels, bus_of, interface_problem
+from io_drivers.protocol import MAX_NODE_ID, MAX_VEHICLE_ID
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import FileProblem, read_limited
@@ -38,9 +36,8 @@ from .orders_config import (
 )
 
 DEFAULT_CONFIG = Path(__file__).with_name("default.toml")
-VEHICLES_PER_BUS = 126  # vehicle ids on one CAN bus: 7 bits, 0 and 127 taken
+VEHICLES_PER_BUS = MAX_VEHICLE_ID  # vehicle ids on one CAN bus: 7 bits, 0 and 127 taken
 MAX_BUSES = 8  # a configuration's vehicle ids go up to VEHICLES_PER_BUS * MAX_BUSES
-T = TypeVar("T")
 MODBUS = "modbus"  # the bus "interface" that means one Modbus TCP server per vehicle
 LOOPBACK = ("127.0.0.1", "localhost", "::1")  # where simulated Modbus vehicles can serve
 
@@ -62,26 +59,6 @@ def parse_bus(spec: str) -> tuple[str, str]:
     elif not all(bus_channels(channel)):
         raise ConfigError(f"--bus {spec!r}: an empty channel between commas")
     return interface, channel
-
-
-def bus_channels(channel: str) -> list[str]:
-    """The channels of a CAN link, one per bus: ``vcan0,vcan1`` carries vehicles 1..126 on
-    vcan0 and 127..252 on vcan1 (the protocol's ids are 7 bits)."""
-    return [c.strip() for c in channel.split(",")]
-
-
-def bus_of(vehicle: int) -> tuple[int, int]:
-    """(bus, id on that bus) of a vehicle: 126 to a bus, in id order."""
-    return (vehicle - 1) // VEHICLES_PER_BUS, (vehicle - 1) % VEHICLES_PER_BUS + 1
-
-
-def by_bus(values: Mapping[int, T]) -> dict[int, dict[int, T]]:
-    """``values`` by vehicle id, split by bus and keyed by the ids on each bus."""
-    out: dict[int, dict[int, T]] = {}
-    for v, value in values.items():
-        k, local = bus_of(v)
-        out.setdefault(k, {})[local] = value
-    return out
 
 
 def link_problem(interface: str, channel: str, highest: int) -> str | None:

@@ -40,7 +40,7 @@ from blocks.traffic.reservation import OUT_OF_SERVICE, ReservationMatrix
 from blocks.traffic.sipp import TurnTimes
 from blocks.traffic.tw_traffic import TimeWindowTraffic
 from blocks.traffic.vehicle_control import VehicleControl
-from io_drivers.can_bus import bus_options
+from io_drivers.can_bus import bus_channels, bus_of, bus_options, by_bus
 from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
@@ -49,15 +49,7 @@ from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
 
-from .config import (
-    VEHICLES_PER_BUS,
-    Blockade,
-    FleetConfig,
-    bus_channels,
-    bus_of,
-    by_bus,
-    modbus_endpoint,
-)
+from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, modbus_endpoint
 from .events import EventLog
 from .order_system import OrderSystem, targets
 from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes

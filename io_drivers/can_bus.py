@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, TypeVar
 
 import can
+
+from .protocol import MAX_VEHICLE_ID
+
+T = TypeVar("T")
 
 # A classic CAN bus at 1 Mbit/s carries about 9,000 frames of 8 data bytes a second (some
 # 111 bits each with stuffing): more than that in a while cannot come from a real bus.
@@ -36,6 +41,27 @@ def interface_problem(interface: str) -> str | None:
         return None
     known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
     return f"unknown CAN interface {interface!r} (python-can has: {known})"
+
+
+def bus_of(vehicle: int) -> tuple[int, int]:
+    """(bus, id on that bus) of a vehicle of a fleet on several buses: a bus carries ids
+    1..126 (7 bits, docs/protocol.md), so vehicles go 126 to a bus in id order."""
+    return (vehicle - 1) // MAX_VEHICLE_ID, (vehicle - 1) % MAX_VEHICLE_ID + 1
+
+
+def by_bus(values: Mapping[int, T]) -> dict[int, dict[int, T]]:
+    """``values`` by vehicle id, split by bus and keyed by the ids on each bus."""
+    out: dict[int, dict[int, T]] = {}
+    for v, value in values.items():
+        k, local = bus_of(v)
+        out.setdefault(k, {})[local] = value
+    return out
+
+
+def bus_channels(channel: str) -> list[str]:
+    """The channels of a link of several buses, one per bus, comma-separated:
+    ``vcan0,vcan1`` carries vehicles 1..126 on vcan0 and 127..252 on vcan1."""
+    return [c.strip() for c in channel.split(",")]
 
 
 # python-can's udp_multicast binds its socket to this port on every address, so a socket

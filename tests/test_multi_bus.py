@@ -13,9 +13,9 @@ import pytest
 from netns import realtime_run, unavailable
 
 from fleet.cli import main
-from fleet.config import bus_of, by_bus, link_problem, load_config
+from fleet.config import link_problem, load_config
 from fleet.program import FleetProgram
-from io_drivers.can_bus import bus_options
+from io_drivers.can_bus import bus_of, bus_options, by_bus
 from io_drivers.protocol import MAX_VEHICLE_ID, STATUS
 from plc_runtime.errors import ConfigError
 from topology import warehouse

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import signal
 from collections.abc import Callable, Mapping
-from typing import TypeVar
 
-from io_drivers.can_bus import bus_options, open_can_bus
+from io_drivers.can_bus import bus_channels, bus_of, bus_options, by_bus, open_can_bus
 from io_drivers.protocol import MAX_VEHICLE_ID
 from plc_runtime.clock import WallClock
 from topology import Plant
@@ -20,8 +19,6 @@ from topology import Plant
 from .agv import AgvParams
 from .fleet import Faults, Fleet
 from .modbus_endpoint import VehicleModbusEndpoints
-
-T = TypeVar("T")
 
 
 def default_starts(plant: Plant, count: int) -> dict[int, int]:
@@ -31,15 +28,6 @@ def default_starts(plant: Plant, count: int) -> dict[int, int]:
     if count > len(nodes):
         raise ValueError(f"--count {count}: the plant has {len(nodes)} nodes")
     return {v + 1: nodes[v] for v in range(count)}
-
-
-def _on_bus(values: Mapping[int, T] | None, k: int | None) -> dict[int, T]:
-    """The entries of bus ``k``'s vehicles, keyed by their ids on that bus (``k`` None:
-    all of them, as they are: a Modbus link has no buses)."""
-    if k is None:
-        return dict(values or {})
-    first = k * MAX_VEHICLE_ID
-    return {v - first: x for v, x in (values or {}).items() if first < v <= first + MAX_VEHICLE_ID}
 
 
 def run_fleet(
@@ -72,32 +60,38 @@ def run_fleet(
         nonlocal stop
         stop = True
 
-    # (bus, channel): None and None for a Modbus link
-    groups: list[tuple[int | None, str | None]] = [(None, None)]
+    # per bus (None: a Modbus link, no buses): its channel and its vehicles' starts, faults
+    # and charges by their ids on it
+    groups: dict[int | None, tuple[str | None, dict, dict, dict]] = {
+        None: (None, dict(starts), dict(faults or {}), dict(charges or {}))
+    }
     if not modbus_base_port:
-        channels = [c.strip() for c in (channel or "").split(",")]
-        needed = (max(starts) - 1) // MAX_VEHICLE_ID + 1
+        channels = bus_channels(channel or "")
+        needed = bus_of(max(starts))[0] + 1
         if needed > len(channels):
             raise ValueError(
                 f"vehicle {max(starts)} needs {needed} buses, and {channel!r} names "
                 f"{len(channels)} channel(s)"
             )
-        groups = [(k, channels[k]) for k in range(needed) if _on_bus(starts, k)]
+        on_bus = [by_bus(values or {}) for values in (starts, faults, charges)]
+        groups = {
+            k: (channels[k], *(values.get(k, {}) for values in on_bus)) for k in sorted(on_bus[0])
+        }
     buses, fleets = [], []
     try:
-        for k, ch in groups:
+        for k, (ch, own_starts, own_faults, own_charges) in groups.items():
             bus = None if ch is None else open_can_bus(interface, ch, **bus_options(interface, k))
             if bus is not None:
                 buses.append(bus)
             fleet = Fleet(
                 plant,
-                _on_bus(starts, k),
+                own_starts,
                 bus,
                 params=params,
-                faults=_on_bus(faults, k) or None,
+                faults=own_faults or None,
                 seed=seed + (k or 0),
                 status_period=status_period,
-                charges=_on_bus(charges, k) or None,
+                charges=own_charges or None,
             )
             fleets.append(((k or 0) * MAX_VEHICLE_ID, fleet))
     except BaseException:
