@@ -58,6 +58,8 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             "plans": controls[row["vehicle"]].plans,
             "no_route": controls[row["vehicle"]].no_routes,
             "suspect_reason": controls[row["vehicle"]].suspect_reason or None,
+            # the order whose load is on board (null: none, or a recipe vehicle)
+            "load": getattr(sequencers[row["vehicle"]], "load", "") or None,
         }
         for row in program.vehicle_rows()
     }

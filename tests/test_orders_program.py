@@ -274,6 +274,7 @@ def test_a_load_left_on_board_by_a_withdrawn_order_waits_for_the_operator(tmp_pa
     # what the HTTP API and the operator page show of it
     (view,) = render_vehicles(FleetCopy(p).of([1]))
     assert view["load"] == "A" and view["order"] is None
+    assert summary(p, 1.0)["vehicles"]["1"]["load"] == "A"
     # pushed by hand elsewhere meanwhile, it is suspect too: one acknowledge confirms one
     # thing, where it stands first (the usual acknowledge must not confirm a load unseen)
     move_by_hand(p, 1, free_node(p))
