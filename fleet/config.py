@@ -87,17 +87,18 @@ def link_problem(interface: str, channel: str, highest: int) -> str | None:
 
 
 def modbus_endpoint(channel: str) -> tuple[str, int]:
-    """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v."""
+    """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v
+    (whether the fleet's highest id still fits below 65536 is :func:`link_problem`'s)."""
     host, sep, port = channel.rpartition(":")
     if (
         not sep
         or not host
         or not (port.isascii() and port.isdigit())
-        or not 1 <= int(port) <= 65535 - VEHICLES_PER_BUS
+        or not 1 <= int(port) <= 65534
     ):
         raise ConfigError(
             f"modbus vehicle link {channel!r}: expected HOST:BASE_PORT with a base port in "
-            f"1..{65535 - VEHICLES_PER_BUS}, e.g. 127.0.0.1:5100 (vehicle v serves on BASE_PORT + v)"
+            "1..65534, e.g. 127.0.0.1:5100 (vehicle v serves on BASE_PORT + v)"
         )
     return host, int(port)
 

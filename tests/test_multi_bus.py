@@ -125,6 +125,14 @@ def test_run_and_vehicles_name_a_bus_too_few_for_the_fleet(tmp_path, capsys):
     )
     assert code == 2
     assert "vehicle 130 needs 2 buses" in capsys.readouterr().err
+    code = main(
+        ["vehicles", "--plant", "warehouse", "--count", "130", "--modbus-base-port", "65450"]
+    )
+    assert code == 2
+    assert capsys.readouterr().err == (
+        "plc-runtime: error: --modbus-base-port 65450: vehicle 130 would serve on port 65580, "
+        "past 65535: give a lower base port\n"
+    )
 
 
 def test_simulated_vehicles_split_over_the_channels_given():
