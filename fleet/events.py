@@ -15,6 +15,7 @@ from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
+from blocks.dispatch.executor import OrderRunner
 from blocks.jobs.recipe import RecipeSequencer
 from blocks.routing.constraints import RoutingConstraints
 from blocks.traffic.deadlock import DeadlockResolver
@@ -67,7 +68,9 @@ class EventLog(FunctionBlock):
         self._deadlocks_seen = 0
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
-        self._loads = dict.fromkeys(sequencers, "")  # the order whose load was left on board
+        # vehicles that take orders, and the order whose load each was left with ('': none)
+        self._runners = {v: j for v, j in sequencers.items() if isinstance(j, OrderRunner)}
+        self._loads = dict.fromkeys(self._runners, "")
         self._blocked: set[tuple[int, int]] = set()
         # every segment closed or reopened, whoever did it: (time_s, "closed" | "reopened", a, b)
         self.segment_changes: deque[tuple[float, str, int, int]] = deque(maxlen=capacity)
@@ -117,8 +120,8 @@ class EventLog(FunctionBlock):
     def _loads_left(self, now: float) -> None:
         """An order ended without its Put (withdrawn, failed): its load is still on the
         vehicle, which takes no order until an operator confirms it was taken off."""
-        for v, job in self.sequencers.items():
-            left = job.load if getattr(job, "load_left", False) else ""
+        for v, job in self._runners.items():
+            left = job.load if job.load and job.load_left else ""
             if left != self._loads[v]:
                 self._loads[v] = left
                 if left:
