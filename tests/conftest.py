@@ -8,7 +8,11 @@ from collections.abc import Callable
 
 import pytest
 
-from plc_runtime import FunctionBlock
+from plc_runtime import FunctionBlock, Runtime
+
+# The least maximum cycle time a test's runtime enforces: tests measure behaviour, and a busy
+# machine can stall one scan of a virtual-clock run for longer than the 150 ms default.
+WIDE_WATCHDOG_NS = 10_000_000_000
 
 
 class Probe(FunctionBlock):
@@ -49,6 +53,27 @@ def no_alarm_left_behind():
     yield
     signal.setitimer(signal.ITIMER_REAL, 0)
     signal.signal(signal.SIGALRM, handler)
+
+
+@pytest.fixture(autouse=True)
+def watchdog_widened(request, monkeypatch):
+    """Every runtime a test builds enforces a watchdog of at least ``WIDE_WATCHDOG_NS``.
+
+    The runtime still reports the limit it was given (summaries, tags, the web view), so
+    tests of those values see them unchanged. A test of the watchdog itself is marked
+    ``@pytest.mark.watchdog`` and keeps the limit it sets. Runtimes started in a child
+    process are not reached: those tests pass ``--watchdog`` themselves.
+    """
+    if request.node.get_closest_marker("watchdog"):
+        return
+    build = Runtime.__init__
+
+    def widened(self, *args, **kwargs) -> None:
+        build(self, *args, **kwargs)
+        if self._watchdog_ns < WIDE_WATCHDOG_NS:
+            self._watchdog_ns = self._alarm.limit_ns = WIDE_WATCHDOG_NS
+
+    monkeypatch.setattr(Runtime, "__init__", widened)
 
 
 @pytest.fixture

@@ -13,6 +13,8 @@ from conftest import Busy, Probe
 
 from plc_runtime import Runtime, StartupError, StateError, VirtualClock
 
+pytestmark = pytest.mark.watchdog  # the watchdog is what these tests check
+
 MS = 1_000_000
 
 

@@ -577,6 +577,7 @@ def test_run_closes_the_server_at_its_end(tmp_path, capsys):
     assert TOKEN not in err
 
 
+@pytest.mark.watchdog
 def test_run_closes_the_server_after_a_fault(tmp_path, capsys):
     code, port, err = run_in_process(capsys, tmp_path, "--duration", "2", "--watchdog", "0.001")
     assert code == 1 and port is not None
