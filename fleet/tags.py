@@ -7,9 +7,9 @@ never shares a register with another field), so an HMI reads a vehicle with one 
     %MW0  .. %MW63     the fleet: counters of this run, lifetime totals (retentive), commands
     %MW64 + 24*(v-1)   vehicle v: 24 words (its status, and its hold command)
 
-The Modbus server serves %MW0..%MW1023 as holding registers 1024..2047, which covers
-vehicles 1..40; the tags of higher ids exist all the same (``--json``, the force table,
-the Python API), and the image's M area is sized for the highest id.
+The image's M area is sized for the highest id, and the Modbus server serves it whole
+(%MWn is holding register 1024 + n), so an HMI reaches every vehicle of the largest fleet
+a configuration allows.
 
 Two blocks keep the words. ``FleetCommands`` at the start of the fleet task reads the
 writable ones (the blockade command, the vehicles' holds) and applies them through the
@@ -38,9 +38,7 @@ if TYPE_CHECKING:
 
 VEHICLE_BASE = 64  # %MW64: vehicle 1's first word
 STRIDE = 24  # words per vehicle
-MODBUS_WORDS = 1024  # %MW0..%MW1023 are served, as holding registers 1024..2047
 HOLDING_BASE = 1024  # the holding register of %MW0
-MODBUS_VEHICLES = (MODBUS_WORDS - VEHICLE_BASE) // STRIDE  # vehicles 1..40
 MAX_UINT, MAX_UDINT = 0xFFFF, 0xFFFFFFFF
 
 # the vehicle control's states as numbers (255: a state this table does not know)

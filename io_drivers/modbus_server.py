@@ -6,7 +6,11 @@ OpenPLC-compatible map (what HMIs built for OpenPLC expect):
     discrete inputs   0..8191  FC2 read only              %IX0.0..%IX1023.7 (as the program saw them)
     input registers   0..1023  FC4 read only              %IW0..%IW1023
     holding registers 0..1023  FC3 read, FC6/FC16 write   %QW0..%QW1023
-    holding registers 1024..2047                          %MW0..%MW1023
+    holding registers 1024..                              %MW0.. (the whole marker area)
+
+The marker area is served whole, as far as Modbus addresses reach (%MW0..%MW64511,
+holding registers 1024..65535): an image sized for a large program (a fleet of hundreds
+of vehicles) is read the same way as a small one.
 
 The server runs pymodbus' asyncio server in its own thread. Reads are answered from the
 process image under its lock (never a half-copied image); writes are queued into the
@@ -82,10 +86,10 @@ AllowFn = Callable[[list[Part]], "str | None"]  # None: allowed; else why it is 
 N_COILS = 8192
 N_DISCRETE = 8192
 N_INPUT_REGS = 1024
-N_HOLDING = 2048  # 0..1023 "hr" (%QW), 1024..2047 "mw" (%MW)
-MW_BASE = 1024
+MW_BASE = 1024  # holding registers 0..1023 are %QW, from here on %MW
+MAX_MW_WORDS = 0x10000 - MW_BASE  # %MW0..%MW64511: the holding registers Modbus can address
 SUPPORTED_FCS = frozenset({1, 2, 3, 4, 5, 6, 15, 16})
-REGISTER_BYTES = 2 * N_INPUT_REGS  # bytes of %I, %Q and %M served as registers (1024 each)
+REGISTER_BYTES = 2 * N_INPUT_REGS  # bytes of %I and %Q served as registers (1024 words each)
 BIT_BYTES = N_COILS // 8  # bytes of %I and %Q also served bit by bit (8192 bits each)
 MAX_CONNECTIONS = 16
 IDLE_TIMEOUT = 60.0  # seconds without a request before a connection is closed
@@ -124,7 +128,8 @@ class MapEntry:
 
 
 def map_entry(address: Address) -> MapEntry | None:
-    """Where ``address`` is served in the map above, None if it is not served.
+    """Where ``address`` is served in the map above, None if it is not served (a marker
+    beyond the image's M area is not served either, but that is the image's to refuse).
 
     Bits of %I and %Q are discrete inputs and coils; every other size is served as
     registers (a %MD is two holding registers, low word first; a bit or a byte of %M is
@@ -135,7 +140,7 @@ def map_entry(address: Address) -> MapEntry | None:
             return None
         table = "discrete input" if a.area == "I" else "coil"
         return MapEntry(table, a.byte_offset * 8 + a.bit, 1)
-    if a.byte_offset + a.nbytes > REGISTER_BYTES:
+    if a.byte_offset + a.nbytes > (2 * MAX_MW_WORDS if a.area == "M" else REGISTER_BYTES):
         return None
     table = "input register" if a.area == "I" else "holding register"
     bits = None
@@ -483,8 +488,11 @@ class _ModbusThread:
         max_connections: int = MAX_CONNECTIONS,
         idle_timeout: float | None = IDLE_TIMEOUT,
         between_scans: threading.Event | None = None,
+        marker_words: int = 1024,
     ):
         check_limits(name, max_connections, idle_timeout)
+        # holding registers served: %QW0..%QW1023, then %MW0 .. %MW<marker_words - 1>
+        self.holding = MW_BASE + min(marker_words, MAX_MW_WORDS)
         self._between_scans = between_scans  # serve only while it is set (None: always)
         self._selector: QuietSelector | None = None  # the loop's, when it waits for scans
         self._read = read
@@ -667,7 +675,7 @@ class _ModbusThread:
                 # count*count list while validating: ~0.5 GB RAM and ~1.5 s).
                 [SimData(0, values=[False] * N_COILS, datatype=DataType.BITS)],
                 [SimData(0, values=[False] * N_DISCRETE, datatype=DataType.BITS)],
-                [SimData(0, count=N_HOLDING, values=0, datatype=DataType.REGISTERS)],
+                [SimData(0, count=self.holding, values=0, datatype=DataType.REGISTERS)],
                 [SimData(0, count=N_INPUT_REGS, values=0, datatype=DataType.REGISTERS)],
             ),
             action=self._action,
@@ -783,7 +791,7 @@ def _bind_problem(host: str, port: int) -> str | None:
 # %MW<first>..%MW<last>: a range of marker words for writable_extra
 _RANGE_RE = re.compile(r"^%MW(\d+)\.\.%MW(\d+)$")
 _AREA_NAMES = {"I": "the input image (%I)", "Q": "the output image (%Q)"}
-_MW_BITS = REGISTER_BYTES * 8  # bits of %M served as holding registers 1024..2047
+_MW_BITS = MAX_MW_WORDS * 16  # bits of %M that Modbus can address (holding registers 1024..65535)
 
 
 def _nbits(address: Address) -> int:
@@ -795,21 +803,26 @@ def _check_area(where: str, address: Address) -> None:
     if address.area in _AREA_NAMES:
         raise ConfigError(
             f"{where}: {_AREA_NAMES[address.area]} is never writable over Modbus; only markers "
-            f"can be opened (%MW0..%MW1023, holding registers {MW_BASE}..{N_HOLDING - 1})"
+            f"can be opened (%MW0.., holding registers {MW_BASE}..)"
         )
 
 
-def _address_span(where: str, address: Address) -> tuple[int, int]:
+def _address_span(where: str, address: Address, served_bits: int = _MW_BITS) -> tuple[int, int]:
     """The bits of %M an address covers (first, count), which must be served."""
     _check_area(where, address)
-    return _marker_span(where, address.byte_offset * 8 + max(address.bit, 0), _nbits(address))
+    first = address.byte_offset * 8 + max(address.bit, 0)
+    return _marker_span(where, first, _nbits(address), served_bits)
 
 
-def _marker_span(where: str, first: int, nbits: int) -> tuple[int, int]:
-    if first + nbits > _MW_BITS:
+def _marker_span(
+    where: str, first: int, nbits: int, served_bits: int = _MW_BITS
+) -> tuple[int, int]:
+    """(first, nbits), or a ConfigError if they reach beyond the ``served_bits`` of %M."""
+    if first + nbits > served_bits:
+        words = served_bits // 16
         raise ConfigError(
-            f"{where}: beyond the Modbus map (%MW0..%MW{_MW_BITS // 16 - 1}, "
-            f"holding registers {MW_BASE}..{N_HOLDING - 1})"
+            f"{where}: beyond the Modbus map (%MW0..%MW{words - 1}, "
+            f"holding registers {MW_BASE}..{MW_BASE + words - 1})"
         )
     return first, nbits
 
@@ -817,7 +830,7 @@ def _marker_span(where: str, first: int, nbits: int) -> tuple[int, int]:
 class ModbusServer:
     """An IoDriver that serves the image over Modbus TCP while the runtime runs.
 
-    What a client may write (only ever in the marker area, holding registers 1024..2047):
+    What a client may write (only ever in the marker area, holding registers 1024 on):
 
     ``writable``: tag names or %M addresses; None (the default) means the tags the image's
     tag table declares writable (those beyond the map stay unreachable). An empty list
@@ -858,8 +871,8 @@ class ModbusServer:
         self.counters = {"reads": 0, "writes": 0, "refused": 0, "failures": 0}
         self._link_counters: dict[str, int] = {}  # connections and refusals, from the thread
         self.served_port: int | None = None  # the port it listened on, also after close()
-        self._allowed = np.zeros(_MW_BITS, dtype=bool)  # per bit of %M: a client may write it
-        self._writable_regs = np.zeros(N_HOLDING - MW_BASE, dtype=bool)  # every bit of %MWn
+        self._allowed = np.zeros(0, dtype=bool)  # per bit of %M served: a client may write it
+        self._writable_regs = np.zeros(0, dtype=bool)  # per %MW served: every bit of it
         self._owners: dict[int, str] = {}  # %MW index -> the read-only tag in it
         self._between_scans: threading.Event | None = None  # set by added_to()
 
@@ -879,6 +892,7 @@ class ModbusServer:
                     f"ModbusServer needs at least {needed} bytes of area {area}, image has {image.sizes[area]}"
                 )
         self._image = image
+        self._served_bits = min(8 * image.sizes["M"], _MW_BITS)
         self._words = {
             "ir": image.inputs.view("<u2"),
             "hr": image.published_outputs.view("<u2"),
@@ -896,6 +910,7 @@ class ModbusServer:
             max_connections=self.max_connections,
             idle_timeout=self.idle_timeout,
             between_scans=self._between_scans,
+            marker_words=self._served_bits // 16,
         )
         self._link_counters = server.counters
         try:
@@ -931,10 +946,11 @@ class ModbusServer:
         }
 
     # ----- the allow-list --------------------------------------------------------------
-    def _span(self, ref: str) -> tuple[int, int] | None:
+    def _span(self, ref: str, served_bits: int = _MW_BITS) -> tuple[int, int] | None:
         """The bits of %M (first, count) an address or a range names; None for a tag name.
 
-        Raises ConfigError for what can never be opened: %I and %Q, and %M beyond the map."""
+        Raises ConfigError for what can never be opened: %I and %Q, and %M beyond the
+        ``served_bits`` of the map (before the image is known: beyond what Modbus reaches)."""
         where = f"{self.name}: writable {ref!r}"
         if not isinstance(ref, str) or not ref.strip():
             raise ConfigError(f"{where}: expected a tag name, a %M address or %MWa..%MWb")
@@ -945,22 +961,23 @@ class ModbusServer:
             lo, hi = int(match[1]), int(match[2])
             if hi < lo:
                 raise ConfigError(f"{where}: the range ends before it starts")
-            return _marker_span(where, lo * 16, (hi - lo + 1) * 16)
+            return _marker_span(where, lo * 16, (hi - lo + 1) * 16, served_bits)
         try:
             address = parse_address(text)
         except PlcError as exc:
             raise ConfigError(f"{where}: {exc}; a range is %MWa..%MWb") from None
-        return _address_span(where, address)
+        return _address_span(where, address, served_bits)
 
     def _allow_list(self, image: ProcessImage) -> None:
         """Resolve the allow-list against the image's tag table (when the runtime starts)."""
-        allowed = np.zeros(_MW_BITS, dtype=bool)
+        served = self._served_bits
+        allowed = np.zeros(served, dtype=bool)
         owned: dict[int, str] = {}  # bit of %M -> the read-only tag it belongs to (the first)
         for tag in image.tags:
             a = tag.address
             if not tag.writable and a.area == "M":
                 first = a.byte_offset * 8 + max(a.bit, 0)
-                for bit in range(first, min(first + _nbits(a), _MW_BITS)):
+                for bit in range(first, min(first + _nbits(a), served)):
                     owned.setdefault(bit, tag.name)
         if self.writable is None:
             for tag in image.tags.writable():
@@ -981,13 +998,13 @@ class ModbusServer:
         """The bits ``ref`` opens. A tag named opens, whatever its flag; an address or a
         range must not cover a read-only tag."""
         where = f"{self.name}: writable {ref!r}"
-        span = self._span(ref)
+        span = self._span(ref, self._served_bits)
         if span is None:
             try:
                 address = image.tags.get(ref.strip()).address
             except PlcError as exc:
                 raise ConfigError(f"{where}: {exc}") from None
-            return _address_span(f"{where} ({address.text})", address)
+            return _address_span(f"{where} ({address.text})", address, self._served_bits)
         first, nbits = span
         for bit in range(first, first + nbits):
             if bit in owned:

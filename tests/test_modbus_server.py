@@ -215,8 +215,8 @@ def test_the_option_opens_named_tags_and_ranges():
         ("%QX0.0", r"writable '%QX0.0': the output image \(%Q\) is never writable"),
         ("%IW3", r"writable '%IW3': the input image \(%I\) is never writable"),
         ("%IX0.1", r"writable '%IX0.1': the input image \(%I\) is never writable"),
-        ("%MW1024", r"writable '%MW1024': beyond the Modbus map \(%MW0..%MW1023"),
-        ("%MW1000..%MW1030", r"writable '%MW1000..%MW1030': beyond the Modbus map"),
+        ("%MW64512", r"writable '%MW64512': beyond the Modbus map \(%MW0..%MW64511, hold"),
+        ("%MW64500..%MW64530", r"writable '%MW64500..%MW64530': beyond the Modbus map"),
         ("%MW9..%MW3", r"writable '%MW9..%MW3': the range ends before it starts"),
         ("%MW1..%QW3", r"writable '%MW1..%QW3': invalid IEC address .* a range is %MWa..%MWb"),
         ("", r"writable '': expected a tag name, a %M address or %MWa..%MWb"),
@@ -237,6 +237,9 @@ def test_addresses_that_cannot_be_opened_are_refused_at_once(entry, message):
         (None, ["%MW1..%MW3"], r"writable '%MW1..%MW3': covers the read-only tag 'speed'"),
         (None, ["%MB4"], r"writable '%MB4': covers the read-only tag 'speed'"),
         (["button"], [], r"writable 'button' \(%IX0.1\): the input image \(%I\) is never"),
+        # the image's marker area is 8192 bytes: %MW0..%MW4095 are served, no more
+        (None, ["%MW4096"], r"'%MW4096': beyond the Modbus map \(%MW0..%MW4095, holding regis"),
+        (None, ["%MW4000..%MW4100"], r"'%MW4000..%MW4100': beyond the Modbus map \(%MW0..%MW4095"),
     ],
 )
 def test_tag_entries_are_checked_when_the_runtime_starts(writable, extra, message):
@@ -290,7 +293,9 @@ def test_map_entries_name_where_a_location_is_served():
     }
     assert {ref: str(map_entry(parse_address(ref))) for ref in cases} == cases
     assert map_entry(parse_address("%MD1")).table == "holding register"
-    assert map_entry(parse_address("%MW1024")) is None  # beyond holding register 2047
+    assert str(map_entry(parse_address("%MW1024"))) == "HR 2048"  # the marker area is served whole
+    assert str(map_entry(parse_address("%MW64511"))) == "HR 65535"
+    assert map_entry(parse_address("%MW64512")) is None  # beyond what Modbus addresses
     assert map_entry(parse_address("%QX1024.0")) is None  # beyond coil 8191
 
 
@@ -333,8 +338,9 @@ def test_exception_codes(served):
     _rt, _server, client = served
     assert exception_code(client.read_coils(8192, count=1)) == 2
     assert exception_code(client.read_input_registers(1024, count=1)) == 2
-    assert exception_code(client.read_holding_registers(2047, count=2)) == 2
-    assert exception_code(client.write_register(2048, 1)) == 2
+    # the marker area (8192 bytes here) ends at holding register 1024 + 4095
+    assert exception_code(client.read_holding_registers(5119, count=2)) == 2
+    assert exception_code(client.write_register(5120, 1)) == 2
     assert exception_code(client.read_exception_status()) == 1  # FC7: not served
     assert exception_code(client.mask_write_register(address=0)) == 1  # FC22: not served
 
@@ -345,7 +351,7 @@ def test_a_refused_request_is_one_log_line_without_traceback(served, caplog):
     cases = [  # PDU, what the line says
         (struct.pack(">BHH", 6, 516, 1), "FC6", "exception 02, holding registers 516..516 are"),
         (struct.pack(">BHH", 5, 32, 0xFF00), "FC5", "exception 02, coils 32..32 are %QX4.0"),
-        (struct.pack(">BHH", 3, 2047, 2), "FC3", "exception 02, address outside the served"),
+        (struct.pack(">BHH", 3, 5119, 2), "FC3", "exception 02, address outside the served"),
         (struct.pack(">B", 7), "FC7", "exception 01, function code not served"),
         (struct.pack(">BHH", 1, 0, 2001), "FC1", "exception 03, count or value out of range"),
     ]

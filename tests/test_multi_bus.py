@@ -11,11 +11,14 @@ from pathlib import Path
 import can
 import pytest
 from netns import realtime_run, unavailable
+from pymodbus.client import ModbusTcpClient
 
 from fleet.cli import main
 from fleet.config import link_problem, load_config
 from fleet.program import FleetProgram
+from fleet.tags import HOLDING_BASE, STATE_CODES, vehicle_word
 from io_drivers.can_bus import bus_of, bus_options, by_bus
+from io_drivers.modbus_server import ModbusServer
 from io_drivers.protocol import MAX_VEHICLE_ID, STATUS
 from plc_runtime.errors import ConfigError
 from topology import warehouse
@@ -76,6 +79,43 @@ def test_a_fleet_of_140_runs_on_two_in_process_buses(tmp_path):
         assert all(p.controls[v].state != "offline" for v in range(127, 141))
         assert p.monitor.head_on == 0 and p.monitor.node == 0
     finally:
+        p.close()
+
+
+def test_an_hmi_reads_and_holds_every_vehicle_of_a_large_fleet_over_modbus(tmp_path):
+    """The marker area is served whole: vehicle 140's words are holding registers past
+    2047, read like vehicle 1's; its hold is writable, its status words are not; a
+    register past the marker area is no address at all."""
+    cfg = load_config(warehouse_config(tmp_path, 140))
+    cfg.watchdog = 5.0
+    p = FleetProgram(cfg)
+    server = ModbusServer(port=0)
+    p.rt.add_driver(server)
+    client = None
+    try:
+        p.rt.start()
+        client = ModbusTcpClient("127.0.0.1", port=server.port, timeout=2.0, retries=0)
+        assert client.connect()
+        p.rt.run(cycles=round(10 / cfg.cycle_time))
+        node_hr = HOLDING_BASE + vehicle_word(140, "node")
+        assert node_hr > 2047
+        node, state = client.read_holding_registers(node_hr, count=2).registers
+        control = p.controls[140]
+        assert (node, state) == (control.current, STATE_CODES[control.state])
+        hold_hr = HOLDING_BASE + vehicle_word(140, "hold")
+        assert not client.write_register(hold_hr, 1).isError()
+        p.rt.step()
+        assert control.hold and p.rt.image.read("agv140.held") is True
+        refused = client.write_register(node_hr, 3)
+        assert refused.isError() and refused.exception_code == 2
+        past = HOLDING_BASE + p.rt.image.sizes["M"] // 2
+        assert client.read_holding_registers(past - 1, count=1).registers == [0]
+        beyond = client.read_holding_registers(past, count=1)
+        assert beyond.isError() and beyond.exception_code == 2
+        assert p.rt.image.read("agv140.node") == control.current
+    finally:
+        if client is not None:
+            client.close()
         p.close()
 
 
