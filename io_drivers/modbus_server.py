@@ -886,7 +886,8 @@ class ModbusServer:
         runtime.ask_quiet_lead(QUIET_LEAD * runtime.cycle_time)
 
     def open(self, image: ProcessImage) -> None:
-        for area, needed in (("I", 2048), ("Q", 2048), ("M", 2048)):
+        # %I and %Q are served at fixed sizes; %M as far as the image's marker area goes
+        for area, needed in (("I", 2048), ("Q", 2048)):
             if image.sizes[area] < needed:
                 raise ConfigError(
                     f"ModbusServer needs at least {needed} bytes of area {area}, image has {image.sizes[area]}"
