@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import socket
+import sys
+import warnings
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
@@ -64,10 +68,14 @@ def bus_channels(channel: str) -> list[str]:
     return [c.strip() for c in channel.split(",")]
 
 
-# python-can's udp_multicast binds its socket to this port on every address, so a socket
-# receives the datagrams of every group any socket of the machine joined on that port:
-# two buses of one link on two groups would each hear the other's vehicles.
+# python-can's udp_multicast binds its socket to this port on every address. On Linux
+# such a socket receives, by default, the datagrams of every group any socket of the
+# machine joined on that port, so two buses on two groups would hear each other's
+# vehicles; open_can_bus turns that off (own_groups_only). Elsewhere a socket hears only
+# the groups it joined. The buses of one link also take a port each (bus_options).
 UDP_MULTICAST_PORT = 43113
+# Linux socket options (linux/in.h, linux/in6.h), which Python's socket module lacks
+IP_MULTICAST_ALL, IPV6_MULTICAST_ALL = 49, 29
 
 
 def bus_options(interface: str | None, bus: int) -> dict[str, Any]:
@@ -91,9 +99,33 @@ def open_can_bus(interface: str | None, channel: str | None, **kwargs: Any) -> c
     quiet = log.disabled
     log.disabled = True
     try:
-        return _construct(interface, channel, kwargs)
+        bus = _construct(interface, channel, kwargs)
     finally:
         log.disabled = quiet
+    if interface == "udp_multicast" and sys.platform.startswith("linux"):
+        own_groups_only(bus, channel)
+    return bus
+
+
+def own_groups_only(bus: can.BusABC, group: str | None) -> None:
+    """Let a udp_multicast bus receive only the datagrams of its own group: two fleets on
+    two groups of one machine are then two buses, as their channels say. A kernel that
+    refuses the option keeps hearing every group on the port, with a warning."""
+    try:
+        # a second handle on the bus's socket (fileno() is python-can's public way to it;
+        # the family is read from the socket): an option set through it holds for the bus
+        with socket.socket(fileno=os.dup(bus.fileno())) as handle:
+            if handle.family == socket.AF_INET6:
+                handle.setsockopt(socket.IPPROTO_IPV6, IPV6_MULTICAST_ALL, 0)
+            else:
+                handle.setsockopt(socket.IPPROTO_IP, IP_MULTICAST_ALL, 0)
+    except OSError as exc:
+        warnings.warn(
+            f"udp_multicast channel {group!r}: cannot limit the bus to its own group ({exc}); "
+            "it also hears other groups on its port",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
 
 def _construct(interface: str | None, channel: str | None, kwargs: dict[str, Any]) -> can.BusABC:

@@ -5,12 +5,14 @@ the ids need; the simulated vehicles of ``plc-runtime vehicles`` split the same 
 
 from __future__ import annotations
 
+import json
 import re
+import sys
 from pathlib import Path
 
 import can
 import pytest
-from netns import realtime_run, unavailable
+from netns import realtime_run, run_isolated, unavailable
 from pymodbus.client import ModbusTcpClient
 
 from fleet.cli import main
@@ -214,6 +216,45 @@ def test_a_realtime_run_of_130_vehicles_on_two_multicast_buses(tmp_path):
     assert all(d["unknown_vehicle"] == 0 and d["out_of_sequence"] == 0 for d in drivers.values())
     second = [summary["vehicles"][str(v)] for v in range(127, 131)]
     assert all(v["state"] not in ("offline", "suspect") and v["plans"] >= 1 for v in second), second
+
+
+GROUPS_SCRIPT = """
+import json, can
+from io_drivers.can_bus import open_can_bus
+
+def frame(n):
+    return can.Message(arbitration_id=n, data=b"x", is_extended_id=False)
+
+def heard(bus):
+    message = bus.recv(0.3)
+    return None if message is None else message.arbitration_id
+
+first = open_can_bus("udp_multicast", "239.74.163.21")
+second = open_can_bus("udp_multicast", "239.74.163.22")
+peer = open_can_bus("udp_multicast", "239.74.163.22")
+plain = can.Bus(interface="udp_multicast", channel="239.74.163.22", receive_own_messages=False)
+first.send(frame(1))
+out = {"second": heard(second), "plain": heard(plain)}
+peer.send(frame(2))
+out["second_from_peer"] = heard(second)
+for bus in (first, second, peer, plain):
+    bus.shutdown()
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.skipif(unavailable() is not None, reason=unavailable() or "")
+def test_two_multicast_groups_on_one_port_are_two_buses(tmp_path):
+    """Two fleets on one machine over udp_multicast, each on its own group and the same
+    port: a bus hears its own group only (a python-can bus opened without that hears the
+    other group's frame, which is why open_can_bus sets it)."""
+    script = tmp_path / "groups.py"
+    script.write_text(GROUPS_SCRIPT, encoding="utf-8")
+    root = Path(__file__).resolve().parent.parent
+    result = run_isolated(f"env PYTHONPATH={root} {sys.executable} {script}", timeout=60)
+    assert result.returncode == 0, result.stderr
+    heard = json.loads(result.stdout)
+    assert heard == {"second": None, "plain": 1, "second_from_peer": 2}
 
 
 def test_without_a_bus_a_fleet_takes_any_id():
