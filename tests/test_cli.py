@@ -83,6 +83,8 @@ def test_console_script_realtime():
             "0.005",
             "--realtime",
             "--json",
+            "--watchdog",
+            "5000",  # a busy machine must not fault a wall-clock run
         ],
         capture_output=True,
         text=True,
@@ -97,7 +99,7 @@ def test_console_script_realtime():
 
 def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
     proc = subprocess.Popen(
-        [str(SCRIPT), "run", "--program", "demo", "--json"],
+        [str(SCRIPT), "run", "--program", "demo", "--json", "--watchdog", "5000"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -604,6 +604,8 @@ def test_cli_serves_the_image_while_running(tmp_path):
             "--modbus",
             f"127.0.0.1:{port}",
             "--json",
+            "--watchdog",
+            "5000",  # a busy machine must not fault a wall-clock run
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

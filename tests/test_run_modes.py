@@ -204,6 +204,7 @@ def test_the_modbus_vehicle_link_from_the_configuration(tmp_path):
 def test_ctrl_c_ends_the_run_cleanly_and_says_so(tmp_path):
     out = tmp_path / "out"
     cmd = [*PLC, "run", "--speed", "1", "--duration", "600", "--json", "--out", str(out)]
+    cmd += WIDE_WATCHDOG
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # the output folder is made (checked) right before the run starts
