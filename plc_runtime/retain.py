@@ -13,8 +13,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import reprlib
 import warnings
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 from .errors import RetainError
@@ -39,6 +41,26 @@ def _unstorable(value: object) -> str | None:
     return (
         f"type {type(value).__name__} (retain numbers, strings, booleans and lists/dicts of them)"
     )
+
+
+def value_unlike(default: object, value: object) -> str | None:
+    """Why a retained ``value`` cannot stand for a block variable declared with
+    ``default``, or None. JSON keeps a tuple as a list; a float may come back as an int."""
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    elif isinstance(default, list | tuple):
+        ok = isinstance(value, list)
+    elif isinstance(default, dict):
+        ok = isinstance(value, dict)
+    else:
+        return None  # declared without a typed default: the block takes what it stored
+    return None if ok else f"expects {type(default).__name__}, got {reprlib.repr(value)}"
 
 
 def layout_hash(entries: list[tuple[str, str]]) -> str:
@@ -189,8 +211,17 @@ class RetainStore:
         """The program changed: values kept in memory no longer fit it."""
         self.memory = None
 
-    def load(self, mode: str, layout: list[tuple[str, str]]) -> dict[str, object]:
-        """The values to restore for a start in ``mode`` ("warm" or "cold")."""
+    def load(
+        self,
+        mode: str,
+        layout: list[tuple[str, str]],
+        problem: Callable[[dict[str, object]], str | None] = lambda values: None,
+    ) -> dict[str, object]:
+        """The values to restore for a start in ``mode`` ("warm" or "cold").
+
+        ``problem`` names what is wrong with a file's values, or None: a file whose checksum
+        holds can still carry a value its variable cannot take (edited by hand, written by
+        another tool), which is rejected as a damaged file is."""
         self.layout = layout_hash(layout)
         if mode == "cold":
             self.memory = None
@@ -204,6 +235,8 @@ class RetainStore:
             return {}
         try:
             loaded = self.file.load(self.layout)
+            if loaded is not None and (why := problem(loaded)) is not None:
+                raise RetainError(f"{self.file.path}: {why}")
         except RetainError as exc:
             kept = self._set_aside()
             self.start_info = f"cold: {exc}; {kept}"

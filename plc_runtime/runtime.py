@@ -26,12 +26,19 @@ from time import perf_counter_ns
 from .clock import VirtualClock, WallClock
 from .collector import DEFAULT_YOUNG_THRESHOLD, FullCollections, YoungThreshold
 from .context import CycleContext
-from .errors import ConfigError, RetainError, StartupError, StateError, WatchdogTimeout
+from .errors import (
+    ConfigError,
+    PlcError,
+    RetainError,
+    StartupError,
+    StateError,
+    WatchdogTimeout,
+)
 from .fb import FunctionBlock
 from .files import is_special
 from .image import ProcessImage, ProgramImage
 from .io import IoDriver
-from .retain import RetainStore, layout_hash
+from .retain import RetainStore, layout_hash, value_unlike
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
@@ -277,7 +284,9 @@ class Runtime:
             self._stop_requested.clear()
             self.image.reset()
             self._retain_layout_before = self._retain_layout()
-            self._init_block_data(self._retain.load(mode, self._retain_layout_before))
+            self._init_block_data(
+                self._retain.load(mode, self._retain_layout_before, self._retained_problem)
+            )
             if mode == "cold" and self._retain.file is not None:
                 self._retain.save_or_warn(
                     self._collect_retain(), "cleared"
@@ -632,6 +641,31 @@ class Runtime:
                 for name in block.retain_names()
             ]
         return entries
+
+    def _retained_problem(self, retained: dict[str, object]) -> str | None:
+        """What in a retain file's values its variables cannot take, or None.
+
+        The layout hash already matched, so the keys and declared types are this program's;
+        the values are checked as a write from outside would be (a tag's type and range), and
+        a block variable's against the type of its declared default."""
+        blocks = dict(self._block_paths())
+        for key, value in retained.items():
+            kind, _, name = key.partition(":")
+            if kind == "tag":
+                if name not in self.image.tags:
+                    continue  # not retentive here: ignored, as the layout allows
+                try:
+                    self.image.resolve(name).type.check(value, key)
+                except PlcError as exc:
+                    return str(exc)
+            elif kind == "fb":
+                path, _, var = name.rpartition(".")
+                block = blocks.get(path)
+                if block is not None and var in block._vars:
+                    why = value_unlike(block._vars[var].default, value)
+                    if why is not None:
+                        return f"{key}: {why}"
+        return None
 
     def _init_block_data(self, retained: dict[str, object]) -> None:
         """Reset every block's declared variables, then restore the retained ones."""

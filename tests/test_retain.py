@@ -1,7 +1,9 @@
 """Retentive memory: warm and cold restarts, the crash-safe file and its failure modes."""
 
+import json
 import os
 import re
+import zlib
 from pathlib import Path
 
 import pytest
@@ -117,6 +119,44 @@ def test_damaged_file_gives_a_message_and_a_cold_start(tmp_path, damage, message
         rt.start()
     assert rt.start_info.startswith("cold:") and message in rt.start_info
     assert values(rt, m) == (0, 0, 0, 0, 0)
+    rt.stop()
+
+
+def _rewritten(path, change) -> None:
+    """The file with its values changed and its header made valid again (a hand edit)."""
+    head, body = path.read_bytes().split(b"\n", 1)
+    values = change(json.loads(body))
+    body = json.dumps(values).encode()
+    magic, version, layout, _crc, _length = head.split(b" ")
+    head = b" ".join([magic, version, layout, b"%08x" % zlib.crc32(body), b"%d" % len(body)])
+    path.write_bytes(head + b"\n" + body)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("tag:kept", 70000, "tag:kept: 70000 is outside the INT range -32768..32767"),
+        ("tag:kept", "x", "tag:kept: INT expects an integer, got 'x'"),
+        ("tag:kept", True, "tag:kept: INT expects an integer, got True"),
+        ("fb:main/0:Machine.total", "x", "fb:main/0:Machine.total: expects int, got 'x'"),
+        ("fb:main/0:Machine.parts.CV", 1.5, "fb:main/0:Machine.parts.CV: expects int, got 1.5"),
+    ],
+)
+def test_a_value_its_variable_cannot_take_gives_a_cold_start_and_keeps_the_file(
+    tmp_path, key, value, message
+):
+    """A checksum that holds over a value the variable cannot take (a file edited by hand
+    and its header redone): one warning naming the file and the key, a cold start, and
+    the file kept aside, as a damaged file is."""
+    path = _saved(tmp_path)
+    assert key in json.loads(path.read_bytes().split(b"\n", 1)[1])  # a key the program uses
+    _rewritten(path, lambda values: {**values, key: value})
+    edited = path.read_bytes()
+    rt, m = build(path)
+    with pytest.warns(RuntimeWarning, match=re.escape(f"{path}: {message}")):
+        rt.start()
+    assert rt.start_info.startswith("cold:") and values(rt, m) == (0, 0, 0, 0, 0)
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == edited
     rt.stop()
 
 
