@@ -3,6 +3,7 @@ matplotlib figure before it is saved, against values computed here from the rout
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -193,6 +194,15 @@ def test_draw_writes_the_png(tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(TopologyError, match="recent must be >= 1"):
         draw(model_plant(), tmp_path / "routes.png", vehicles=FLEET, recent=0)
+
+
+def test_a_long_name_is_cut_in_the_title_not_a_reason_to_fail():
+    """The longest name a plant may have: the title's line is cut with an ellipsis, the
+    page stays the width of the plant's picture."""
+    picture = render(dataclasses.replace(model_plant(), name="x" * 1024))
+    title = picture.axes.get_title()
+    assert len(title.split("\n")[0]) == 120 and title.endswith("\u2026")
+    assert picture.figure.get_size_inches()[0] == render(model_plant()).figure.get_size_inches()[0]
 
 
 def test_the_fleet_report_hands_over_whole_routes_and_lifted_blockades(tmp_path, monkeypatch):

@@ -416,6 +416,7 @@ def small_plant(**changes) -> dict:
             r"area .* \(U\+202E\) is a bidirectional control",
         ),
         ({"node_name": "a\u2028b"}, ": nodes[1] (id 1): ", r"\(U\+2028\) is a line separator"),
+        ({"name": "x" * 100_000}, ": name: ", r"\(100002 characters\) is too long: a name has at"),
         (
             {"functions": {"0": "entry", "1": "ex\x9bit"}},
             ": functions: ",
@@ -430,6 +431,7 @@ def small_plant(**changes) -> dict:
         "newline-node-name",
         "bidi-override-area",
         "line-separator-node-name",
+        "megabyte-plant-name",
         "c1-csi-function-name",
     ],
 )

@@ -88,6 +88,17 @@ class Picture:
 LITERAL_TEXT = {"text.parse_math": False}
 
 
+TITLE_CHARS = 120  # a longer line of the title is cut: the figure would grow with it
+
+
+def _shortened(text: str) -> str:
+    """Each line of a title cut to ``TITLE_CHARS`` characters, with an ellipsis."""
+    return "\n".join(
+        line if len(line) <= TITLE_CHARS else line[: TITLE_CHARS - 1] + "\u2026"
+        for line in text.split("\n")
+    )
+
+
 def draw(
     plant: Plant,
     out: str | Path,
@@ -155,7 +166,7 @@ def _render(
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
     ax.axis("off")
-    heading = title or f"{plant.name}: {plant.n} nodes, {len(plant.edges)} edges"
+    heading = _shortened(title or f"{plant.name}: {plant.n} nodes, {len(plant.edges)} edges")
     if mode == "heatmap":
         heading += f"\nhow often each segment was driven (over {HEATMAP_ABOVE} vehicles: no routes)"
     ax.set_title(heading, fontsize=11)

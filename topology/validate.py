@@ -189,12 +189,16 @@ REFUSED_CATEGORIES = {
     "Cs": "a lone surrogate, not text (it cannot be written as UTF-8)",
 }
 BIDI_CONTROLS = frozenset(map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A)]))
+# A name is read on a screen, a drawing and a terminal line: a megabyte of one is no name.
+MAX_NAME_CHARS = 1024
 
 
 def text_problem(value: object) -> str | None:
     """What makes ``value`` unfit to name something an operator reads, None if nothing."""
     if not isinstance(value, str):
         return f"must be a string, got {_short(value)}"
+    if len(value) > MAX_NAME_CHARS:
+        return f"{_short(value)} is too long: a name has at most {MAX_NAME_CHARS} characters"
     if value.isprintable():  # the fast path: no character of any refused kind
         return None
     for position, char in enumerate(value, start=1):
