@@ -502,9 +502,11 @@ def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
             raise reader.fail(
                 f"clusters.{key}", f"expected a non-empty list of node ids, got {stations!r}"
             )
-        for s in stations:
+        for k, s in enumerate(stations):
             if s not in plant.index:
                 raise reader.fail(f"clusters.{key}", f"node {s} is not in plant {plant.name!r}")
+            if s in stations[:k]:
+                raise reader.fail(f"clusters.{key}", f"node {s} is listed twice")
         clusters[int(key)] = list(stations)
     return clusters
 

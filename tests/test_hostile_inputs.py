@@ -583,6 +583,11 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             r"stations\.clusters\.²: function ids",
         ),
         (
+            "[stations]",
+            "[stations.clusters]\n2 = [15, 22, 15]\n[stations]",
+            r"stations\.clusters\.2: node 15 is listed twice",
+        ),
+        (
             "start = 0",
             "start = 0\nrecipes = []",
             r"vehicles\[0\]\.recipes: must be a non-empty list",
@@ -623,6 +628,7 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
     ],
     ids=[
         "superscript-function-id",
+        "cluster-station-twice",
         "no-recipes",
         "nested-recipes",
         "faults-vehicle-twice",
