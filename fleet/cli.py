@@ -29,6 +29,7 @@ from topology import TopologyError
 from . import demo_program
 from .commands import orders, plant, tags, vehicles
 from .commands import run as fleet_run
+from .config import host_port
 
 PROGRAMS = {"demo": demo_program.build}
 """Programs other than the fleet that ``run --program`` offers."""
@@ -118,16 +119,12 @@ def _run(args: argparse.Namespace) -> int:
 
 def modbus_server(spec: str, writable: str | None = None) -> ModbusServer:
     """The Modbus TCP server of ``--modbus HOST:PORT`` (``--modbus-writable NAMES``)."""
-    host, sep, port = spec.rpartition(":")
-    if (
-        not sep
-        or not host
-        or not (port.isascii() and port.isdigit())
-        or not 0 <= int(port) <= 65535
-    ):
-        raise CliError(f"--modbus {spec!r}: expected HOST:PORT, e.g. 127.0.0.1:5020")
+    try:
+        host, port = host_port(spec, "127.0.0.1:5020")
+    except ValueError as exc:
+        raise CliError(f"--modbus: {exc}") from None
     extra = [] if writable is None else [name.strip() for name in writable.split(",")]
-    return ModbusServer(host=host, port=int(port), writable_extra=extra)
+    return ModbusServer(host=host, port=port, writable_extra=extra)
 
 
 if __name__ == "__main__":

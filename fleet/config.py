@@ -8,6 +8,7 @@ provides, two vehicles on one start node, unknown recipe names.
 
 from __future__ import annotations
 
+import ipaddress
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,18 +90,16 @@ def link_problem(interface: str, channel: str, highest: int) -> str | None:
 def modbus_endpoint(channel: str) -> tuple[str, int]:
     """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v
     (whether the fleet's highest id still fits below 65536 is :func:`link_problem`'s)."""
-    host, sep, port = channel.rpartition(":")
-    if (
-        not sep
-        or not host
-        or not (port.isascii() and port.isdigit())
-        or not 1 <= int(port) <= 65534
-    ):
+    try:
+        host, port = host_port(channel)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65534:
         raise ConfigError(
             f"modbus vehicle link {channel!r}: expected HOST:BASE_PORT with a base port in "
             "1..65534, e.g. 127.0.0.1:5100 (vehicle v serves on BASE_PORT + v)"
         )
-    return host, int(port)
+    return host, port
 
 
 @dataclass(frozen=True)
@@ -399,18 +398,29 @@ def _web(r: TableReader) -> tuple[str, int] | None:
         raise r.fail("address", str(exc)) from None
 
 
-def host_port(text: str) -> tuple[str, int]:
+def host_port(text: str, example: str = "127.0.0.1:8080") -> tuple[str, int]:
     """``HOST:PORT`` (an IPv6 host in brackets) as (host, port); ValueError naming what is
-    wrong."""
+    wrong, with ``example`` as the form to follow."""
     host, sep, port = text.rpartition(":")
-    host = host.removeprefix("[").removesuffix("]")
+    bracketed = host.startswith("[") and host.endswith("]") and len(host) > 1
+    if bracketed:
+        host = host[1:-1]
     if (
         not sep
         or not host
         or not (port.isascii() and port.isdigit())
         or not 0 <= int(port) <= 65535
+        or any(c in host for c in "[]")
+        or any(c.isspace() for c in host)
     ):
-        raise ValueError(f"expected HOST:PORT, e.g. 127.0.0.1:8080, got {text!r}")
+        raise ValueError(f"expected HOST:PORT, e.g. {example}, got {text!r}")
+    if ":" in host:
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError:
+            raise ValueError(f"{host!r} is no IPv6 address, in {text!r}") from None
+        if not bracketed:
+            raise ValueError(f"an IPv6 host goes in brackets, e.g. [{host}]:{port}, got {text!r}")
     return host, int(port)
 
 

@@ -588,6 +588,11 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             r"stations\.clusters\.2: node 15 is listed twice",
         ),
         (
+            "[bus]",
+            '[web]\naddress = "[::1"\n[bus]',
+            r"web\.address: expected HOST:PORT, e\.g\. 127\.0\.0\.1:8080, got '\[::1'",
+        ),
+        (
             "start = 0",
             "start = 0\nrecipes = []",
             r"vehicles\[0\]\.recipes: must be a non-empty list",
@@ -629,6 +634,7 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
     ids=[
         "superscript-function-id",
         "cluster-station-twice",
+        "web-address-unclosed-bracket",
         "no-recipes",
         "nested-recipes",
         "faults-vehicle-twice",

@@ -270,6 +270,19 @@ def test_a_writable_tag_in_the_input_or_output_image_is_a_configuration_error():
     rt.stop()
 
 
+@pytest.mark.parametrize(
+    ("spec", "line"),
+    [
+        ("5020", "--modbus: expected HOST:PORT, e.g. 127.0.0.1:5020, got '5020'"),
+        ("::1:5020", "--modbus: an IPv6 host goes in brackets, e.g. [::1]:5020, got '::1:5020'"),
+        ("[::1:5020", "--modbus: expected HOST:PORT, e.g. 127.0.0.1:5020, got '[::1:5020'"),
+    ],
+)
+def test_a_bad_modbus_address_is_one_line(capsys, spec, line):
+    assert main(["run", "--program", "demo", "--modbus", spec, "--cycles", "2"]) == 2
+    assert capsys.readouterr().err == f"plc-runtime: error: {line}\n"
+
+
 def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys):
     assert main(["run", "--program", "demo", "--modbus-writable", "%MW20"]) == 2
     assert "--modbus-writable" in capsys.readouterr().err
