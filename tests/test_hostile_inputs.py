@@ -478,12 +478,23 @@ def test_map_header_refuses_foreign_digits_and_repeated_keys(tmp_path):
         load(path)
 
 
-@pytest.mark.parametrize("cell_size", [0, -1.0, float("nan"), float("inf"), True, "1"])
+@pytest.mark.parametrize("cell_size", [0, -1.0, float("nan"), float("inf"), True, "1", 1e308])
 def test_map_cell_size_must_be_a_finite_positive_number(tmp_path, cell_size):
     path = tmp_path / "ok.map"
     path.write_text(movingai(2, 2))
-    with pytest.raises(TopologyError, match="cell size must be a finite number > 0"):
+    with pytest.raises(TopologyError, match="cell size must be a number > 0 and at most 1000 m"):
         load(path, cell_size=cell_size)
+
+
+def test_the_cli_names_a_cell_size_too_large(tmp_path, capsys):
+    from fleet.cli import main
+
+    path = tmp_path / "ok.map"
+    path.write_text(movingai(2, 2))
+    with pytest.raises(SystemExit) as stop:
+        main(["route", str(path), "--from", "0", "--to", "1", "--cell-size", "1e308"])
+    assert stop.value.code == 2
+    assert "--cell-size: must be at most 1000: '1e308'" in capsys.readouterr().err
 
 
 # ----- a retain file of the wrong length, and what happens to a file that is not used ------

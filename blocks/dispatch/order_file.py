@@ -176,6 +176,19 @@ class _NonStandard:
         self.name = name
 
 
+def _json_kind(value: object) -> str:
+    """What a JSON value is, in JSON's words (an object, not the reader's class)."""
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, bool):
+        return f"{str(value).lower()}"
+    if isinstance(value, int | float | _NonStandard):
+        return "a number"
+    return "null" if value is None else type(value).__name__
+
+
 class _Object(dict):
     """A JSON object that remembers a key it had twice: json keeps the last value silently,
     and an order with two ids is a broken export, not a choice."""
@@ -205,12 +218,13 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
         if data.twice is not None:
             raise OrderFileError(f"{source}: key {shown(data.twice)} appears twice")
         if set(data) != {"orders"}:
+            keys = f"the keys {', '.join(map(shown, sorted(data)))}" if data else "an empty object"
             raise OrderFileError(
-                f'{source}: expected a list of orders or {{"orders": [...]}}, got the keys {", ".join(map(repr, sorted(data)))}'
+                f'{source}: expected a list of orders or {{"orders": [...]}}, got {keys}'
             )
         data = data["orders"]
     if not isinstance(data, list):
-        raise OrderFileError(f"{source}: expected a list of orders, got {type(data).__name__}")
+        raise OrderFileError(f"{source}: expected a list of orders, got {_json_kind(data)}")
     if len(data) > MAX_ORDERS:
         raise OrderFileError(
             f"{source}: {len(data):,} orders, more than the {MAX_ORDERS:,} an order file may hold ({LIMITS_DOC})"

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from topology import SAMPLES, Plant, load
+from topology.formats.movingai import MAX_CELL_SIZE_M
 
 from ..config import HIGHWAY_FACTOR
 from ..route import find_route, load_plant, parse_segment
@@ -32,7 +33,10 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     for parser in (validate, show):
         parser.add_argument("file", help=FILE_HELP)
         parser.add_argument(
-            "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
+            "--cell-size",
+            type=positive(float, most=MAX_CELL_SIZE_M),
+            default=1.0,
+            help="MovingAI maps: metres per cell",
         )
     show.add_argument(
         "--png", metavar="OUT", help="draw the plant (ids, roles, edge directions) into a PNG"
@@ -55,7 +59,10 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
         "--heuristic", choices=["table", "euclidean", "manhattan", "zero"], default="table"
     )
     route.add_argument(
-        "--cell-size", type=positive(float), default=1.0, help="MovingAI maps: metres per cell"
+        "--cell-size",
+        type=positive(float, most=MAX_CELL_SIZE_M),
+        default=1.0,
+        help="MovingAI maps: metres per cell",
     )
     route.add_argument(
         "--highway-factor",

@@ -43,6 +43,11 @@ SCENARIO_FIELDS = (
 )
 
 
+# A cell of a kilometre is far beyond any plant's grid; it keeps every coordinate of the
+# largest map within the plant model's limits.
+MAX_CELL_SIZE_M = 1000.0
+
+
 def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
     path = Path(path)
     source = str(path)
@@ -50,9 +55,12 @@ def load_map(path: str | Path, cell_size: float = 1.0) -> Plant:
         isinstance(cell_size, int | float)
         and not isinstance(cell_size, bool)
         and math.isfinite(cell_size)
-        and cell_size > 0
+        and 0 < cell_size <= MAX_CELL_SIZE_M
     ):
-        raise TopologyError(f"cell size must be a finite number > 0, got {cell_size!r}", source)
+        raise TopologyError(
+            f"cell size must be a number > 0 and at most {MAX_CELL_SIZE_M:g} m, got {cell_size!r}",
+            source,
+        )
     passable = read_cells(path)
     return grid_plant(passable, cell_size, name=escaped_name(path.stem), source=source)
 
