@@ -595,6 +595,7 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
     assert error_line(code, err) == (
         f"driver web: cannot open: HTTP API on 127.0.0.1:{port}: Address already in use"
     )
+    assert list(tmp_path.iterdir()) == []  # the run's lock file is gone with the failed start
 
 
 @pytest.mark.parametrize(

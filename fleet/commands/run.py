@@ -167,73 +167,79 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         )
     out = Path(args.out if args.out is not None else DEFAULT_OUT)
     out_lock = claim_out_dir(out)
-    broken = liveness.violations(cfg)
-    if broken:
-        warnings.warn(
-            f"{cfg.source} does not meet the liveness condition (docs/fleet-config.md): "
-            f"{'; '.join(broken)}. No conflict can occur, but vehicles may wait without bound.",
-            UserWarning,
-            stacklevel=1,
+    try:  # the lock file goes however the run ends (a failed start too)
+        broken = liveness.violations(cfg)
+        if broken:
+            warnings.warn(
+                f"{cfg.source} does not meet the liveness condition (docs/fleet-config.md): "
+                f"{'; '.join(broken)}. No conflict can occur, but vehicles may wait without bound.",
+                UserWarning,
+                stacklevel=1,
+            )
+        program = FleetProgram(
+            cfg,
+            clock=setup.clock,
+            cosimulate=setup.cosimulate,
+            bus=setup.bus,
+            retain_file=args.retain,
         )
-    program = FleetProgram(
-        cfg,
-        clock=setup.clock,
-        cosimulate=setup.cosimulate,
-        bus=setup.bus,
-        retain_file=args.retain,
-    )
-    try:
-        if args.modbus:
-            program.rt.add_driver(modbus(args.modbus))
-        if web_options is not None:  # stopped with the runtime, like every driver
-            program.rt.add_driver(web.web_server(web_options, program))
-    except BaseException:
-        program.close()  # a bad --modbus address: nothing of the program stays open
-        raise
-    vehicles_proc, monitor_file = None, None
-    if setup.spawn:
-        monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
         try:
-            vehicles_proc = start_vehicles(args.config, setup.bus, monitor_file)
+            if args.modbus:
+                program.rt.add_driver(modbus(args.modbus))
+            if web_options is not None:  # stopped with the runtime, like every driver
+                program.rt.add_driver(web.web_server(web_options, program))
         except BaseException:
-            monitor_file.unlink(missing_ok=True)
-            program.close()
+            program.close()  # a bad --modbus address: nothing of the program stays open
             raise
-    live = sys.stdout.isatty() and not args.json
-    interrupted = False
+        vehicles_proc, monitor_file = None, None
+        if setup.spawn:
+            monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
+            try:
+                vehicles_proc = start_vehicles(args.config, setup.bus, monitor_file)
+            except BaseException:
+                monitor_file.unlink(missing_ok=True)
+                program.close()
+                raise
+        live = sys.stdout.isatty() and not args.json
+        interrupted = False
 
-    def on_sigint(*_: object) -> None:
-        nonlocal interrupted
-        interrupted = True
-        program.rt.request_stop()
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
+        def on_sigint(*_: object) -> None:
+            nonlocal interrupted
+            interrupted = True
+            program.rt.request_stop()
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
 
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    wall_start = time.monotonic()
-    try:
-        program.rt.start()
-        drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
-    except KeyboardInterrupt:
-        interrupted = True
+        previous = signal.signal(signal.SIGINT, on_sigint)
+        wall_start = time.monotonic()
+        try:
+            program.rt.start()
+            drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            signal.signal(signal.SIGINT, previous)
+            wall = time.monotonic() - wall_start
+            state = program.rt.state
+            program.close()
+            monitor = stop_vehicles(vehicles_proc, monitor_file)
+        result = summary(program, wall, state)
+        result["interrupted"] = interrupted
+        result["vehicles_mode"] = (
+            "in this process"
+            if setup.cosimulate
+            else "child process"
+            if setup.spawn
+            else "external"
+        )
+        if monitor is not None:
+            result["head_on_conflicts"] = monitor.get("head_on_conflicts")
+            result["node_conflicts"] = monitor.get("node_conflicts")
+            result["area_conflicts"] = monitor.get("area_conflicts")
+            result["conflict_monitor"] = "simulated positions, in the vehicles' process"
+            result["faults"]["injected"] = monitor.get("faults_injected")
+        write_all(program, out, result)
     finally:
-        signal.signal(signal.SIGINT, previous)
-        wall = time.monotonic() - wall_start
-        state = program.rt.state
-        program.close()
-        monitor = stop_vehicles(vehicles_proc, monitor_file)
-    result = summary(program, wall, state)
-    result["interrupted"] = interrupted
-    result["vehicles_mode"] = (
-        "in this process" if setup.cosimulate else "child process" if setup.spawn else "external"
-    )
-    if monitor is not None:
-        result["head_on_conflicts"] = monitor.get("head_on_conflicts")
-        result["node_conflicts"] = monitor.get("node_conflicts")
-        result["area_conflicts"] = monitor.get("area_conflicts")
-        result["conflict_monitor"] = "simulated positions, in the vehicles' process"
-        result["faults"]["injected"] = monitor.get("faults_injected")
-    write_all(program, out, result)
-    release_out_dir(out_lock)
+        release_out_dir(out_lock)
     if args.json:
         print(json.dumps(result))
     else:
