@@ -91,9 +91,9 @@ def modbus_endpoint(channel: str) -> tuple[str, int]:
     """``HOST:BASE_PORT`` of a Modbus vehicle link: vehicle ``v`` serves on BASE_PORT + v
     (whether the fleet's highest id still fits below 65536 is :func:`link_problem`'s)."""
     try:
-        host, port = host_port(channel)
-    except ValueError:
-        port = 0
+        host, port = host_port(channel, "127.0.0.1:5100", "HOST:BASE_PORT")
+    except ValueError as exc:
+        raise ConfigError(f"modbus vehicle link: {exc}") from None
     if not 1 <= port <= 65534:
         raise ConfigError(
             f"modbus vehicle link {channel!r}: expected HOST:BASE_PORT with a base port in "
@@ -398,9 +398,11 @@ def _web(r: TableReader) -> tuple[str, int] | None:
         raise r.fail("address", str(exc)) from None
 
 
-def host_port(text: str, example: str = "127.0.0.1:8080") -> tuple[str, int]:
+def host_port(
+    text: str, example: str = "127.0.0.1:8080", form: str = "HOST:PORT"
+) -> tuple[str, int]:
     """``HOST:PORT`` (an IPv6 host in brackets) as (host, port); ValueError naming what is
-    wrong, with ``example`` as the form to follow."""
+    wrong, with the ``form`` and an ``example`` to follow."""
     host, sep, port = text.rpartition(":")
     bracketed = host.startswith("[") and host.endswith("]") and len(host) > 1
     if bracketed:
@@ -413,12 +415,14 @@ def host_port(text: str, example: str = "127.0.0.1:8080") -> tuple[str, int]:
         or any(c in host for c in "[]")
         or any(c.isspace() for c in host)
     ):
-        raise ValueError(f"expected HOST:PORT, e.g. {example}, got {text!r}")
-    if ":" in host:
+        raise ValueError(f"expected {form}, e.g. {example}, got {text!r}")
+    if ":" in host or bracketed:
         try:
             ipaddress.IPv6Address(host)
         except ValueError:
-            raise ValueError(f"{host!r} is no IPv6 address, in {text!r}") from None
+            raise ValueError(
+                f"{host!r} is no IPv6 address (brackets hold one), in {text!r}"
+            ) from None
         if not bracketed:
             raise ValueError(f"an IPv6 host goes in brackets, e.g. [{host}]:{port}, got {text!r}")
     return host, int(port)
@@ -512,11 +516,13 @@ def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
             raise reader.fail(
                 f"clusters.{key}", f"expected a non-empty list of node ids, got {stations!r}"
             )
-        for k, s in enumerate(stations):
+        seen: set[int] = set()
+        for s in stations:
             if s not in plant.index:
                 raise reader.fail(f"clusters.{key}", f"node {s} is not in plant {plant.name!r}")
-            if s in stations[:k]:
+            if s in seen:
                 raise reader.fail(f"clusters.{key}", f"node {s} is listed twice")
+            seen.add(s)
         clusters[int(key)] = list(stations)
     return clusters
 

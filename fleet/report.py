@@ -279,7 +279,7 @@ def claim_out_dir(out_dir: Path) -> IO[bytes]:
     for name in OUTPUT_FILES:
         path = out_dir / name
         if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
-            lock.close()
+            release_out_dir(lock)  # ours: no other run holds it
             raise ConfigError(f"--out {out_dir}: {name} exists and cannot be overwritten")
     return lock
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import reprlib
 import warnings
 import zlib
 from collections.abc import Callable
@@ -41,26 +40,6 @@ def _unstorable(value: object) -> str | None:
     return (
         f"type {type(value).__name__} (retain numbers, strings, booleans and lists/dicts of them)"
     )
-
-
-def value_unlike(default: object, value: object) -> str | None:
-    """Why a retained ``value`` cannot stand for a block variable declared with
-    ``default``, or None. JSON keeps a tuple as a list; a float may come back as an int."""
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-    elif isinstance(default, int):
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif isinstance(default, float):
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-    elif isinstance(default, str):
-        ok = isinstance(value, str)
-    elif isinstance(default, list | tuple):
-        ok = isinstance(value, list)
-    elif isinstance(default, dict):
-        ok = isinstance(value, dict)
-    else:
-        return None  # declared without a typed default: the block takes what it stored
-    return None if ok else f"expects {type(default).__name__}, got {reprlib.repr(value)}"
 
 
 def layout_hash(entries: list[tuple[str, str]]) -> str:

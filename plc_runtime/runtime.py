@@ -38,7 +38,7 @@ from .fb import FunctionBlock
 from .files import is_special
 from .image import ProcessImage, ProgramImage
 from .io import IoDriver
-from .retain import RetainStore, layout_hash, value_unlike
+from .retain import RetainStore, layout_hash
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
@@ -643,28 +643,19 @@ class Runtime:
         return entries
 
     def _retained_problem(self, retained: dict[str, object]) -> str | None:
-        """What in a retain file's values its variables cannot take, or None.
+        """What in a retain file's values its tags cannot take, or None.
 
-        The layout hash already matched, so the keys and declared types are this program's;
-        the values are checked as a write from outside would be (a tag's type and range), and
-        a block variable's against the type of its declared default."""
-        blocks = dict(self._block_paths())
+        The layout hash already matched, so the keys are this program's; a tag's value is
+        checked as a write from outside would be (its type and range). A block variable is
+        a plain attribute whose type nothing fixes (a counter may hold a float), so its
+        value is restored as it was saved."""
         for key, value in retained.items():
             kind, _, name = key.partition(":")
-            if kind == "tag":
-                if name not in self.image.tags:
-                    continue  # not retentive here: ignored, as the layout allows
+            if kind == "tag" and name in self.image.tags:
                 try:
                     self.image.resolve(name).type.check(value, key)
                 except PlcError as exc:
                     return str(exc)
-            elif kind == "fb":
-                path, _, var = name.rpartition(".")
-                block = blocks.get(path)
-                if block is not None and var in block._vars:
-                    why = value_unlike(block._vars[var].default, value)
-                    if why is not None:
-                        return f"{key}: {why}"
         return None
 
     def _init_block_data(self, retained: dict[str, object]) -> None:

@@ -614,7 +614,11 @@ def test_run_with_the_port_in_use_is_one_line(tmp_path, capsys):
             [str(CONFIG), "--web", "::1:8080"],
             "--web: an IPv6 host goes in brackets, e.g. [::1]:8080",
         ),
-        ([str(CONFIG), "--web", "[::g]:8080"], "--web: '::g' is no IPv6 address, in '[::g]:8080'"),
+        (
+            [str(CONFIG), "--web", "[::g]:8080"],
+            "--web: '::g' is no IPv6 address (brackets hold one), in '[::g]:8080'",
+        ),
+        ([str(CONFIG), "--web", "[127.0.0.1]:8080"], "'127.0.0.1' is no IPv6 address (brackets"),
         (
             [str(CONFIG), "--web", "127.0.0.1:0", "--web-token", "short"],
             "--web-token: a bearer token needs 16 characters or more of A-Z a-z 0-9 - . _ ~ + /, "

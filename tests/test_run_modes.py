@@ -110,6 +110,7 @@ def test_realtime_without_a_bus_runs_the_vehicles_in_this_process(tmp_path, caps
         ),
         (["--realtime", "--bus", "modbus:10.1.2.3:5100"], "serve Modbus on 127.0.0.1 only"),
         (["--bus", "modbus:127.0.0.1:notaport"], "expected HOST:BASE_PORT"),
+        (["--bus", "modbus:::1:5100"], "an IPv6 host goes in brackets, e.g. [::1]:5100"),
         (["--bus", "vcan0"], "expected INTERFACE:CHANNEL"),
         (["--rt"], "--rt and --spin only apply with --realtime"),
     ],
@@ -237,6 +238,7 @@ def test_an_unwritable_output_folder_is_refused_before_the_run(tmp_path, capsys)
     (taken / "summary.json").mkdir(parents=True)
     assert main(["run", "--duration", "600", "--out", str(taken)]) == 2
     assert "summary.json exists and cannot be overwritten" in capsys.readouterr().err
+    assert [p.name for p in taken.iterdir()] == ["summary.json"]  # no lock file left
 
 
 def test_no_output_folder_no_files_left_from_the_check(tmp_path, capsys):

@@ -186,7 +186,7 @@ def _json_kind(value: object) -> str:
         return f"{str(value).lower()}"
     if isinstance(value, int | float | _NonStandard):
         return "a number"
-    return "null" if value is None else type(value).__name__
+    return "null"  # what else json.loads gives that is not a list
 
 
 class _Object(dict):
