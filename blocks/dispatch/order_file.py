@@ -183,7 +183,7 @@ def _json_kind(value: object) -> str:
     if isinstance(value, str):
         return "a string"
     if isinstance(value, bool):
-        return f"{str(value).lower()}"
+        return str(value).lower()
     if isinstance(value, int | float | _NonStandard):
         return "a number"
     return "null"  # what else json.loads gives that is not a list
