@@ -199,8 +199,8 @@ class RetainStore:
         """The values to restore for a start in ``mode`` ("warm" or "cold").
 
         ``problem`` names what is wrong with a file's values, or None: a file whose checksum
-        holds can still carry a value its variable cannot take (edited by hand, written by
-        another tool), which is rejected as a damaged file is."""
+        holds can still carry a value its tag cannot take (edited by hand, written by another
+        tool), which is rejected as a damaged file is."""
         self.layout = layout_hash(layout)
         if mode == "cold":
             self.memory = None
