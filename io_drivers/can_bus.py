@@ -111,15 +111,15 @@ def own_groups_only(bus: can.BusABC, group: str | None) -> None:
     """Let a udp_multicast bus receive only the datagrams of its own group: two fleets on
     two groups of one machine are then two buses, as their channels say. A kernel that
     refuses the option keeps hearing every group on the port, with a warning."""
-    fd = os.dup(bus.fileno())
     try:
         # a second handle on the bus's socket (fileno() is python-can's public way to it;
         # the family is read from the socket): an option set through it holds for the bus
-        handle = socket.socket(fileno=fd)
-    except OSError:
-        os.close(fd)
-        raise
-    try:
+        fd = os.dup(bus.fileno())
+        try:
+            handle = socket.socket(fileno=fd)
+        except OSError:
+            os.close(fd)
+            raise
         with handle:
             if handle.family == socket.AF_INET6:
                 handle.setsockopt(socket.IPPROTO_IPV6, IPV6_MULTICAST_ALL, 0)
