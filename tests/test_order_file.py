@@ -172,7 +172,7 @@ BAD_JSON = [
     ('[{"id": "o1", "get": 1' + "0" * 5000 + ', "put": 20}]', ": unreadable JSON"),
     ({"orders": [], "version": 2}, ': expected a list of orders or {"orders": [...]}'),
     ({"order": []}, ": expected a list of orders or"),
-    ("42", ": expected a list of orders, got a number"),
+    ("42", ": expected a list of orders, got 42"),
     ({"orders": {}}, ": expected a list of orders, got an object"),
     ({}, ': expected a list of orders or {"orders": [...]}, got an empty object'),
     (

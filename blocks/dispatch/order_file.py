@@ -176,19 +176,6 @@ class _NonStandard:
         self.name = name
 
 
-def _json_kind(value: object) -> str:
-    """What a JSON value is, in JSON's words (an object, not the reader's class)."""
-    if isinstance(value, dict):
-        return "an object"
-    if isinstance(value, str):
-        return "a string"
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, int | float | _NonStandard):
-        return "a number"
-    return "null"  # what else json.loads gives that is not a list
-
-
 class _Object(dict):
     """A JSON object that remembers a key it had twice: json keeps the last value silently,
     and an order with two ids is a broken export, not a choice."""
@@ -224,7 +211,7 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
             )
         data = data["orders"]
     if not isinstance(data, list):
-        raise OrderFileError(f"{source}: expected a list of orders, got {_json_kind(data)}")
+        raise OrderFileError(f"{source}: expected a list of orders, got {_json_shown(data)}")
     if len(data) > MAX_ORDERS:
         raise OrderFileError(
             f"{source}: {len(data):,} orders, more than the {MAX_ORDERS:,} an order file may hold ({LIMITS_DOC})"
