@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -17,6 +18,7 @@ import pytest
 from ports import free_base_port
 
 from fleet.cli import main
+from fleet.commands.vehicles import READY_LINE
 from fleet.config import DEFAULT_CONFIG
 from plc_runtime import PacedClock
 
@@ -141,6 +143,20 @@ def test_a_failing_vehicle_process_shows_its_own_error(tmp_path, capsys):
     assert "no output" not in err
 
 
+def test_a_vehicle_port_in_use_stops_the_run_with_the_vehicle_process_error(tmp_path, capsys):
+    """The vehicle process's error "address already in use" contains "ready": it must not be
+    taken for the ready line, or the run goes on with every vehicle offline and exits 0."""
+    base = free_base_port(4)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", base + 2))
+        taken.listen()
+        args = ["run", "--realtime", "--bus", f"modbus:127.0.0.1:{base}", "--duration", "2"]
+        assert main([*args, "--out", str(tmp_path / "o"), *WIDE_WATCHDOG]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "the vehicle process did not start (exit code 2): vehicle link:" in err
+    assert "address already in use" in err.lower(), err
+
+
 def start_modbus_vehicles() -> tuple[int, subprocess.Popen]:
     """The default job's vehicles in their own process, each a Modbus server on loopback;
     started again on other ports if another process took one of them meanwhile."""
@@ -149,7 +165,7 @@ def start_modbus_vehicles() -> tuple[int, subprocess.Popen]:
         cmd = [*PLC, "vehicles", "--config", str(DEFAULT_CONFIG), "--modbus-base-port", str(base)]
         proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
         line = proc.stderr.readline()
-        if "ready" in line:
+        if READY_LINE.match(line):
             return base, proc
         stop(proc)
         assert "address already in use" in line, line + proc.stderr.read()

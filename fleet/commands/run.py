@@ -58,6 +58,7 @@ from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
 from ..report import claim_out_dir, release_out_dir, summary, write_all
 from ..web import options as web
+from .vehicles import READY_LINE
 
 VEHICLES_READY_TIMEOUT = 20.0
 DEFAULT_OUT = "out"
@@ -329,10 +330,10 @@ def start_vehicles(
     while time.monotonic() < deadline:
         log.seek(0)
         text = log.read()
-        if "ready" in text or proc.poll() is not None:
+        if READY_LINE.search(text) or proc.poll() is not None:
             break
         time.sleep(0.05)
-    if "ready" in text and proc.poll() is None:
+    if READY_LINE.search(text) and proc.poll() is None:
         return proc
     if proc.poll() is None:
         proc.kill()

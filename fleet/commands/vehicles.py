@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 from collections import Counter
 from collections.abc import Callable
@@ -21,6 +22,9 @@ from ..route import load_plant
 # A simulation step: below a tenth of a millisecond the loop only spins; above a second a
 # vehicle would jump whole segments between its reports, and Ctrl-C waits for the step.
 MIN_PERIOD_S, MAX_PERIOD_S = 1e-4, 1.0
+# The line a starting ``run --realtime`` waits for on the vehicle process's stderr. Matched
+# whole, at a line's start: an error text such as "address already in use" must not pass.
+READY_LINE = re.compile(r"^plc-runtime: \d+ vehicles ready, ", re.MULTILINE)
 
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -> None:
