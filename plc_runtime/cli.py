@@ -18,7 +18,9 @@ import signal
 import sys
 import time
 import unicodedata
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, NoReturn
 
 from rich.console import Console
@@ -239,21 +241,19 @@ def run_program(
         rt.add_driver(driver)
     rt.start()
     live = sys.stdout.isatty() and not args.json
-    previous = signal.signal(signal.SIGINT, lambda *_: _interrupt(rt))
     wall_start = time.monotonic()
-    try:
-        drive(
-            rt,
-            total,
-            live,
-            announce=f"plc-runtime: running {name} until Ctrl-C" if total is None else None,
-        )
-    except KeyboardInterrupt:  # the second Ctrl-C: abort at once, but still stop cleanly
-        rt.stop()
-        print(f"plc-runtime: interrupted in cycle {rt.ticks}; runtime stopped", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    with stop_on_signals(rt):
+        try:
+            drive(
+                rt,
+                total,
+                live,
+                announce=f"plc-runtime: running {name} until Ctrl-C" if total is None else None,
+            )
+        except KeyboardInterrupt:  # the second Ctrl-C: abort at once, but still stop cleanly
+            rt.stop()
+            print(f"plc-runtime: interrupted in cycle {rt.ticks}; runtime stopped", file=sys.stderr)
+            return EXIT_INTERRUPTED
     wall = time.monotonic() - wall_start
     final_state = rt.state
     result = summary(rt, name, final_state, wall)
@@ -288,10 +288,46 @@ def _paced(rt: Runtime) -> bool:
     return clock_kind(rt.clock) != "virtual"
 
 
-def _interrupt(rt: Runtime) -> None:
-    """First Ctrl-C: finish the current cycle and stop cleanly; a second one aborts."""
-    rt.request_stop()
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+@dataclass
+class StopSignal:
+    """The signal that asked a run to stop, if one did."""
+
+    number: int | None = None
+
+    @property
+    def what(self) -> str:
+        """How an operator's message names it: ``interrupted``, ``stopped by SIGTERM``."""
+        if self.number == signal.SIGINT:
+            return "interrupted"
+        return f"stopped by {signal.Signals(self.number or 0).name}"
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal's number, as a shell reports a process ended by it."""
+        return 128 + (self.number or 0)
+
+
+@contextmanager
+def stop_on_signals(rt: Runtime) -> Iterator[StopSignal]:
+    """Ctrl-C and SIGTERM finish the current cycle and stop the runtime cleanly (outputs to
+    their safe state, drivers closed, results written). A service manager or ``docker stop``
+    ends a process with SIGTERM, so that must end a run as an operator's Ctrl-C does, not
+    kill it half-way and leave its child processes running. A second Ctrl-C aborts."""
+    got = StopSignal()
+
+    def on_signal(number: int, _frame: object) -> None:
+        if got.number is None:
+            got.number = number
+        rt.request_stop()
+        if number == signal.SIGINT:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield got
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def drive(

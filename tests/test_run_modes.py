@@ -242,6 +242,40 @@ def test_ctrl_c_ends_the_run_cleanly_and_says_so(tmp_path):
     assert "interrupted at" in stderr
 
 
+def accepts(port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(1)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_sigterm_ends_a_realtime_run_like_ctrl_c_and_stops_its_vehicle_process(tmp_path):
+    """A service manager (systemd, ``docker stop``) ends the controller with SIGTERM: the
+    results are written, the vehicle process is stopped with it (not left serving its ports
+    to the next run), and the exit code says which signal it was (128 + 15)."""
+    base = free_base_port(4)
+    out = tmp_path / "out"
+    cmd = [*PLC, "run", "--realtime", "--bus", f"modbus:127.0.0.1:{base}", "--duration", "600"]
+    cmd += ["--json", "--out", str(out), *WIDE_WATCHDOG]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60  # the vehicle process serves once it is ready
+        while time.monotonic() < deadline and not accepts(base + 1):
+            time.sleep(0.1)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
+    assert "stopped by SIGTERM at" in stderr and "results written" in stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["interrupted"] is True and 0 < summary["sim_time_s"] < 600
+    assert json.loads((out / "summary.json").read_text())["interrupted"] is True
+    assert not any(accepts(base + v) for v in range(1, 5))  # the vehicles went with it
+
+
 def test_an_unwritable_output_folder_is_refused_before_the_run(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")

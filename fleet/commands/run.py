@@ -36,7 +36,7 @@ from typing import Any
 from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
-from plc_runtime.cli import CliError, drive, duration_cycles
+from plc_runtime.cli import CliError, StopSignal, drive, duration_cycles, stop_on_signals
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 
@@ -202,27 +202,20 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
                 program.close()
                 raise
         live = sys.stdout.isatty() and not args.json
-        interrupted = False
-
-        def on_sigint(*_: object) -> None:
-            nonlocal interrupted
-            interrupted = True
-            program.rt.request_stop()
-            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C aborts
-
-        previous = signal.signal(signal.SIGINT, on_sigint)
+        stopped = StopSignal()
         wall_start = time.monotonic()
         try:
-            program.rt.start()
-            drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
-        except KeyboardInterrupt:
-            interrupted = True
+            with stop_on_signals(program.rt) as stopped:
+                program.rt.start()
+                drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
+        except KeyboardInterrupt:  # a second Ctrl-C: the scan aborted, the rest as the first
+            stopped.number = signal.SIGINT
         finally:
-            signal.signal(signal.SIGINT, previous)
             wall = time.monotonic() - wall_start
             state = program.rt.state
             program.close()
             monitor = stop_vehicles(vehicles_proc, monitor_file)
+        interrupted = stopped.number is not None
         result = summary(program, wall, state)
         result["interrupted"] = interrupted
         result["vehicles_mode"] = (
@@ -247,10 +240,10 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         Console().print(final_tables(result))
     if interrupted:
         print(
-            f"plc-runtime: interrupted at {result['sim_time_s']:.1f} s; results written",
+            f"plc-runtime: {stopped.what} at {result['sim_time_s']:.1f} s; results written",
             file=sys.stderr,
         )
-        return 130
+        return stopped.exit_code
     return 1 if state == "FAULT" else 0
 
 
