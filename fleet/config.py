@@ -26,7 +26,7 @@ from vehicles.agv import AgvParams
 from vehicles.fleet import Faults
 
 from .config_reader import TableReader
-from .liveness import standing_steps
+from .liveness import standing_steps, stranded_starts
 from .orders_config import (
     BatteryConfig,
     DispatchConfig,
@@ -313,7 +313,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         raise bus.fail("channel", "an empty channel between commas")
     if (problem := link_problem(cfg.bus_interface, cfg.bus_channel, max(cfg.starts))) is not None:
         raise bus.fail("channel", problem)
-    problems = standing_steps(cfg)
+    problems = standing_steps(cfg) + stranded_starts(cfg)
     if problems:
         raise ConfigError(f"{source}: vehicles: {problems[0]}")
     return cfg

@@ -4,9 +4,11 @@ Safety holds on every plant; the claim that every recipe completes within a boun
 made for configurations that meet the condition. A user whose configuration breaks it
 should hear so at start, clause by clause, rather than find vehicles waiting for ever.
 
-Also here: a vehicle whose next recipe step needs the function of the station it is
-already standing on, where that function has a single station, would "complete" the step
-without moving. That is refused (:func:`standing_steps`), not only warned about.
+Also here, refused rather than warned about: a vehicle whose next recipe step needs the
+function of the station it is already standing on, where that function has a single
+station, would "complete" the step without moving (:func:`standing_steps`); and a vehicle
+whose start leads nowhere it is needed, past one-way segments, would stand there for the
+whole run (:func:`stranded_starts`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from topology import Plant
 
@@ -84,6 +87,68 @@ def standing_steps(cfg: FleetConfig) -> list[str]:
                 f"and only station {station} offers it: the vehicle would complete the step "
                 "without moving (put another function between the two)"
             )
+    return problems
+
+
+def stranded_starts(cfg: FleetConfig) -> list[str]:
+    """Vehicles that can never do their work from where they start: one-way segments lead
+    away from every station a step of their recipes needs (in the order the steps come,
+    from any station of the step before), or, for a vehicle taking transport orders, from
+    every station. Each is a configuration error: the vehicle would report no route for
+    the whole run, and the run would end as if all were well."""
+    plant = cfg.plant
+    n, index = plant.n, plant.index
+    src, dst = [], []
+    for e in plant.edges:  # return lanes too: a recipe that ends at an exit drives one back
+        src.append(index[e.source])
+        dst.append(index[e.target])
+        if e.bidirectional:
+            src.append(index[e.target])
+            dst.append(index[e.source])
+    graph = csr_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n))
+    components, label = connected_components(graph, directed=True, connection="strong")
+    if components == 1:
+        return []
+    reach_of: dict[int, np.ndarray] = {}  # a strong component's label -> the nodes it reaches
+
+    def reach(nodes: list[int]) -> np.ndarray:
+        seen = np.zeros(n, dtype=bool)
+        for node in nodes:
+            c = int(label[node])
+            if c not in reach_of:
+                found = np.zeros(n, dtype=bool)
+                found[
+                    breadth_first_order(graph, node, directed=True, return_predecessors=False)
+                ] = True
+                reach_of[c] = found
+            seen |= reach_of[c]
+        return seen
+
+    stations = {f: [index[s] for s in nodes] for f, nodes in cfg.clusters.items()}
+    problems = []
+    for v, start in sorted(cfg.starts.items()):
+        here = [index[start]]
+        if v not in cfg.vehicle_recipes:
+            reached = reach(here)
+            reached[here[0]] = False
+            if not any(reached[i] for nodes in stations.values() for i in nodes):
+                problems.append(
+                    f"vehicle {v}: no station can be reached from its start node {start} "
+                    "(one-way segments lead away from every one): it could take no order"
+                )
+            continue
+        steps = [f for name in cfg.vehicle_recipes[v] for f in cfg.recipes[name].functions]
+        for k, f in enumerate(steps):
+            reached = reach(here)
+            here = [i for i in stations.get(f, ()) if reached[i]]
+            if not here:
+                after = f"its start node {start}" if k == 0 else f"any station of step {k}"
+                problems.append(
+                    f"vehicle {v}: step {k + 1} of its recipe sequence needs function {f}, "
+                    f"and no station offering it can be reached from {after} (one-way "
+                    "segments lead away): the vehicle could never complete it"
+                )
+                break
     return problems
 
 

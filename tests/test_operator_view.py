@@ -248,6 +248,87 @@ def test_a_step_completed_without_moving_is_refused():
     assert "only station 16 offers it" in text and "without moving" in text
 
 
+def one_way_plant(tmp_path: Path) -> Path:
+    """A two-way ring 1-2-3-4 with a saw at 2 and a weld at 4; node 5 is reached from 1 by a
+    one-way segment and leads nowhere; the paint station 6 is reached from 3 by a one-way
+    segment and leads nowhere either."""
+    nodes = [(1, 0, 0, "transit", None), (2, 1, 0, "station", 2), (3, 1, 1, "transit", None)]
+    nodes += [(4, 0, 1, "station", 3), (5, -1, 0, "transit", None), (6, 2, 1, "station", 4)]
+    text = 'name = "one-way"\n[functions]\n2 = "saw"\n3 = "weld"\n4 = "paint"\n'
+    for n, x, y, role, f in nodes:
+        text += f'[[nodes]]\nid = {n}\nx = {x}\ny = {y}\nrole = "{role}"\n'
+        text += f"functions = [{f}]\n" if f else ""
+    for a, b, one_way in [(1, 2, 0), (2, 3, 0), (3, 4, 0), (4, 1, 0), (1, 5, 1), (3, 6, 1)]:
+        text += f"[[edges]]\nfrom = {a}\nto = {b}\nlength = 1.0\n"
+        text += "directed = true\n" if one_way else ""
+    path = tmp_path / "one-way.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "start, functions, says",
+    [
+        (
+            5,
+            [2, 3],
+            "vehicle 1: step 1 of its recipe sequence needs function 2, and no station "
+            "offering it can be reached from its start node 5",
+        ),
+        (
+            1,
+            [4, 2],
+            "vehicle 1: step 2 of its recipe sequence needs function 2, and no station "
+            "offering it can be reached from any station of step 1",
+        ),
+    ],
+)
+def test_a_vehicle_that_one_way_segments_keep_from_its_work_is_refused(
+    tmp_path, capsys, start, functions, says
+):
+    """A vehicle whose start (or a station it must visit) has only one-way segments leading
+    away from the stations it needs next would report no route for the whole run, which
+    would then end as if all were well: the configuration is refused, naming the vehicle,
+    the step and the node."""
+    plant = one_way_plant(tmp_path)
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(
+        f'[plant]\nfile = "{plant.name}"\n[[recipes]]\nname = "r"\nfunctions = {functions}\n'
+        f"[[vehicles]]\nid = 1\nstart = {start}\n"
+    )
+    assert main(["run", str(cfg), "--cycles", "1", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        err[-1] == f"plc-runtime: error: {cfg}: vehicles: {says} (one-way segments lead "
+        "away): the vehicle could never complete it"
+    )
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_vehicle_taking_orders_that_reaches_no_station_is_refused(tmp_path, capsys):
+    plant = one_way_plant(tmp_path)
+    orders = tmp_path / "orders.csv"
+    orders.write_text("id,get,put\na,2,4\n")
+    cfg = tmp_path / "fleet.toml"
+    vehicles = "".join(f"[[vehicles]]\nid = {v}\nstart = {n}\n" for v, n in [(1, 1), (2, 5)])
+    cfg.write_text(f'[plant]\nfile = "{plant.name}"\n[orders]\nfile = "orders.csv"\n{vehicles}')
+    assert main(["run", str(cfg), "--cycles", "1", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        f"plc-runtime: error: {cfg}: vehicles: vehicle 2: no station can be reached from its "
+        "start node 5 (one-way segments lead away from every one): it could take no order"
+    )
+
+
+def test_a_vehicle_that_reaches_its_stations_over_one_way_segments_is_accepted(tmp_path):
+    plant = one_way_plant(tmp_path)
+    text = f'[plant]\nfile = "{plant.name}"\n[[recipes]]\nname = "r"\nfunctions = [2, 3]\n'
+    for start in (1, 3):
+        path = tmp_path / "fleet.toml"
+        path.write_text(text + f"[[vehicles]]\nid = 1\nstart = {start}\n")
+        assert liveness.stranded_starts(load_config(path)) == []
+
+
 def test_a_single_round_of_a_one_function_recipe_is_accepted():
     cfg = parse_config(ONE_STATION + "\n[sequencer]\nrounds = 1\n", "one.toml")
     assert cfg.rounds == 1
