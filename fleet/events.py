@@ -11,6 +11,7 @@ count per kind.
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -54,8 +55,14 @@ class EventLog(FunctionBlock):
         blockades: RoutingConstraints,
         capacity: int = 1000,
         traffic: TimeWindowTraffic | None = None,
+        silent_after_s: float = math.inf,
     ) -> None:
         super().__init__()
+        # a vehicle not heard from at all this long after the start: an alarm of its own,
+        # since "offline" at the start is every vehicle's state and no news by itself
+        self.silent_after_s = silent_after_s
+        self._silence_checked = False
+        self._silent: set[int] = set()  # reported silent, not heard from since
         self.traffic = traffic
         self._stranded: dict[int, int] = {}
         self.controls = controls
@@ -97,9 +104,16 @@ class EventLog(FunctionBlock):
                 if state in ALARM_STATES and (self._started or state != "offline"):
                     why = f": {control.suspect_reason}" if state == "suspect" else ""
                     self.add(now, "vehicle", v, f"{before} -> {state}{why}")
-                elif before in ALARM_STATES and before != "offline":
+                elif before in ALARM_STATES and (before != "offline" or v in self._silent):
+                    self._silent.discard(v)
                     self.add(now, "recovered", v, f"{before} -> {state}")
         self._started = True
+        if not self._silence_checked and now > self.silent_after_s:
+            self._silence_checked = True
+            for v, state in self._states.items():
+                if state == "offline":
+                    self._silent.add(v)
+                    self.add(now, "vehicle", v, "offline: no status received since the start")
         self._loads_left(now)
         if self.traffic is not None:
             self._strandings(now)

@@ -266,7 +266,12 @@ class FleetProgram:
         )
         self.recorder = FleetRecorder(self.controls)
         self.events = EventLog(
-            self.controls, self.jobs, self.resolver, self.blockades, traffic=self.traffic
+            self.controls,
+            self.jobs,
+            self.resolver,
+            self.blockades,
+            traffic=self.traffic,
+            silent_after_s=cfg.stale_after_s,
         )
         self.commands = FleetCommands(plant, self.blockades, vehicles, self._acknowledge)
         self.status = FleetStatus(self, self.commands)

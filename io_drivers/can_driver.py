@@ -160,12 +160,12 @@ class CanDriver:
         self.bus = None
 
     def stats(self) -> dict[str, object]:
-        stale = self.records.stale() if self.bus else []
+        # as of the last tick, so a summary taken after the link closed shows how it ended
         return {
             **self.counters,
             **self.records.counters,
-            "online": len(self.records.vehicles) - len(stale),
-            "stale": stale,
+            "online": len(self.records.online()),
+            "stale": self.records.stale(),
         }
 
     # ----- the scan -------------------------------------------------------------------------

@@ -198,6 +198,11 @@ class VehicleRecords:
     def stale(self) -> list[int]:
         return [v for v in self.vehicles if self.is_stale(v)]
 
+    def online(self) -> list[int]:
+        """Vehicles whose position is confirmed and not stale, as of the last tick: a
+        vehicle never heard from is not online, however young the link."""
+        return [v for v in self.vehicles if v in self._position and not self.is_stale(v)]
+
     # ----- the commands -----------------------------------------------------------------------
     def changed(self) -> list[int]:
         """Vehicles whose output record changed since the last call (all on the first)."""

@@ -71,6 +71,24 @@ def test_replans_and_a_silent_vehicle_are_events(programs):
     assert stale and stale[-1].text.endswith("-> stale")
 
 
+def test_a_vehicle_silent_from_the_start_is_an_event_and_so_is_its_first_status(programs):
+    """Every vehicle starts offline, which is no news; one still unheard of once the stale
+    time (0.5 s) has passed is, and its first status later is a recovery."""
+    p = default_program(programs)
+    p.fleet.faults[3] = Faults(dead_after=0.0)
+    p.rt.start()
+    p.rt.run(duration=2)
+    silent = [e for e in p.events.events if e.kind == "vehicle"]
+    assert [(e.vehicle, e.text) for e in silent] == [
+        (3, "offline: no status received since the start")
+    ]
+    assert 0.5 < silent[0].time_s < 0.6
+    del p.fleet.faults[3]
+    p.rt.run(duration=2)
+    back = [e for e in p.events.events if e.kind == "recovered"]
+    assert [(e.vehicle, e.text.split(" -> ")[0]) for e in back] == [(3, "offline")]
+
+
 def test_deadlocks_and_unbreakable_cycles_are_events(programs):
     for siding, kind in ((True, "deadlock"), (False, "livelock")):
         cfg = make_config(

@@ -197,6 +197,22 @@ def test_controller_only_mode_attaches_to_vehicles_started_elsewhere(tmp_path, c
     assert summary["conflict_monitor"].startswith("not available")  # nothing of ours simulated
 
 
+def test_vehicles_that_never_answer_are_not_online_and_each_is_an_alarm(tmp_path, capsys):
+    """Controller only, and nobody serves the vehicles' ports: the link's count of vehicles
+    online is 0 (it was counted as every vehicle not stale, and read 4 once the link had
+    closed), and each vehicle gets an event once it has been silent for the stale time."""
+    base = free_base_port(4)
+    args = ["run", "--vehicles", "external", "--bus", f"modbus:127.0.0.1:{base}"]
+    args += ["--duration", "2", "--json", "--out", str(tmp_path), *WIDE_WATCHDOG]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    link = summary["drivers"]["modbus-vehicles"]
+    assert link["online"] == 0 and link["reads"] == 0 and link["stale"] == [1, 2, 3, 4]
+    silent = [e for e in summary["events"] if e["text"].endswith("since the start")]
+    assert [(e["kind"], e["vehicle"]) for e in silent] == [("vehicle", v) for v in (1, 2, 3, 4)]
+    assert all(0.5 < e["time_s"] < 1.0 for e in silent)  # [bus] stale_after_s = 0.5
+
+
 def test_the_modbus_vehicle_link_from_the_configuration(tmp_path):
     """``[bus] interface = "modbus"``: with --realtime the simulated vehicles are started in
     their own process, each serving Modbus TCP on loopback; their monitor reports back."""
