@@ -65,6 +65,7 @@ def order_summary(system: OrderSystem) -> dict[str, Any]:
             "assignments": d.assignments,
             "reassigned": d.reassigned,
             "deviations": d.deviations,
+            "cut_off": d.cut_off,
         },
         "charging": {
             "visits": sum(r.charges for r in runners),

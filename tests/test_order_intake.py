@@ -166,7 +166,8 @@ def test_a_blockade_over_a_large_backlog_is_checked_a_budget_a_scan_and_gives_ou
     """Station 20 cut off (no way in) with 6,000 orders waiting, half of them to it: while
     their routes are not checked again, the rounds give none of those to the free vehicles;
     then they are checked ROUTE_BUDGET a scan (all at once stretched one scan by a second)
-    and every order to or from station 20 ends UNROUTABLE."""
+    and every order to or from station 20 is counted as cut off, and waits; once the
+    segments reopen, they are given out again."""
     n = 6_000
     rows = "".join(f"o{k},{21 + k % 9},{20 if k % 2 else 21 + (k + 4) % 9}\n" for k in range(n))
     p = start(config("id,get,put\n" + rows, tmp_path), made)
@@ -188,11 +189,19 @@ def test_a_blockade_over_a_large_backlog_is_checked_a_budget_a_scan_and_gives_ou
     assert book.counts()["UNROUTABLE"] == 0
     budget = 100
     monkeypatch.setattr(dispatcher, "ROUTE_BUDGET", budget)
+    counter = p.orders.dispatcher
     for scan in range(math.ceil(n / budget) + 2):
-        before = book.counts()["UNROUTABLE"]
+        before = counter.cut_off
         run(p, p.cfg.cycle_time)
-        assert book.counts()["UNROUTABLE"] - before <= budget, scan
-    assert {o.id for o in book if o.state is OrderState.UNROUTABLE} == cut
+        assert counter.cut_off - before <= budget, scan
+    assert counter.cut_off == len(cut) and book.counts()["UNROUTABLE"] == 0
+    assert all(o.state is OrderState.DISPATCHABLE for o in book if o.id in cut)
+    for a, b in sorted(p.cfg.plant.arc_index):
+        if b == 20:
+            p.blockades.unblock(a, b, both_ways=False)
+    run(p, 30)
+    assert {o.id for o in book if o.assigned is not None} & cut
+    assert counter.cut_off == 0
 
 
 class HashFails(str):

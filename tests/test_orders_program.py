@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_operator_view import one_way_plant
 from test_suspect_vehicles import free_node, move_by_hand
 
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
@@ -183,27 +184,36 @@ def test_a_load_is_never_taken_before_the_orders_start_time(tmp_path, made):
     assert order.sections["Get_Queue"][0] < 60.0  # it waited for the start time
 
 
-def test_an_order_nobody_can_drive_is_unroutable_and_reported(tmp_path, made):
-    # a blockade closes both segments to station 20 (its only links) before the order comes
-    extra = """
-[[blockades]]
-from = 20
-to = 3
-at_s = 0
-[[blockades]]
-from = 20
-to = 4
-at_s = 0
-"""
-    plant_edges = config(ORDERS, tmp_path).plant.arc_index
-    links = sorted({b for (a, b) in plant_edges if a == 20})
-    extra = "".join(f"[[blockades]]\nfrom = 20\nto = {b}\nat_s = 0\n" for b in links)
+def test_an_order_a_blockade_cuts_off_waits_and_is_driven_once_it_reopens(tmp_path, made):
+    """Both segments to station 20 (its only links) are closed from 0 s to 150 s. An order
+    from station 20 is not ended for good (closing a segment for a moment must not destroy
+    a backlog): it waits, counted as cut off, no vehicle gets it while the station is cut
+    off, and it is driven once the segments reopen."""
+    links = sorted({b for (a, b) in config(ORDERS, tmp_path).plant.arc_index if a == 20})
+    extra = "".join(f"[[blockades]]\nfrom = 20\nto = {b}\nat_s = 0\nuntil_s = 150\n" for b in links)
     cfg = config("id,get,put,start_s\nx,20,29,30\nok,22,27,30\n", tmp_path, extra=extra)
     p = start(cfg, made)
     run(p, 120)
     x = p.orders.book.get("x")
-    assert x.state is OrderState.UNROUTABLE and "Get station 20" in x.reason
-    assert x.assigned is None  # no vehicle ever got it
+    assert x.state is OrderState.DISPATCHABLE and x.assigned is None  # no vehicle got it
+    assert p.orders.dispatcher.cut_off == 1
+    assert p.orders.book.get("ok").state is OrderState.FINISHED
+    run(p, 200)
+    assert x.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
+
+
+def test_an_order_no_vehicle_could_ever_drive_is_unroutable_and_reported(tmp_path, made):
+    """On the plant as built (one-way segments, no blockade), station 6 leads nowhere: an
+    order from it can never be driven, and is ended UNROUTABLE with the reason."""
+    plant = one_way_plant(tmp_path)
+    (tmp_path / "orders.csv").write_text("id,get,put\nx,6,2\nok,2,4\n")
+    text = f'[plant]\nfile = "{plant.name}"\n[runtime]\ncycle_time_ms = 50\n'
+    text += '[orders]\nfile = "orders.csv"\n[[vehicles]]\nid = 1\nstart = 1\n'
+    p = start(parse_config(text, "one-way.toml", tmp_path), made)
+    run(p, 60)
+    x = p.orders.book.get("x")
+    assert x.state is OrderState.UNROUTABLE and x.assigned is None
+    assert x.reason == "no route from Get station 6 to Put station 2"
     assert p.orders.book.get("ok").state is OrderState.FINISHED
 
 
@@ -224,8 +234,9 @@ def carrying_a_with_b_next(tmp_path: Path, made):
 def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, made):
     """two_stage: a vehicle carries its active order and holds a next one when a blockade
     cuts the next order's Get station off. The next order must not stay with the vehicle
-    (which would drive for a station it can never reach): it goes back to the pool, where
-    the route check reports it UNROUTABLE; the active order is delivered."""
+    (which would drive for a station it cannot reach): it goes back to the pool, where it
+    waits, counted as cut off; the active order is delivered. Once the blockade is lifted
+    the next order is driven too."""
     cfg, p, runner = carrying_a_with_b_next(tmp_path, made)
     links = sorted({b for (a, b) in cfg.plant.arc_index if a == 29})
     for b in links:
@@ -233,8 +244,13 @@ def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, ma
     run(p, 120)
     a, b = p.orders.book.get("A"), p.orders.book.get("B")
     assert a.state is OrderState.FINISHED
-    assert b.state is OrderState.UNROUTABLE and "station 29" in b.reason
+    assert b.state is OrderState.DISPATCHABLE and "cut off by a blockade" in b.reason
     assert b.assigned is None and runner.next is None and runner.active is None
+    assert p.orders.dispatcher.cut_off == 1
+    for c in links:
+        p.blockades.unblock(29, c)
+    run(p, 120)
+    assert b.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
 
 
 def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, made):

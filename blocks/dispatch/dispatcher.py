@@ -5,9 +5,12 @@ The dispatcher decides *what* a vehicle does; routing and traffic decide *how* i
 
 1. checks new orders, and all waiting orders again when the blockades changed (at most
    ``ROUTE_BUDGET`` a scan): an order whose Put station cannot be reached from its Get
-   station over open segments, or whose Get station no vehicle can reach, is UNROUTABLE;
-   an order whose vehicle can no longer reach its next station goes back to the pool
-   (before the pickup) or FAILS (the load is on board);
+   station on the plant, or whose Get station no vehicle could reach, is UNROUTABLE; one
+   that only closed segments keep from its stations waits, counted in ``cut_off``, and
+   no round gives it out until they reopen (a blockade is temporary: closing a segment
+   for a moment must not end a backlog of orders for good); an order whose vehicle can
+   no longer reach its next station goes back to the pool (before the pickup) or FAILS
+   (the load is on board);
 2. with ``two_stage``, notices a running section that took more than ``1 + deviation``
    times its estimate, and then takes every vehicle's next order back for a new round;
 3. starts an allocation round when a vehicle could take an order and orders wait (not more
@@ -69,6 +72,7 @@ class Dispatcher(FunctionBlock):
     reassigned = Output(0, doc="orders taken back from a vehicle and given again")
     deviations = Output(0, doc="sections that ran over their estimate (two_stage recomputes)")
     waiting = Output(0, doc="orders waiting for a vehicle")
+    cut_off = Output(0, doc="waiting orders that closed segments keep from their stations")
 
     def __init__(
         self,
@@ -122,6 +126,7 @@ class Dispatcher(FunctionBlock):
         # orders still to check again after a change
         self._checked: set[str] = set()
         self._recheck: deque[TransportOrder] = deque()
+        self._cut_off: set[str] = set()  # waiting orders closed segments keep from a station
         self._revision = 0  # the book's revision when the routes were last checked
         # the waiting orders by urgency (two_stage also plans orders whose start is to come)
         self._urgent = UrgentOrders(startable_only=strategy != "two_stage")
@@ -167,18 +172,25 @@ class Dispatcher(FunctionBlock):
         changed = self.book.changed_since(self._revision)
         if changed is None:
             self._checked.clear()
+            self._cut_off.clear()
             self._recheck = deque(self.book.dispatchable())
             changed = []
         fresh = [o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None]
+        for order in changed:  # taken, withdrawn, given back: counted again once checked
+            self._cut_off.discard(order.id)
         for _ in range(min(ROUTE_BUDGET, len(self._recheck))):
             fresh.append(self._recheck.popleft())
         for order in fresh:
             if order.id in self._checked or order.state is not OrderState.DISPATCHABLE:
                 continue
             self._checked.add(order.id)
+            self._cut_off.discard(order.id)
             why = self._unroutable(order)
             if why is not None:
                 self.book.transition(order, OrderState.UNROUTABLE, ctx.time, why)
+            elif not self._routable_now(order):
+                self._cut_off.add(order.id)
+        self.cut_off = len(self._cut_off)
         self._revision = self.book.revision
         if not blockades_changed:
             return
@@ -209,8 +221,8 @@ class Dispatcher(FunctionBlock):
 
     def _check_next(self, ctx: CycleContext, runner: OrderRunner) -> None:
         """After a blockade: a next order the vehicle can no longer drive (from where its
-        active order ends, or from where it stands) goes back to the pool, where the route
-        check finds another vehicle for it or reports it UNROUTABLE."""
+        active order ends, or from where it stands) goes back to the pool, where another
+        vehicle may take it, or it waits for the segments to reopen."""
         order = runner.next
         if order is None or runner.current is None:
             return
@@ -222,12 +234,21 @@ class Dispatcher(FunctionBlock):
         self.reassigned += 1
 
     def _unroutable(self, order: TransportOrder) -> str | None:
-        if not self.reach.reaches(order.get, order.put):
+        """Why no vehicle could ever drive ``order`` on this plant, every segment open."""
+        reaches = self.reach.reaches_on_plant
+        if not reaches(order.get, order.put):
             return f"no route from Get station {order.get} to Put station {order.put}"
         starts = [r.current for r in self.runners.values() if r.current is not None]
-        if starts and not any(self.reach.reaches(n, order.get) for n in starts):
+        if starts and not any(reaches(n, order.get) for n in starts):
             return f"no vehicle can reach Get station {order.get}"
         return None
+
+    def _routable_now(self, order: TransportOrder) -> bool:
+        """Can a vehicle drive ``order`` over the segments open now?"""
+        if not self.reach.reaches(order.get, order.put):
+            return False
+        starts = [r.current for r in self.runners.values() if r.current is not None]
+        return not starts or any(self.reach.reaches(n, order.get) for n in starts)
 
     # ----- deviations ----------------------------------------------------------------------------
     def _check_deviations(self, ctx: CycleContext) -> None:
