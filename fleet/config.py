@@ -169,6 +169,8 @@ class FleetConfig:
     # transport orders (docs/orders.md): where they come from, who takes them, how
     orders: OrdersConfig | None = None
     order_vehicles: list[int] = field(default_factory=list)  # the others run recipes
+    # the vehicles --vehicles-count dropped (an order may still name one: the error says why)
+    vehicles_left_out: set[int] = field(default_factory=set)
     dispatch: DispatchConfig = field(default_factory=DispatchConfig)
     battery: BatteryConfig = field(default_factory=BatteryConfig)
     # the simulated vehicles' drive ([simulation]; real vehicles bring their own)
@@ -660,6 +662,7 @@ def first_vehicles(cfg: FleetConfig, n: int) -> None:
             f"--vehicles-count: must be 1..{len(ids)} (the vehicles of {cfg.source}), got {n}"
         )
     keep = set(ids[:n])
+    cfg.vehicles_left_out = set(ids) - keep
     if cfg.order_vehicles and not keep.intersection(cfg.order_vehicles):
         raise ConfigError(
             f"--vehicles-count {n}: the first {n} vehicles of {cfg.source} all run recipes, "

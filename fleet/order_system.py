@@ -26,7 +26,7 @@ from blocks.dispatch.dispatcher import Dispatcher
 from blocks.dispatch.estimates import SectionEstimates
 from blocks.dispatch.executor import Claims, OrderRunner, area_entries
 from blocks.dispatch.generator import OrderFeed, generate_orders
-from blocks.dispatch.order_file import load_orders
+from blocks.dispatch.order_file import located_orders
 from blocks.dispatch.orders import (
     OrderBook,
     OrderError,
@@ -64,10 +64,10 @@ def configured_orders(cfg: FleetConfig) -> list[TransportOrder]:
     oc, plant = cfg.orders, cfg.plant
     if oc is None:
         return []
-    orders: list[TransportOrder] = []
+    located: list[tuple[str, TransportOrder]] = []  # (where it comes from, the order)
     if oc.file is not None:
         try:
-            orders += load_orders(oc.file)
+            located += located_orders(oc.file)
         except ValueError as exc:
             raise ConfigError(f"{cfg.source}: orders.file: {exc}") from None
     g = oc.generator
@@ -76,19 +76,27 @@ def configured_orders(cfg: FleetConfig) -> list[TransportOrder]:
         relations = [type(r)(r.source, r.target, r.rate_per_h * g.scale) for r in g.relations]
         control = plant.stations_for(g.control)[0] if g.control is not None else None
         try:
-            orders += generate_orders(
+            generated = generate_orders(
                 relations, units, g.duration_s, g.seed, control, window_s=g.window_s
             )
         except ValueError as exc:
             raise ConfigError(f"{cfg.source}: orders.generator: {exc}") from None
+        located += [("orders.generator", order) for order in generated]
     trial = order_book(cfg)
-    for order in orders:
+    for where, order in located:
         try:
             trial.add(_fresh(order), 0.0)
         except OrderError as exc:
-            where = f"orders.file ({oc.file})" if oc.file is not None else "orders.generator"
-            raise ConfigError(f"{cfg.source}: {where}: {exc}") from None
-    return orders
+            key = "orders.generator" if where == "orders.generator" else f"orders.file: {where}"
+            problem = f"{cfg.source}: {key}: {exc}"
+            if exc.field == "vehicle" and order.vehicle in cfg.vehicles_left_out:
+                kept = len(cfg.starts)
+                problem = (
+                    f"--vehicles-count {kept}: {problem}, since the option keeps only the "
+                    f"first {kept} vehicles"
+                )
+            raise ConfigError(problem) from None
+    return [order for _where, order in located]
 
 
 def order_book(cfg: FleetConfig) -> OrderBook:

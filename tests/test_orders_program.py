@@ -600,6 +600,29 @@ def test_a_fleet_cut_down_to_its_recipe_vehicles_is_refused(tmp_path):
     assert sorted(cfg.starts) == [1, 2]  # unchanged
 
 
+def test_an_order_file_checked_against_the_plant_names_the_line(tmp_path, made):
+    cfg = config("id,get,put\nok,20,29\nbad,20,99\n", tmp_path)
+    with pytest.raises(ConfigError) as caught:
+        made.append(FleetProgram(cfg))
+    assert str(caught.value) == (
+        f"orders-test.toml: orders.file: {tmp_path / 'orders.csv'}:3: order 'bad': field "
+        "'put': node 99 is not a Get/Put station"
+    )
+
+
+def test_an_order_for_a_vehicle_vehicles_count_left_out_blames_the_option(tmp_path, made):
+    """The configuration has vehicle 3; ``--vehicles-count 2`` dropped it."""
+    cfg = config("id,get,put,vehicle\nok,20,29,1\nlate,22,27,3\n", tmp_path)
+    first_vehicles(cfg, 2)
+    with pytest.raises(ConfigError) as caught:
+        made.append(FleetProgram(cfg))
+    assert str(caught.value) == (
+        f"--vehicles-count 2: orders-test.toml: orders.file: {tmp_path / 'orders.csv'}:3: "
+        "order 'late': field 'vehicle': there is no vehicle 3, since the option keeps only "
+        "the first 2 vehicles"
+    )
+
+
 @pytest.mark.parametrize(("battery", "warned"), [("", True), ("[battery]\nenabled = false", False)])
 def test_order_vehicles_with_batteries_need_a_charger(tmp_path, battery, warned):
     """Else a vehicle below 'good' takes no order and can never recharge."""

@@ -62,6 +62,12 @@ class OrderFileError(ValueError):
 # ----- reading ---------------------------------------------------------------------------------
 def load_orders(path: str | Path) -> list[TransportOrder]:
     """The orders of a ``.csv`` or ``.json`` file, RAW and checked on their own (no plant)."""
+    return [order for _where, order in located_orders(path)]
+
+
+def located_orders(path: str | Path) -> list[tuple[str, TransportOrder]]:
+    """:func:`load_orders`, each order with where it stands in the file (``FILE:LINE`` of a
+    CSV, ``FILE: order K`` of a JSON list), so a check against the plant can name it."""
     path = Path(path)
     kind = path.suffix.lower()
     if kind not in (".csv", ".json"):
@@ -90,11 +96,11 @@ def _read_text(path: Path) -> str:
         raise OrderFileError(f"{path}: not UTF-8 text (byte {exc.start})") from None
 
 
-def _parse_csv(text: str, source: str) -> list[TransportOrder]:
+def _parse_csv(text: str, source: str) -> list[tuple[str, TransportOrder]]:
     reader = csv.reader(io.StringIO(text, newline=""), strict=True)
     try:
         header = _header(reader, source)
-        orders: list[TransportOrder] = []
+        orders: list[tuple[str, TransportOrder]] = []
         first_line: dict[str, int] = {}
         while True:
             line = reader.line_num + 1  # a quoted cell may span lines: report where a row starts
@@ -116,7 +122,7 @@ def _parse_csv(text: str, source: str) -> list[TransportOrder]:
                     f"{where}: field 'id': {shown(order.id)} is used again (first on line {first_line[order.id]})"
                 )
             first_line[order.id] = line
-            orders.append(order)
+            orders.append((where, order))
     except csv.Error as exc:
         raise OrderFileError(f"{source}:{reader.line_num}: unreadable CSV: {exc}") from None
 
@@ -192,7 +198,7 @@ def _object(pairs: list[tuple[str, Any]]) -> _Object:
     return obj
 
 
-def _parse_json(text: str, source: str) -> list[TransportOrder]:
+def _parse_json(text: str, source: str) -> list[tuple[str, TransportOrder]]:
     try:
         data = json.loads(text, parse_constant=_NonStandard, object_pairs_hook=_object)
     except json.JSONDecodeError as exc:
@@ -216,7 +222,7 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
         raise OrderFileError(
             f"{source}: {len(data):,} orders, more than the {MAX_ORDERS:,} an order file may hold ({LIMITS_DOC})"
         )
-    orders: list[TransportOrder] = []
+    orders: list[tuple[str, TransportOrder]] = []
     first: dict[str, int] = {}
     for k, item in enumerate(data, start=1):
         where = f"{source}: order {k}"
@@ -245,7 +251,7 @@ def _parse_json(text: str, source: str) -> list[TransportOrder]:
                 f"{where}: field 'id': used again (first by order {first[order.id]})"
             )
         first[order.id] = k
-        orders.append(order)
+        orders.append((f"{source}: order {k}", order))
     return orders
 
 
