@@ -205,6 +205,17 @@ def load_config(path: str | Path | None = None) -> FleetConfig:
         raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{source}: not UTF-8 text") from None
+    other = {  # files a configuration names, given in its place: say so, not a TOML error
+        ".csv": ("an order file", "[orders] file"),
+        ".json": ("an order or plant file", "[orders] file or [plant] file"),
+        ".map": ("a plant file", "[plant] file"),
+        ".nodes": ("a plant file", "[plant] file"),
+    }.get(path.suffix.lower())
+    if other is not None:
+        raise ConfigError(
+            f"{source}: {other[0]} ({path.suffix}), not a fleet configuration (TOML); a "
+            f"configuration names it under {other[1]} (docs/fleet-config.md)"
+        )
     return parse_config(text, source, path.parent)
 
 

@@ -140,7 +140,7 @@ def final_tables(result: dict[str, Any]) -> Group:
     pace = f" x{result['speed']:g}" if result.get("speed") else ""
     ended = "INTERRUPTED" if result.get("interrupted") else result["state"]
     title = (
-        f"fleet: {ended} after {result['cycles']} cycles, {result['sim_time_s']:.1f} s "
+        f"fleet: {ended} after {result['cycles']} cycles, {result['sim_time_s']:.2f} s "
         f"on the {result['clock']} clock{pace}, {result['wall_time_s']:.2f} s of wall time"
     )
     tasks = task_table(title, {**result["tasks"], "(scan)": result["scan"]}, live=False)

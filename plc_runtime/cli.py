@@ -47,8 +47,8 @@ MIN_SPEED, MAX_SPEED = 1e-3, 1e6  # simulated seconds per wall second
 
 
 def positive(kind: type, least: float | None = None, most: float | None = None) -> Any:
-    """An argparse type: a finite number of ``kind`` greater than 0, and within
-    ``least``..``most`` where given (a typo of a few digits must not ask for a run of
+    """An argparse type: a finite number of ``kind`` greater than 0 (``least`` > 0 instead,
+    where given), and at most ``most`` where given (a typo of a few digits must not ask for a run of
     centuries, or a pace at which no cycle ever ends)."""
 
     def parse(text: str) -> Any:
@@ -57,15 +57,24 @@ def positive(kind: type, least: float | None = None, most: float | None = None) 
         except ValueError:
             number = "a whole number" if kind is int else "a number"
             raise argparse.ArgumentTypeError(f"not {number}: {text!r}") from None
+        if least is not None and not (math.isfinite(value) and value >= least):
+            # one message for every value refused below, not "> 0" for 0 and ">= 1" for 0.5
+            raise argparse.ArgumentTypeError(f"must be a finite number >= {least:g}: {text!r}")
         if not (math.isfinite(value) and value > 0):
             raise argparse.ArgumentTypeError(f"must be a finite number > 0: {text!r}")
-        if least is not None and value < least:
-            raise argparse.ArgumentTypeError(f"must be at least {least:g}: {text!r}")
         if most is not None and value > most:
             raise argparse.ArgumentTypeError(f"must be at most {most:g}: {text!r}")
         return value
 
     return parse
+
+
+def path_name(text: str) -> str:
+    """An argparse type: a file or folder name, not empty (an empty one would name the
+    current folder, and a run would write its files there unasked)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty name")
+    return text
 
 
 def non_negative(text: str) -> float:
@@ -154,7 +163,9 @@ def add_run_options(run: argparse.ArgumentParser) -> None:
     run.add_argument(
         "--rt", action="store_true", help="realtime: SCHED_FIFO, 1 ns timer slack, GC in idle slack"
     )
-    run.add_argument("--retain", metavar="FILE", help="retain file (kept across runs)")
+    run.add_argument(
+        "--retain", metavar="FILE", type=path_name, help="retain file (kept across runs)"
+    )
     run.add_argument(
         "--json", action="store_true", help="print the summary as one JSON object on stdout"
     )

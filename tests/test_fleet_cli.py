@@ -150,6 +150,15 @@ def test_an_output_folder_holds_one_runs_results(tmp_path, capsys):
         (["plant", "validate", "."], ": a folder, not a plant file"),
         (["run", "--out", "FILE"], "a file, not a folder"),
         (["vehicles", "--plant", "model-plant", "--bus", "vcan:0"], "unknown CAN interface"),
+        (["run", "ORDERS"], "an order file (.csv), not a fleet configuration (TOML); a"),
+        (["run", "--out", ""], "argument --out: an empty name"),
+        (["plant", "show", "model-plant", "--png", ""], "argument --png: an empty file name"),
+        (["plant", "show", "model-plant", "--png", "NOFOLDER/p.png"], "--png "),
+        (["route", "model-plant", "--from", "0", "--to", "24", "--cell-size", "5"], "--cell-size"),
+        (
+            ["route", "model-plant", "--from", "0", "--to", "2", "--highway-factor", "0"],
+            ">= 1: '0'",
+        ),
     ],
     ids=[
         "bus",
@@ -161,6 +170,12 @@ def test_an_output_folder_holds_one_runs_results(tmp_path, capsys):
         "dir",
         "out",
         "vehicles-bus",
+        "run-orders",
+        "empty-out",
+        "empty-png",
+        "png-folder",
+        "cell-size",
+        "highway-factor",
     ],  # fmt: skip
 )
 def test_mistaken_inputs_are_named_for_what_they_are(args, message, tmp_path, capsys):
@@ -169,11 +184,21 @@ def test_mistaken_inputs_are_named_for_what_they_are(args, message, tmp_path, ca
     line that says what it is."""
     examples = DEFAULT_CONFIG.parent.parent / "examples"
     (tmp_path / "FILE").write_text("")
-    known = {"PLANT": examples / "plants" / "workshop.toml", "CONFIG": DEFAULT_CONFIG}
+    known = {
+        "PLANT": examples / "plants" / "workshop.toml",
+        "CONFIG": DEFAULT_CONFIG,
+        "ORDERS": examples / "orders" / "workshop.csv",
+        "NOFOLDER/p.png": tmp_path / "no" / "p.png",
+    }
     args = [str(known.get(a, tmp_path / a if a in ("FILE", ".") else a)) for a in args]
-    assert main([*args, *(["--cycles", "1"] if args[0] == "run" else [])]) == 2
+    try:
+        code = main([*args, *(["--cycles", "1"] if args[0] == "run" else [])])
+    except SystemExit as exc:  # a usage error found by the argument parser
+        code = exc.code
+    assert code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
+    assert not any(tmp_path.glob("*.png")) and not (tmp_path / "no").exists()
 
 
 def test_an_empty_token_is_named_empty(monkeypatch, capsys):

@@ -670,7 +670,7 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["run", "--speed", "1e-300"], "--speed: must be at least 0.001"),
+        (["run", "--speed", "1e-300"], "--speed: must be a finite number >= 0.001"),
         (["run", "--duration", "1e300"], "--duration: must be at most 1e+07"),
         (["run", "--cycles", "100000000000"], "--cycles: must be at most 1e+10"),
         (["vehicles", "--plant", "model-plant", "--period", "5"], "--period: must be at most 1"),

@@ -11,6 +11,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from plc_runtime.cli import CliError
 from topology import SAMPLES, Plant, load
 from topology.formats.movingai import MAX_CELL_SIZE_M
 
@@ -35,11 +36,13 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
         parser.add_argument(
             "--cell-size",
             type=positive(float, most=MAX_CELL_SIZE_M),
-            default=1.0,
-            help="MovingAI maps: metres per cell",
+            help="MovingAI maps: metres per cell (default 1)",
         )
     show.add_argument(
-        "--png", metavar="OUT", help="draw the plant (ids, roles, edge directions) into a PNG"
+        "--png",
+        metavar="OUT",
+        type=png_file,
+        help="draw the plant (ids, roles, edge directions) into a PNG",
     )
     show.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -61,24 +64,52 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
     route.add_argument(
         "--cell-size",
         type=positive(float, most=MAX_CELL_SIZE_M),
-        default=1.0,
-        help="MovingAI maps: metres per cell",
+        help="MovingAI maps: metres per cell (default 1)",
     )
     route.add_argument(
         "--highway-factor",
-        type=positive(float),
+        type=positive(float, least=1.0),
         default=HIGHWAY_FACTOR,
         help=f"cost factor against a highway lane, as the fleet's [routing] highway_factor "
         f"(default {HIGHWAY_FACTOR:g}; 1 ignores highways)",
     )
-    route.add_argument("--png", metavar="OUT", help="draw the plant with the route into a PNG")
+    route.add_argument(
+        "--png", metavar="OUT", type=png_file, help="draw the plant with the route into a PNG"
+    )
     route.add_argument("--json", action="store_true", help="print the result as one JSON object")
+
+
+def png_file(text: str) -> Path:
+    """An argparse type: the name of the PNG file to draw into."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty file name")
+    if Path(text).suffix.lower() != ".png":
+        raise argparse.ArgumentTypeError(
+            f"the drawing is a PNG: give a name ending in .png, got {text!r}"
+        )
+    return Path(text)
 
 
 def _load(args: argparse.Namespace) -> Plant:
     if Path(args.file).suffix.lower() == ".map" and Path(args.file).exists():
-        return load(args.file, cell_size=args.cell_size)
+        return load(args.file, cell_size=args.cell_size or 1.0)
+    if args.cell_size is not None:
+        raise CliError(
+            f"--cell-size: only for MovingAI .map plants, and {args.file} is not one (its "
+            "positions are in metres already)"
+        )
     return load_plant(args.file)
+
+
+def _draw(plant: Plant, out: Path, **kwargs: Any) -> Path:
+    """Draw into ``out``; a folder that is missing or not writable is the option's error."""
+    from topology.draw import draw  # matplotlib only when a drawing is asked for
+
+    try:
+        return draw(plant, out, **kwargs)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        raise CliError(f"--png {out}: cannot write the drawing there: {why}") from None
 
 
 def plant_command(args: argparse.Namespace) -> int:
@@ -92,10 +123,8 @@ def plant_command(args: argparse.Namespace) -> int:
             print(f"{args.file}: warning: {warning}")
         return 0
     summary = plant.summary()
-    if args.png:
-        from topology.draw import draw  # matplotlib only when a drawing is asked for
-
-        summary["png"] = str(draw(plant, args.png))
+    if args.png is not None:
+        summary["png"] = str(_draw(plant, args.png))
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -112,7 +141,7 @@ def plant_command(args: argparse.Namespace) -> int:
     table.add_row("fingerprint", plant.fingerprint)
     for warning in plant.warnings:
         table.add_row("warning", warning)
-    if args.png:
+    if args.png is not None:
         table.add_row("drawing", summary["png"])
     Console().print(table)
     return 0
@@ -130,12 +159,10 @@ def route_command(args: argparse.Namespace) -> int:
         heuristic=args.heuristic,
         highway_factor=args.highway_factor,
     )
-    if args.png:
-        from topology.draw import draw
-
+    if args.png is not None:
         routes = [result["route"]] if result["route"] else []
         title = f"{plant.name}: route {args.start} -> {args.goal}"
-        draw(plant, args.png, routes=routes, title=title, blocked=blocked)
+        _draw(plant, args.png, routes=routes, title=title, blocked=blocked)
     if args.json:
         print(json.dumps(result))
     elif result["no_route"]:

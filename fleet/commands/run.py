@@ -36,7 +36,14 @@ from typing import Any
 from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
-from plc_runtime.cli import CliError, StopSignal, drive, duration_cycles, stop_on_signals
+from plc_runtime.cli import (
+    CliError,
+    StopSignal,
+    drive,
+    duration_cycles,
+    path_name,
+    stop_on_signals,
+)
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 
@@ -82,6 +89,7 @@ def add_options(run: argparse.ArgumentParser) -> None:
     """The fleet's own options of ``run``."""
     run.add_argument(
         "--out",
+        type=path_name,
         help="fleet: folder for summary.json, recipes.csv, routes.png and orders.csv "
         "(default: out)",
     )

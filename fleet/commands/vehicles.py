@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from plc_runtime.cli import MAX_DURATION_S, whole
+from plc_runtime.cli import MAX_DURATION_S, path_name, whole
 from plc_runtime.errors import ConfigError
 
 from ..config import LOOPBACK, MODBUS, link_problem, modbus_endpoint, parse_bus
@@ -42,6 +42,7 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
     p.add_argument(
         "--monitor-out",
         metavar="FILE",
+        type=path_name,
         help="count head-on and node conflicts from the true positions; write them here (JSON) at exit",
     )
     link = p.add_mutually_exclusive_group()
