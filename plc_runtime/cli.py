@@ -446,7 +446,7 @@ def summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any
         "state": state,
         "fault_reason": stats["fault_reason"],
         "clock": clock_kind(rt.clock),
-        "speed": clock_speed(rt.clock) if _paced(rt) else None,
+        "speed": clock_speed(rt.clock) if clock_kind(rt.clock) == "paced" else None,
         "sim_time_s": stats["clock_time_s"],
         "wall_time_s": round(wall, 3),
         "scans_per_s": round(stats["cycles"] / wall, 1) if wall > 0 else None,

@@ -563,3 +563,20 @@ def test_block(unit, folders, monkeypatch):
             f"{block.where}: a ```{block.language or '(no language)'} block is not checked; "
             "use python, sh, toml or nodes (see tests/test_docs.py)"
         )
+
+
+def test_every_summary_key_of_a_run_is_documented(tmp_path, capsys):
+    """docs/fleet-config.md lists the keys of ``run --json`` as a contract for scripts: a
+    run with transport orders and one with recipes print none it does not name."""
+    page = (ROOT / "docs" / "fleet-config.md").read_text(encoding="utf-8")
+    start = page.index("### Summary keys")
+    after = re.search(r"\n#{1,3} ", page[start + 1 :])
+    section = page[start : start + 1 + after.start()] if after else page[start:]
+    documented = set(re.findall(r"`(\w+)`", section))
+    examples = ROOT / "examples"
+    printed: set[str] = set()
+    for config in (examples / "workshop-orders.toml", examples / "workshop.toml"):
+        args = ["run", str(config), "--duration", "5", "--json", "--out", str(tmp_path / "o")]
+        assert main(args) == 0
+        printed |= set(json.loads(capsys.readouterr().out))
+    assert printed - documented == set()
