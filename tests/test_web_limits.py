@@ -14,6 +14,7 @@ import http.client
 import json
 import logging
 import socket
+import time
 from typing import Any
 
 import pytest
@@ -22,6 +23,7 @@ from web_controller import ROOT, TOKEN, WAIT_WALL_S, Controller, eventually
 from fleet.config import load_config
 from fleet.program import FleetProgram
 from fleet.web.feed import Busy, LiveFeed
+from fleet.web.log_lines import OncePerSecond
 
 API = "/api/v1"
 JSON = {"Content-Type": "application/json"}
@@ -203,6 +205,35 @@ def test_foreign_hosts_count_against_the_rate_and_are_logged_once_a_second(caplo
         assert replies[0].body["error"] == "Host header 'evil.example' not accepted"
         lines = [r.getMessage() for r in caplog.records if r.name == "fleet.web.guard"]
         assert len(lines) == 1 and "Host header 'evil.example'" in lines[0]
+
+
+def test_requests_uvicorn_answers_itself_reach_the_log_once_a_second(ctl, capsys):
+    """Upgrade requests (answered as plain HTTP: the server has no WebSocket) and requests
+    that are not HTTP are logged by uvicorn, one line each: 30 of each kind within a
+    second (the filter's clock held still) are one line each, prefixed as the run's other
+    messages, and without advice to install a WebSocket library."""
+    (once,) = [
+        f for f in logging.getLogger("uvicorn.error").filters if isinstance(f, OncePerSecond)
+    ]
+    once.clock = lambda: 1000.0
+    capsys.readouterr()
+    upgrade = f"GET {API}/nothing HTTP/1.1\r\nHost: localhost\r\nConnection: Upgrade\r\n"
+    upgrade += "Upgrade: websocket\r\n\r\n"
+    for data in (upgrade.encode(), b"\x16\x03\x01 not http\r\n\r\n"):
+        for _ in range(30):
+            with connect(ctl.web.port, data) as sock:
+                closed_by_server(sock) if data[0] == 0x16 else sock.recv(4096)
+    lines = capsys.readouterr().err.splitlines()
+    upgrades = [x for x in lines if "Unsupported upgrade request" in x]
+    invalid = [x for x in lines if "Invalid HTTP request received" in x]
+    assert len(upgrades) == 1 and len(invalid) == 1, lines
+    assert all(x.startswith("plc-runtime: warning: ") for x in upgrades + invalid)
+    assert not any("WebSocket library" in x for x in lines)
+    once.clock = lambda: 1001.5  # a second later: the next says how many were left out
+    with connect(ctl.web.port, upgrade.encode()) as sock:
+        sock.recv(4096)
+    assert "(29 more like it left out)" in capsys.readouterr().err
+    once.clock = time.monotonic
 
 
 def test_a_refused_path_reaches_the_log_escaped(caplog):

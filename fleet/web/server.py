@@ -43,6 +43,7 @@ from plc_runtime import ConfigError, ProcessImage
 from plc_runtime.quiet import QuietSelector
 
 from ..program import FleetProgram
+from . import log_lines
 from .api import ANSWER_TIMEOUT, PREFIX, build_app
 from .desk import OrderDesk
 from .feed import MAX_STREAMS, RATE_HZ, LiveFeed
@@ -230,6 +231,7 @@ class WebServer:
 
     # ----- IoDriver ---------------------------------------------------------------------------
     def open(self, image: ProcessImage) -> None:
+        log_lines.install()
         loopback = is_loopback(self.host)
         if not loopback:
             warnings.warn(
