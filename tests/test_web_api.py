@@ -28,6 +28,8 @@ API = "/api/v1"
 RECIPES_ONLY = ROOT / "examples" / "workshop.toml"
 JSON = {"Content-Type": "application/json"}
 FORM = {"Content-Type": "application/x-www-form-urlencoded"}
+VND = {"Content-Type": "application/vnd.foo+json"}
+LATIN1 = {"Content-Type": "application/json; charset=latin-1"}
 
 
 @pytest.fixture(scope="module")
@@ -277,7 +279,7 @@ def test_a_bad_write_is_refused_and_changes_nothing(ctl, method, path, body, tok
     before = ctl.call("GET", f"{API}/tags/values?names=agv1.hold,agv1.node").body
     reply = ctl.call(method, f"{API}/tags/{path}", body, token=token)
     assert (reply.status, reply.body["field"]) == (status, field), reply.body
-    assert reply.body["error"]
+    assert reply.body["error"] and reply.body["error"].count(", got ") <= 1, reply.body
     assert ctl.program.rt.image.forces == {}
     after = ctl.call("GET", f"{API}/tags/values?names=agv1.hold").body
     assert after[0]["value"] == before[0]["value"] == 0
@@ -291,6 +293,10 @@ def test_a_bad_write_is_refused_and_changes_nothing(ctl, method, path, body, tok
         ("PUT", "tags/agv1.hold", b'{"value": 1}', {}, 415, "no Content-Type"),
         ("PUT", "tags/agv1.hold/force", b'{"value": 1}', FORM, 415, "x-www-form-urlencoded"),
         ("POST", "orders", b'{"id": "f", "get": 21, "put": 23}', FORM, 415, "Content-Type"),
+        ("POST", "orders", b'{"id": "f", "get": 21, "put": 23}', VND, 415, "vnd.foo+json"),
+        ("PUT", "tags/agv1.hold", b'{"value": 1}', LATIN1, 415, "charset=latin-1"),
+        ("PUT", "tags/agv1.hold", '{"value": 1}'.encode("utf-16"), JSON, 400, "UTF-8"),
+        ("PUT", "tags/agv1.hold", b'\xef\xbb\xbf{"value": 1}', JSON, 400, "byte order mark"),
     ],
 )
 def test_a_body_not_sent_as_the_routes_json_says_what_the_route_takes(
@@ -303,6 +309,44 @@ def test_a_body_not_sent_as_the_routes_json_says_what_the_route_takes(
     assert "get" not in reply.body["error"] or path == "orders"
     assert ctl.program.rt.image.forces == {}
     assert ctl.call("GET", f"{API}/tags/agv1.hold").body["value"] == 0
+
+
+@pytest.mark.parametrize(
+    ("path", "field"),
+    [("orders?offest=200&limit=1", "offest"), ("events?afterr=5", "afterr"), ("plant?x=1", "x")],
+)
+def test_a_query_parameter_the_request_does_not_take_is_refused(ctl, path, field):
+    """A typo is not ignored: the client would be served what it did not ask for."""
+    reply = ctl.call("GET", f"{API}/{path}")
+    assert reply.status == 422 and reply.body["field"] == field, reply.body
+    assert "not a parameter of this request" in reply.body["error"]
+
+
+@pytest.mark.parametrize("name", ["Authorization", "Content-Type"])
+def test_a_header_given_twice_is_refused_whichever_comes_first(ctl, name):
+    """With two tokens, one check could read one and another the other: a wrong token
+    before or after the right one is 400, and nothing is written."""
+    value = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}[name]
+    other = {"Authorization": "Bearer wrong-token-xxxxxxxxxx", "Content-Type": "text/plain"}[name]
+    for pair in ((value, other), (other, value)):
+        conn = http.client.HTTPConnection("127.0.0.1", ctl.port, timeout=30)
+        try:
+            conn.putrequest("PUT", f"{API}/tags/agv3.hold")
+            for v in pair:
+                conn.putheader(name, v)
+            if name != "Authorization":
+                conn.putheader("Authorization", f"Bearer {TOKEN}")
+            else:
+                conn.putheader("Content-Type", "application/json")
+            conn.putheader("Content-Length", "12")
+            conn.endheaders(b'{"value": 1}')
+            reply = conn.getresponse()
+            body = json.loads(reply.read())
+        finally:
+            conn.close()
+        assert reply.status == 400, body
+        assert body["error"] == f"header '{name.lower()}' given more than once"
+    assert ctl.call("GET", f"{API}/tags/agv3.hold").body["value"] == 0
 
 
 # ----- statistics and events ----------------------------------------------------------------------

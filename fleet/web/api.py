@@ -463,24 +463,59 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 
 async def _given_once(request: Request) -> None:
-    """Every route's dependency: a query parameter or a key of the JSON body given twice is
-    refused (422 naming it). The parsers would keep the last value silently, and the client
-    may have meant the first. Runs after FastAPI has read the body (it is cached) and
-    before the route's own checks, so nothing is changed."""
+    """Every route's dependency: a query parameter the route does not take (a typo such as
+    ``offest`` would be ignored, and the client served what it did not ask for), or a
+    query parameter or a key of the JSON body given twice, is refused (422 naming it).
+    The parsers would keep the last value silently, and the client may have meant the
+    first. A body is JSON only as RFC 8259 has it: sent as ``application/json`` (415
+    otherwise, a ``+json`` type included), in UTF-8 without a byte order mark (400). Runs
+    after FastAPI has read the body (it is cached) and before the route's own checks, so
+    nothing is changed."""
     seen: set[str] = set()
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    taken = _query_names(dependant) if dependant is not None else None
     for name, _ in request.query_params.multi_items():
+        if taken is not None and name not in taken:
+            known = ", ".join(sorted(taken)) or "none"
+            raise ApiError(422, f"field '{name}': not a parameter of this request ({known})", name)
         if name in seen:
             raise ApiError(422, f"field '{name}': given more than once in the query", name)
         seen.add(name)
     if not _body_fields(request):
         return
+    media, _, params = request.headers.get("content-type", "").partition(";")
+    charset = params.strip().lower().replace(" ", "")
+    if media.strip().lower() != "application/json" or charset not in ("", "charset=utf-8"):
+        sent = request.headers.get("content-type") or "no Content-Type"
+        raise ApiError(
+            415,
+            "request body: send it as JSON with the header Content-Type: application/json "
+            f"(got {sent})",
+        )
+    body = await request.body()
     try:
-        json.loads(await request.body(), object_pairs_hook=_unique_keys)
+        if body.startswith(b"\xef\xbb\xbf"):
+            raise UnicodeDecodeError("utf-8", body, 0, 3, "a byte order mark")
+        body.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ApiError(400, "request body: JSON must be UTF-8, without a byte order mark") from None
+    try:
+        json.loads(body, object_pairs_hook=_unique_keys)
     except _Repeated as exc:
         key = str(exc)
         raise ApiError(422, f"field '{key}': given more than once in the JSON", key) from None
     except ValueError:  # not JSON: the route's body check says so
         pass
+
+
+def _query_names(dependant: Any) -> set[str]:
+    """The query parameters a route takes, its dependencies' included (FastAPI's Dependant
+    tree: ``query_params`` and ``dependencies`` at each level)."""
+    names = {q.alias for q in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _query_names(sub)
+    return names
 
 
 class _Static(StaticFiles):
@@ -551,7 +586,7 @@ def _invalid(exc: RequestValidationError, request: Request) -> JSONResponse:
     if kind == "extra_forbidden":
         return _json(422, f"field '{field}': unknown (fields: {fields})", field)
     text = f"field '{field}': {msg}"
-    if kind != "missing" and "input" in first:
+    if kind != "missing" and "input" in first and ", got " not in msg:
         text += f", got {_short(first['input'])}"
     return _json(422, text, field)
 

@@ -50,6 +50,8 @@ from plc_runtime.cli import terminal_text
 from .gate import ScanGate
 
 log = logging.getLogger(__name__)
+# headers a request may carry once only: with two, one check would read one and another the other
+SINGLE_HEADERS = ("authorization", "host", "content-type", "content-length")
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -109,6 +111,11 @@ class Guard:
                 f"too many requests: the limit is {self.max_rate:g} per second per client",
                 [(b"retry-after", b"1")],
             )
+            return
+        names = [k.decode("latin-1").lower() for k, _ in scope["headers"]]
+        twice = sorted({n for n in SINGLE_HEADERS if names.count(n) > 1})
+        if twice:  # which one counts would be the server's guess, not the client's intent
+            await self._refuse(scope, send, 400, f"header {twice[0]!r} given more than once")
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         if self.loopback and not _loopback_host(headers.get("host")):
