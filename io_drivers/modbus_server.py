@@ -199,6 +199,18 @@ def mbap_error(head: bytes | bytearray) -> str | None:
     return None
 
 
+def request_length(frame: bytes) -> int | None:
+    """The length a frame of its function's request must have (MBAP header included), for
+    the functions served; None for others (they are refused by function code)."""
+    fc = frame[7]
+    if fc in (1, 2, 3, 4, 5, 6):
+        return MBAP_HEADER + 5  # function code, address, count or value
+    if fc in (15, 16):
+        # function code, address, count, byte count, then the bytes it counts
+        return MBAP_HEADER + 6 + frame[12] if len(frame) > 12 else MBAP_HEADER + 6
+    return None
+
+
 def check_limits(name: str, max_connections: int, idle_timeout: float | None) -> None:
     """The connection cap and the idle timeout must make sense (ConfigError naming them)."""
     if isinstance(max_connections, bool) or not isinstance(max_connections, int):
@@ -404,6 +416,9 @@ class _Connection(ServerRequestHandler):
         if frame[7] & 0x80:
             self._not_a_request(frame)
             return
+        if (expected := request_length(frame)) is not None and len(frame) != expected:
+            self._wrong_length(frame, expected)
+            return
         self._in_flight = True
         self.callback_data(frame)
         # no request scheduled: pymodbus could not decode it and has answered already
@@ -422,6 +437,15 @@ class _Connection(ServerRequestHandler):
         tid, unit = int.from_bytes(frame[0:2], "big"), frame[6]
         answer = ExceptionResponse(frame[7], ExcCodes.ILLEGAL_FUNCTION, unit, tid)
         self.server_send(answer, None)
+
+    def _wrong_length(self, frame: bytes, expected: int) -> None:
+        """Answer a request of a served function whose frame is longer or shorter than that
+        function's request with exception 03, changing nothing. pymodbus reads the fields
+        it expects and ignores bytes after them, so a write with trailing bytes (a
+        corrupted or crafted frame) would otherwise be carried out."""
+        self.reason = f"a function {frame[7]} request is {expected} bytes, this one {len(frame)}"
+        tid, unit = int.from_bytes(frame[0:2], "big"), frame[6]
+        self.server_send(ExceptionResponse(frame[7], ExcCodes.ILLEGAL_VALUE, unit, tid), None)
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
         """One complete frame (from ``_serve``) to pymodbus."""

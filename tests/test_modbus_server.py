@@ -658,6 +658,31 @@ def test_invalid_single_coil_value_is_refused(served):
     assert rt.image.pending_writes == 0
 
 
+@pytest.mark.parametrize(
+    "pdu",
+    [
+        struct.pack(">BHH", 6, 1024, 7) + b"\x00\x00",  # FC6 %MW0 := 7, and two bytes more
+        struct.pack(">BHHB", 16, 1024, 1, 2) + struct.pack(">H", 7) + b"\x00",  # one byte more
+        struct.pack(">BHH", 3, 1024, 1) + b"\x00",  # a read, one byte more
+        struct.pack(">BH", 6, 1024),  # FC6 without its value
+    ],
+    ids=["fc6-longer", "fc16-longer", "fc3-longer", "fc6-shorter"],
+)
+def test_a_request_longer_or_shorter_than_its_function_is_refused(served, pdu):
+    """pymodbus reads the fields it expects and ignores what follows: a write with bytes
+    after its value (a corrupted or crafted frame) was carried out. Now any request of a
+    served function whose length is not its function's is exception 3, and nothing is
+    written; the connection goes on."""
+    rt, server, _client = served
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.sendall(frame(5, pdu))
+        (answer,) = receive_frames(sock, 1)
+        assert answer == frame(5, bytes((pdu[0] | 0x80, 3)))
+        assert answers_request(sock, 6)
+    rt.step()
+    assert rt.image.pending_writes == 0 and rt.image.read("%MW0") == 0
+
+
 # ----- framing ------------------------------------------------------------------------------
 def frame(tid: int, pdu: bytes, unit: int = 1) -> bytes:
     """An MBAP frame: header (transaction id, protocol id 0, length, unit id) + PDU."""
