@@ -390,6 +390,7 @@ class Dispatcher(FunctionBlock):
                 or order.assigned is not None
                 or not free
                 or not self.reach.reaches(runner.current, order.get)
+                or not self.reach.reaches(order.get, order.put)  # closed since the round began
                 or self.claims.stuck(order.get)
                 or self.claims.stuck(order.put)
             ):
