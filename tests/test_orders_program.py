@@ -202,6 +202,21 @@ def test_an_order_a_blockade_cuts_off_waits_and_is_driven_once_it_reopens(tmp_pa
     assert x.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
 
 
+def test_orders_a_blockade_cuts_off_do_not_keep_the_others_from_being_given_out(tmp_path, made):
+    """1,100 urgent orders wait at station 20, which a blockade cuts off; rounds pass over
+    at most 1,000 orders they cannot give out before they stop looking. Set aside, those
+    orders do not keep the least urgent order elsewhere from being driven; they are all
+    counted as cut off, and none ended."""
+    rows = "".join(f"c{k},20,25,5\n" for k in range(1100)) + "ok,22,27,0\n"
+    links = sorted({b for (a, b) in config(ORDERS, tmp_path).plant.arc_index if a == 20})
+    extra = "".join(f"[[blockades]]\nfrom = 20\nto = {b}\nat_s = 0\n" for b in links)
+    p = start(config("id,get,put,priority\n" + rows, tmp_path, extra=extra), made)
+    run(p, 200)
+    assert p.orders.book.get("ok").state is OrderState.FINISHED
+    assert p.orders.dispatcher.cut_off == 1100
+    assert p.orders.book.counts()["DISPATCHABLE"] == 1100
+
+
 def test_an_order_no_vehicle_could_ever_drive_is_unroutable_and_reported(tmp_path, made):
     """On the plant as built (one-way segments, no blockade), station 6 leads nowhere: an
     order from it can never be driven, and is ended UNROUTABLE with the reason."""

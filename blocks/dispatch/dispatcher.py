@@ -33,8 +33,12 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
 
 from plc_runtime import CycleContext, FunctionBlock, Output
+from topology import Plant
 
 from .charging import ChargePolicy
 from .estimates import SectionEstimates
@@ -55,6 +59,8 @@ from .urgent_orders import UrgentOrders
 
 # route checks of waiting orders per scan after the blockades changed (each a few lookups)
 ROUTE_BUDGET = 1000
+# seconds between two checks of the orders cut off, when no segment closed or reopened
+ASIDE_RECHECK_S = 5.0
 # orders whose start time came made startable per scan (dhht, nearest_idle): each costs two
 # heap operations, so 1000 stay within a few milliseconds even on a pool of 100,000
 STARTABLE_BUDGET = 1000
@@ -127,6 +133,7 @@ class Dispatcher(FunctionBlock):
         self._checked: set[str] = set()
         self._recheck: deque[TransportOrder] = deque()
         self._cut_off: set[str] = set()  # waiting orders closed segments keep from a station
+        self._aside_recheck_ns = 0  # when those are next checked again, segments unchanged
         self._revision = 0  # the book's revision when the routes were last checked
         # the waiting orders by urgency (two_stage also plans orders whose start is to come)
         self._urgent = UrgentOrders(startable_only=strategy != "two_stage")
@@ -172,24 +179,38 @@ class Dispatcher(FunctionBlock):
         changed = self.book.changed_since(self._revision)
         if changed is None:
             self._checked.clear()
-            self._cut_off.clear()
+            self._cut_off.clear()  # (and the index's orders set aside, rebuilt whole)
+            self._urgent.rebuild(self.book.dispatchable(), ctx.time)
+            self._urgent_revision = self.book.revision
             self._recheck = deque(self.book.dispatchable())
             changed = []
         fresh = [o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None]
         for order in changed:  # taken, withdrawn, given back: counted again once checked
             self._cut_off.discard(order.id)
+        if self._cut_off and not self._recheck and ctx.time_ns >= self._aside_recheck_ns:
+            # vehicles move, come online, go out of service: an order no vehicle could
+            # reach a while ago may be reachable now with no segment reopened
+            self._aside_recheck_ns = ctx.time_ns + round(ASIDE_RECHECK_S * 1e9)
+            self._checked -= self._cut_off
+            self._recheck.extend(self.book.get(i) for i in sorted(self._cut_off))
         for _ in range(min(ROUTE_BUDGET, len(self._recheck))):
             fresh.append(self._recheck.popleft())
+        positions: _Positions | None = None  # the vehicles' nodes, read once a scan
         for order in fresh:
             if order.id in self._checked or order.state is not OrderState.DISPATCHABLE:
                 continue
             self._checked.add(order.id)
-            self._cut_off.discard(order.id)
-            why = self._unroutable(order)
+            positions = positions or _Positions.of(self.runners, self.reach.plant)
+            why = self._unroutable(order, positions)
             if why is not None:
+                self._cut_off.discard(order.id)
                 self.book.transition(order, OrderState.UNROUTABLE, ctx.time, why)
-            elif not self._routable_now(order):
+            elif not self._routable_now(order, positions):
                 self._cut_off.add(order.id)
+                self._urgent.set_aside(order)  # no round looks at it until it is driveable
+            elif order.id in self._cut_off:
+                self._cut_off.discard(order.id)
+                self._urgent.restore(order, ctx.time)
         self.cut_off = len(self._cut_off)
         self._revision = self.book.revision
         if not blockades_changed:
@@ -233,22 +254,23 @@ class Dispatcher(FunctionBlock):
         self.book.transition(order, OrderState.DISPATCHABLE, ctx.time, "cut off by a blockade")
         self.reassigned += 1
 
-    def _unroutable(self, order: TransportOrder) -> str | None:
+    def _unroutable(self, order: TransportOrder, positions: _Positions) -> str | None:
         """Why no vehicle could ever drive ``order`` on this plant, every segment open."""
-        reaches = self.reach.reaches_on_plant
-        if not reaches(order.get, order.put):
+        if not self.reach.reaches_on_plant(order.get, order.put):
             return f"no route from Get station {order.get} to Put station {order.put}"
-        starts = [r.current for r in self.runners.values() if r.current is not None]
-        if starts and not any(reaches(n, order.get) for n in starts):
+        nodes = positions.of_order(order)
+        if len(nodes) and not self.reach.reached_from(nodes, order.get, on_plant=True):
             return f"no vehicle can reach Get station {order.get}"
         return None
 
-    def _routable_now(self, order: TransportOrder) -> bool:
-        """Can a vehicle drive ``order`` over the segments open now?"""
+    def _routable_now(self, order: TransportOrder, positions: _Positions) -> bool:
+        """Can a vehicle that may take ``order`` (its intended one, if it names one) drive
+        it over the segments open now? (Before any vehicle has reported where it is: yes,
+        as far as is known.)"""
         if not self.reach.reaches(order.get, order.put):
             return False
-        starts = [r.current for r in self.runners.values() if r.current is not None]
-        return not starts or any(self.reach.reaches(n, order.get) for n in starts)
+        nodes = positions.of_order(order)
+        return not len(nodes) or self.reach.reached_from(nodes, order.get)
 
     # ----- deviations ----------------------------------------------------------------------------
     def _check_deviations(self, ctx: CycleContext) -> None:
@@ -385,11 +407,13 @@ class Dispatcher(FunctionBlock):
             runner, order = self.runners[a.vehicle], a.order
             free = runner.active is None or (runner.next is None and runner.frozen)
             free = free and not runner.load_left
+            # a next order is driven from where the active one ends
+            start = runner.active.put if runner.active is not None else runner.current
             if (
                 order.state is not OrderState.DISPATCHABLE
                 or order.assigned is not None
                 or not free
-                or not self.reach.reaches(runner.current, order.get)
+                or not self.reach.reaches(start, order.get)
                 or not self.reach.reaches(order.get, order.put)  # closed since the round began
                 or self.claims.stuck(order.get)
                 or self.claims.stuck(order.put)
@@ -439,3 +463,23 @@ class Dispatcher(FunctionBlock):
             s = self.stats.setdefault(station, StationStats(pickups_s=[]))
             s.supply_per_h = n / hours
         return self.stats
+
+
+@dataclass(frozen=True)
+class _Positions:
+    """The nodes (indices) the order-taking vehicles stand on, for one scan's route checks:
+    the whole fleet's, and each vehicle's for an order that names its vehicle."""
+
+    nodes: np.ndarray
+    by_vehicle: dict[int, int]
+
+    @classmethod
+    def of(cls, runners: Mapping[int, OrderRunner], plant: Plant) -> _Positions:
+        by_vehicle = {v: plant.idx(r.current) for v, r in runners.items() if r.current is not None}
+        return cls(np.fromiter(by_vehicle.values(), dtype=np.intp), by_vehicle)
+
+    def of_order(self, order: TransportOrder) -> np.ndarray:
+        if order.vehicle is None:
+            return self.nodes
+        mine = self.by_vehicle.get(order.vehicle)
+        return self.nodes[:0] if mine is None else np.array([mine], dtype=np.intp)

@@ -54,6 +54,17 @@ class Reachability:
         self._refresh()
         return bool(self._reach[target][self.plant.idx(node)])
 
+    def reached_from(self, nodes: np.ndarray, target: int, on_plant: bool = False) -> bool:
+        """Can a vehicle at any of ``nodes`` (node indices, not ids) drive to ``target``,
+        over the segments open now (``on_plant``: with every segment open)? One array
+        lookup for the whole fleet."""
+        if on_plant:
+            sets = self._built
+        else:
+            self._refresh()
+            sets = self._reach
+        return bool(sets[target][nodes].any())
+
     @cached_property
     def _built(self) -> dict[int, np.ndarray]:
         return self._sets(np.ones(self.plant.n_arcs, dtype=bool))

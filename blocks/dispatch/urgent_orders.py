@@ -12,6 +12,10 @@ and dispatchable again is a new generation). Dead entries are dropped as they su
 Orders leave mostly from the top (a round assigns the ones it was given), so few linger,
 and never more than the transitions the orders' histories in the book record anyway.
 
+An order no vehicle can drive now (a blockade cuts a station off) is *set aside*: out of
+the heaps until the dispatcher restores it. Left in, every round would pass over it, and
+enough of them at the top would keep a round from reaching the orders it could give out.
+
 With ``startable_only`` (dhht, nearest_idle: they take only orders whose start time has
 come) orders wait in a second heap by start time and move to the urgency heap once it has
 come, each once, at most ``budget`` a scan (:meth:`advance`): a file whose 100,000 orders
@@ -41,6 +45,7 @@ class UrgentOrders:
         self._ready: list[tuple[Urgency, int, TransportOrder]] = []
         self._later: list[tuple[float, Urgency, int, TransportOrder]] = []
         self._now_s = float("-inf")  # the latest time the index was told
+        self._aside: set[str] = set()  # waiting orders kept out of the heaps until restored
 
     def __len__(self) -> int:
         return len(self._members)
@@ -51,8 +56,9 @@ class UrgentOrders:
         self._now_s = max(self._now_s, now_s)
         if order.state is not OrderState.DISPATCHABLE:
             self._members.pop(order.id, None)
+            self._aside.discard(order.id)
             return
-        if order.id in self._members:
+        if order.id in self._members or order.id in self._aside:
             return
         self._generation += 1
         self._members[order.id] = self._generation
@@ -64,8 +70,19 @@ class UrgentOrders:
         self._members.clear()
         self._ready.clear()
         self._later.clear()
+        self._aside.clear()
         for order in orders:
             self.update(order, now_s)
+
+    def set_aside(self, order: TransportOrder) -> None:
+        """Keep ``order`` out of the pool until :meth:`restore` (its entry dies)."""
+        self._aside.add(order.id)
+        self._members.pop(order.id, None)
+
+    def restore(self, order: TransportOrder, now_s: float) -> None:
+        """Take an order set aside back into the pool (if it still waits)."""
+        self._aside.discard(order.id)
+        self.update(order, now_s)
 
     def advance(self, now_s: float, budget: int) -> bool:
         """Make orders whose start time has come by ``now_s`` startable, at most ``budget``
