@@ -97,41 +97,21 @@ def stranded_starts(cfg: FleetConfig) -> list[str]:
     every station. Each is a configuration error: the vehicle would report no route for
     the whole run, and the run would end as if all were well."""
     plant = cfg.plant
-    n, index = plant.n, plant.index
-    src, dst = [], []
-    for e in plant.edges:  # return lanes too: a recipe that ends at an exit drives one back
-        src.append(index[e.source])
-        dst.append(index[e.target])
-        if e.bidirectional:
-            src.append(index[e.target])
-            dst.append(index[e.source])
-    graph = csr_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n))
-    components, label = connected_components(graph, directed=True, connection="strong")
-    if components == 1:
+    index = plant.index
+    # recipes: return lanes count (a recipe that ends at an exit drives one back); orders:
+    # only what routing drives
+    recipes, orders = _Reach(plant, return_lanes=True), _Reach(plant, return_lanes=False)
+    if recipes.connected and orders.connected:
         return []
-    reach_of: dict[int, np.ndarray] = {}  # a strong component's label -> the nodes it reaches
-
-    def reach(nodes: list[int]) -> np.ndarray:
-        seen = np.zeros(n, dtype=bool)
-        for node in nodes:
-            c = int(label[node])
-            if c not in reach_of:
-                found = np.zeros(n, dtype=bool)
-                found[
-                    breadth_first_order(graph, node, directed=True, return_predecessors=False)
-                ] = True
-                reach_of[c] = found
-            seen |= reach_of[c]
-        return seen
-
     stations = {f: [index[s] for s in nodes] for f, nodes in cfg.clusters.items()}
+    get_put = [index[s] for s in plant.with_role("station")]  # what an order may name
     problems = []
     for v, start in sorted(cfg.starts.items()):
         here = [index[start]]
         if v not in cfg.vehicle_recipes:
-            reached = reach(here)
+            reached = orders.reach(here)
             reached[here[0]] = False
-            if not any(reached[i] for nodes in stations.values() for i in nodes):
+            if get_put and not reached[get_put].any():
                 problems.append(
                     f"vehicle {v}: no station can be reached from its start node {start} "
                     "(one-way segments lead away from every one): it could take no order"
@@ -139,7 +119,7 @@ def stranded_starts(cfg: FleetConfig) -> list[str]:
             continue
         steps = [f for name in cfg.vehicle_recipes[v] for f in cfg.recipes[name].functions]
         for k, f in enumerate(steps):
-            reached = reach(here)
+            reached = recipes.reach(here)
             here = [i for i in stations.get(f, ()) if reached[i]]
             if not here:
                 after = f"its start node {start}" if k == 0 else f"any station of step {k}"
@@ -150,6 +130,42 @@ def stranded_starts(cfg: FleetConfig) -> list[str]:
                 )
                 break
     return problems
+
+
+class _Reach:
+    """Which nodes each node reaches along the plant's directed segments, computed once per
+    strong component (every node of one reaches the same)."""
+
+    def __init__(self, plant: Plant, return_lanes: bool) -> None:
+        n, index = plant.n, plant.index
+        src, dst = [], []
+        for e in plant.edges:
+            if not (e.routable or return_lanes):
+                continue
+            src.append(index[e.source])
+            dst.append(index[e.target])
+            if e.bidirectional:
+                src.append(index[e.target])
+                dst.append(index[e.source])
+        self.n = n
+        self.graph = csr_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n))
+        count, self.label = connected_components(self.graph, directed=True, connection="strong")
+        self.connected = count == 1
+        self._of: dict[int, np.ndarray] = {}  # a strong component's label -> what it reaches
+
+    def reach(self, nodes: list[int]) -> np.ndarray:
+        seen = np.zeros(self.n, dtype=bool)
+        for node in nodes:
+            c = int(self.label[node])
+            if c not in self._of:
+                found = np.zeros(self.n, dtype=bool)
+                order = breadth_first_order(
+                    self.graph, node, directed=True, return_predecessors=False
+                )
+                found[order] = True
+                self._of[c] = found
+            seen |= self._of[c]
+        return seen
 
 
 def _repeated_functions(cfg: FleetConfig) -> Iterator[tuple[int, int, int]]:

@@ -338,6 +338,22 @@ def test_a_vehicle_taking_orders_that_reaches_no_station_is_refused(tmp_path, ca
     )
 
 
+def test_a_vehicle_taking_orders_is_judged_by_the_stations_orders_name(tmp_path):
+    """Orders name stations (role "station"), which need no function: a vehicle that can
+    reach them is accepted though the plant has a one-way dead end and no function."""
+    plant = one_way_plant(tmp_path)
+    text = plant.read_text().split("[[nodes]]", 1)[1]  # without [functions] and functions = []
+    lines = (x for x in text.splitlines() if not x.startswith("functions ="))
+    plant.write_text('name = "one-way"\n[[nodes]]' + "\n".join(lines))
+    (tmp_path / "orders.csv").write_text("id,get,put\na,2,4\n")
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(
+        f'[plant]\nfile = "{plant.name}"\n[orders]\nfile = "orders.csv"\n'
+        "[[vehicles]]\nid = 1\nstart = 1\n"
+    )
+    assert liveness.stranded_starts(load_config(cfg)) == []
+
+
 def test_a_vehicle_that_reaches_its_stations_over_one_way_segments_is_accepted(tmp_path):
     plant = one_way_plant(tmp_path)
     text = f'[plant]\nfile = "{plant.name}"\n[[recipes]]\nname = "r"\nfunctions = [2, 3]\n'
