@@ -253,7 +253,7 @@ def run_program(
     rt.start()
     live = sys.stdout.isatty() and not args.json
     wall_start = time.monotonic()
-    with stop_on_signals(rt):
+    with stop_on_signals(rt) as stopped:
         try:
             drive(
                 rt,
@@ -273,6 +273,9 @@ def run_program(
         print(json.dumps(result))
     else:
         Console().print(summary_table(result))
+    if stopped.number == signal.SIGTERM:  # a supervisor must see it did not end by itself
+        print(f"plc-runtime: {stopped.what} in cycle {rt.ticks}", file=sys.stderr)
+        return stopped.exit_code
     return EXIT_FAULT if final_state == "FAULT" else 0
 
 

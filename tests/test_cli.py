@@ -97,7 +97,10 @@ def test_console_script_realtime():
     assert summary["wall_time_s"] >= 18 * 0.005  # absolute deadlines: never faster than real time
 
 
-def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
+@pytest.mark.parametrize(("sig", "code"), [("SIGINT", 0), ("SIGTERM", 143)])
+def test_ctrl_c_or_sigterm_finishes_the_cycle_and_prints_the_summary(sig, code):
+    """Ctrl-C is how a run without a cycle count ends: exit code 0. SIGTERM (a service
+    manager stopping it) ends it as cleanly, and the exit code says it was stopped."""
     proc = subprocess.Popen(
         [str(SCRIPT), "run", "--program", "demo", "--json", "--watchdog", "5000"],
         stdout=subprocess.PIPE,
@@ -106,14 +109,15 @@ def test_ctrl_c_finishes_the_cycle_and_prints_the_summary():
     )
     try:
         assert "until Ctrl-C" in proc.stderr.readline()  # it is running now
-        proc.send_signal(subprocess.signal.SIGINT)
-        out, _ = proc.communicate(timeout=60)
+        proc.send_signal(getattr(subprocess.signal, sig))
+        out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
         proc.wait()
-    assert proc.returncode == 0
+    assert proc.returncode == code, err
     summary = json.loads(out)
     assert summary["state"] == "RUN" and summary["cycles"] > 0
+    assert ("stopped by SIGTERM in cycle" in err) == (sig == "SIGTERM")
 
 
 def test_retain_problems_are_one_line_warnings(tmp_path, capsys):

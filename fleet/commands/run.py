@@ -200,46 +200,11 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         except BaseException:
             program.close()  # a bad --modbus address: nothing of the program stays open
             raise
-        vehicles_proc, monitor_file = None, None
-        if setup.spawn:
-            monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
-            try:
-                vehicles_proc = start_vehicles(args.config, setup.bus, monitor_file)
-            except BaseException:
-                monitor_file.unlink(missing_ok=True)
-                program.close()
-                raise
-        live = sys.stdout.isatty() and not args.json
-        stopped = StopSignal()
-        wall_start = time.monotonic()
-        try:
-            with stop_on_signals(program.rt) as stopped:
-                program.rt.start()
-                drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
-        except KeyboardInterrupt:  # a second Ctrl-C: the scan aborted, the rest as the first
-            stopped.number = signal.SIGINT
-        finally:
-            wall = time.monotonic() - wall_start
-            state = program.rt.state
-            program.close()
-            monitor = stop_vehicles(vehicles_proc, monitor_file)
-        interrupted = stopped.number is not None
-        result = summary(program, wall, state)
-        result["interrupted"] = interrupted
-        result["vehicles_mode"] = (
-            "in this process"
-            if setup.cosimulate
-            else "child process"
-            if setup.spawn
-            else "external"
-        )
-        if monitor is not None:
-            result["head_on_conflicts"] = monitor.get("head_on_conflicts")
-            result["node_conflicts"] = monitor.get("node_conflicts")
-            result["area_conflicts"] = monitor.get("area_conflicts")
-            result["conflict_monitor"] = "simulated positions, in the vehicles' process"
-            result["faults"]["injected"] = monitor.get("faults_injected")
-        write_all(program, out, result)
+        # from here on Ctrl-C and SIGTERM end the run cleanly, a vehicle process starting
+        # or running included, until the results are written
+        with stop_on_signals(program.rt) as stopped:
+            result, state, interrupted = _run(args, setup, program, total, stopped)
+            write_all(program, out, result)
     finally:
         release_out_dir(out_lock)
     if args.json:
@@ -253,6 +218,48 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         )
         return stopped.exit_code
     return 1 if state == "FAULT" else 0
+
+
+def _run(
+    args: argparse.Namespace, setup: Setup, program: FleetProgram, total: int, stopped: StopSignal
+) -> tuple[dict[str, Any], str, bool]:
+    """Start the vehicle process if there is one, run, stop both, and sum up."""
+    vehicles_proc, monitor_file = None, None
+    if setup.spawn:
+        monitor_file = Path(tempfile.mkstemp(prefix="plc-fleet-monitor-", suffix=".json")[1])
+        try:
+            vehicles_proc = start_vehicles(args.config, setup.bus, monitor_file)
+        except BaseException:
+            monitor_file.unlink(missing_ok=True)
+            program.close()
+            raise
+    live = sys.stdout.isatty() and not args.json
+    wall_start = time.monotonic()
+    try:
+        program.rt.start()
+        if stopped.number is not None:  # asked while the vehicle process was starting
+            program.rt.request_stop()
+        drive(program.rt, total, live, None, render=lambda: dashboard(program, total))
+    except KeyboardInterrupt:  # a second Ctrl-C: the scan aborted, the rest as the first
+        stopped.number = signal.SIGINT
+    finally:
+        wall = time.monotonic() - wall_start
+        state = program.rt.state
+        program.close()
+        monitor = stop_vehicles(vehicles_proc, monitor_file)
+    interrupted = stopped.number is not None
+    result = summary(program, wall, state)
+    result["interrupted"] = interrupted
+    result["vehicles_mode"] = (
+        "in this process" if setup.cosimulate else "child process" if setup.spawn else "external"
+    )
+    if monitor is not None:
+        result["head_on_conflicts"] = monitor.get("head_on_conflicts")
+        result["node_conflicts"] = monitor.get("node_conflicts")
+        result["area_conflicts"] = monitor.get("area_conflicts")
+        result["conflict_monitor"] = "simulated positions, in the vehicles' process"
+        result["faults"]["injected"] = monitor.get("faults_injected")
+    return result, state, interrupted
 
 
 def plan(args: argparse.Namespace, cfg: FleetConfig) -> Setup:
@@ -328,12 +335,18 @@ def start_vehicles(
     proc = subprocess.Popen(cmd, stderr=log, stdout=subprocess.DEVNULL, text=True)
     deadline = time.monotonic() + VEHICLES_READY_TIMEOUT
     text = ""
-    while time.monotonic() < deadline:
-        log.seek(0)
-        text = log.read()
-        if READY_LINE.search(text) or proc.poll() is not None:
-            break
-        time.sleep(0.05)
+    try:
+        while time.monotonic() < deadline:
+            log.seek(0)
+            text = log.read()
+            if READY_LINE.search(text) or proc.poll() is not None:
+                break
+            time.sleep(0.05)
+    except BaseException:  # a second Ctrl-C while it starts: it must not be left running
+        proc.kill()
+        proc.wait()
+        log.close()
+        raise
     if READY_LINE.search(text) and proc.poll() is None:
         return proc
     if proc.poll() is None:
