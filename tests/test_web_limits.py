@@ -22,6 +22,7 @@ from web_controller import ROOT, TOKEN, WAIT_WALL_S, Controller, eventually
 
 from fleet.config import load_config
 from fleet.program import FleetProgram
+from fleet.web import log_lines
 from fleet.web.feed import Busy, LiveFeed
 from fleet.web.log_lines import OncePerSecond
 
@@ -216,6 +217,13 @@ def test_requests_uvicorn_answers_itself_reach_the_log_once_a_second(ctl, capsys
         f for f in logging.getLogger("uvicorn.error").filters if isinstance(f, OncePerSecond)
     ]
     once.clock = lambda: 1000.0
+    try:
+        _flood(ctl, once, capsys)
+    finally:
+        once.clock = time.monotonic
+
+
+def _flood(ctl, once, capsys):
     capsys.readouterr()
     upgrade = f"GET {API}/nothing HTTP/1.1\r\nHost: localhost\r\nConnection: Upgrade\r\n"
     upgrade += "Upgrade: websocket\r\n\r\n"
@@ -233,7 +241,20 @@ def test_requests_uvicorn_answers_itself_reach_the_log_once_a_second(ctl, capsys
     with connect(ctl.web.port, upgrade.encode()) as sock:
         sock.recv(4096)
     assert "(29 more like it left out)" in capsys.readouterr().err
-    once.clock = time.monotonic
+
+
+def test_an_error_in_the_web_server_log_keeps_its_traceback(capsys):
+    """Only the lines any client can cause are throttled: two different failures within a
+    second are both written, each with its traceback."""
+    log_lines.install()
+    for exc in (ZeroDivisionError("first"), KeyError("second")):
+        try:
+            raise exc
+        except Exception:
+            logging.getLogger("uvicorn.error").exception("Exception in ASGI application")
+    err = capsys.readouterr().err
+    assert err.count("plc-runtime: error: Exception in ASGI application") == 2
+    assert "ZeroDivisionError: first" in err and "KeyError: 'second'" in err
 
 
 def test_a_refused_path_reaches_the_log_escaped(caplog):

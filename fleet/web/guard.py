@@ -115,7 +115,8 @@ class Guard:
         names = [k.decode("latin-1").lower() for k, _ in scope["headers"]]
         twice = sorted({n for n in SINGLE_HEADERS if names.count(n) > 1})
         if twice:  # which one counts would be the server's guess, not the client's intent
-            await self._refuse(scope, send, 400, f"header {twice[0]!r} given more than once")
+            why = f"header {twice[0]!r} given more than once"
+            await self._refuse(scope, send, 400, why, throttled=True)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         if self.loopback and not _loopback_host(headers.get("host")):

@@ -4,9 +4,10 @@ bounded where a client can cause them cheaply.
 uvicorn logs some requests it answers itself, one line each: a request that is not HTTP
 (``Invalid HTTP request received.``) and a request asking to upgrade the connection
 (``Unsupported upgrade request.``, then advice to install a WebSocket library). The
-server serves no WebSocket on purpose, so that advice is dropped; the other lines, like
-the guard's own refusals, come at most once a second each, with a count of those left out,
-so a flood of such requests cannot flood the log.
+server serves no WebSocket on purpose, so that advice is dropped; the other two come at
+most once a second each, with a count of those left out, so a flood of such requests
+cannot flood the log (the guard throttles what a client can repeat cheaply itself).
+Anything else, an error with its traceback above all, is written whole.
 """
 
 from __future__ import annotations
@@ -18,13 +19,15 @@ from collections.abc import Callable
 
 # a client's upgrade request is answered as plain HTTP: no library is missing
 DROPPED = ("No supported WebSocket library detected",)
+# what any client can make uvicorn log, one line a request
+THROTTLED = frozenset({"Invalid HTTP request received.", "Unsupported upgrade request."})
 LOGGERS = ("fleet.web", "uvicorn.error")
 INTERVAL_S = 1.0
 
 
 class OncePerSecond(logging.Filter):
-    """Lets a message through at most once per ``INTERVAL_S`` (per text), and says how many
-    were left out since the last one."""
+    """Lets each of the THROTTLED messages through at most once per ``INTERVAL_S``, saying
+    how many were left out since the last one; drops the DROPPED; passes the others."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__()
@@ -36,13 +39,12 @@ class OncePerSecond(logging.Filter):
         text = record.getMessage()
         if text.startswith(DROPPED):
             return False
+        if text not in THROTTLED:
+            return True
         now = self.clock()
         if now - self._last.get(text, -INTERVAL_S) < INTERVAL_S:
             self._left_out[text] = self._left_out.get(text, 0) + 1
             return False
-        if len(self._last) > 1000:  # texts quote clients: keep the memory bounded
-            self._last.clear()
-            self._left_out.clear()
         self._last[text] = now
         left_out = self._left_out.pop(text, 0)
         if left_out:
@@ -53,7 +55,10 @@ class OncePerSecond(logging.Filter):
 class _Prefixed(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         level = "warning" if record.levelno < logging.ERROR else "error"
-        return f"plc-runtime: {level}: {record.getMessage()}"
+        text = f"plc-runtime: {level}: {record.getMessage()}"
+        if record.exc_info:  # a failure's traceback is what finds its cause
+            text += "\n" + self.formatException(record.exc_info)
+        return text
 
 
 def install() -> None:
