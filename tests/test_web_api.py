@@ -30,6 +30,7 @@ JSON = {"Content-Type": "application/json"}
 FORM = {"Content-Type": "application/x-www-form-urlencoded"}
 VND = {"Content-Type": "application/vnd.foo+json"}
 LATIN1 = {"Content-Type": "application/json; charset=latin-1"}
+QUOTED = {"Content-Type": 'application/json; charset="UTF-8"'}
 
 
 @pytest.fixture(scope="module")
@@ -313,13 +314,33 @@ def test_a_body_not_sent_as_the_routes_json_says_what_the_route_takes(
 
 @pytest.mark.parametrize(
     ("path", "field"),
-    [("orders?offest=200&limit=1", "offest"), ("events?afterr=5", "afterr"), ("plant?x=1", "x")],
+    [("orders?offest=200&limit=1", "offest"), ("events?afterr=5", "afterr")],
 )
 def test_a_query_parameter_the_request_does_not_take_is_refused(ctl, path, field):
     """A typo is not ignored: the client would be served what it did not ask for."""
     reply = ctl.call("GET", f"{API}/{path}")
     assert reply.status == 422 and reply.body["field"] == field, reply.body
     assert "not a parameter of this request" in reply.body["error"]
+
+
+def test_a_quoted_utf_8_charset_is_json_too(ctl):
+    reply = ctl.call(
+        "PUT", f"{API}/tags/agv2.hold", raw=b'{"value": 0}', token=TOKEN, headers=QUOTED
+    )
+    assert reply.status == 200, reply.body
+
+
+def test_a_request_that_takes_no_parameters_ignores_one_as_a_cache_would_add():
+    """The page, the plant and the like take none: a link with ``?v=2`` is still served."""
+    with Controller() as ctl:
+        assert ctl.call("GET", f"{API}/plant?v=2").status == 200
+        conn = http.client.HTTPConnection("127.0.0.1", ctl.port, timeout=30)
+        try:
+            conn.request("GET", "/?v=2")
+            page = conn.getresponse()
+            assert page.status == 200 and b"<html" in page.read().lower()
+        finally:
+            conn.close()
 
 
 @pytest.mark.parametrize("name", ["Authorization", "Content-Type"])

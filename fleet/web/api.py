@@ -463,8 +463,8 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 
 async def _given_once(request: Request) -> None:
-    """Every route's dependency: a query parameter the route does not take (a typo such as
-    ``offest`` would be ignored, and the client served what it did not ask for), or a
+    """Every route's dependency: a query parameter a route that takes some does not take (a
+    typo such as ``offest`` would be ignored, and the client served what it did not ask for), or a
     query parameter or a key of the JSON body given twice, is refused (422 naming it).
     The parsers would keep the last value silently, and the client may have meant the
     first. A body is JSON only as RFC 8259 has it: sent as ``application/json`` (415
@@ -476,7 +476,9 @@ async def _given_once(request: Request) -> None:
     dependant = getattr(route, "dependant", None)
     taken = _query_names(dependant) if dependant is not None else None
     for name, _ in request.query_params.multi_items():
-        if taken is not None and name not in taken:
+        # only where the request takes parameters: a link to the page or the stream may
+        # carry one for a cache, and no typo of a parameter can hide there
+        if taken and name not in taken:
             known = ", ".join(sorted(taken)) or "none"
             raise ApiError(422, f"field '{name}': not a parameter of this request ({known})", name)
         if name in seen:
@@ -485,7 +487,7 @@ async def _given_once(request: Request) -> None:
     if not _body_fields(request):
         return
     media, _, params = request.headers.get("content-type", "").partition(";")
-    charset = params.strip().lower().replace(" ", "")
+    charset = params.strip().lower().replace(" ", "").replace('"', "")
     if media.strip().lower() != "application/json" or charset not in ("", "charset=utf-8"):
         sent = request.headers.get("content-type") or "no Content-Type"
         raise ApiError(
