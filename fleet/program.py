@@ -20,6 +20,7 @@ or real vehicles; the program talks to them the same way.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Iterable
 
 import can
@@ -155,6 +156,9 @@ class FleetProgram:
         self.vehicles = vehicles
         n_buses = bus_of(vehicles[-1])[0] + 1
         interface, channel = bus or (cfg.bus_interface, cfg.bus_channel)
+        if interface == "virtual":
+            channel = _VIRTUAL_CHANNELS.claim(channel, n_buses, self)
+        self.bus_channel = channel  # the channel(s) the vehicle link uses
         self.rt = Runtime(
             cycle_time=cfg.cycle_time,
             clock=clock,
@@ -430,6 +434,7 @@ class FleetProgram:
         for bus in self._sim_buses:
             bus.shutdown()
         self._sim_buses = []
+        _VIRTUAL_CHANNELS.release(self)
 
     # ----- what the program reports ----------------------------------------------------------
     def vehicle_rows(self) -> list[dict[str, object]]:
@@ -481,6 +486,35 @@ class _Startup(FunctionBlock):
 
     def cycle(self, ctx: CycleContext) -> None:
         self.table.cycle(ctx)
+
+
+class _VirtualChannels:
+    """The in-process virtual bus channels the programs of this process use. Two programs
+    on one channel would each read the other's vehicles (a side-by-side comparison in one
+    script, a notebook, a test suite): a program whose channel another program still
+    holds gets its own, the name with ``~2``, ``~3``, ... added (``FleetProgram.bus_channel``
+    says which). A program holds its channels until it is closed or garbage."""
+
+    def __init__(self) -> None:
+        self._holders: weakref.WeakValueDictionary[str, FleetProgram] = (
+            weakref.WeakValueDictionary()
+        )
+
+    def claim(self, channel: str, n_buses: int, program: FleetProgram) -> str:
+        candidate, k = channel, 1
+        while any(_channel(candidate, b) in self._holders for b in range(n_buses)):
+            k += 1
+            candidate = ",".join(f"{name}~{k}" for name in bus_channels(channel))
+        for b in range(n_buses):
+            self._holders[_channel(candidate, b)] = program
+        return candidate
+
+    def release(self, program: FleetProgram) -> None:
+        for name in [n for n, p in self._holders.items() if p is program]:
+            del self._holders[name]
+
+
+_VIRTUAL_CHANNELS = _VirtualChannels()
 
 
 def _channel(channel: str, k: int) -> str:

@@ -366,3 +366,35 @@ def test_a_vehicle_that_reaches_its_stations_over_one_way_segments_is_accepted(t
 def test_a_single_round_of_a_one_function_recipe_is_accepted():
     cfg = parse_config(ONE_STATION + "\n[sequencer]\nrounds = 1\n", "one.toml")
     assert cfg.rounds == 1
+
+
+def test_two_programs_in_one_process_each_drive_their_own_fleet(programs):
+    """Both on the configured in-process channel 'agv', each would read the other's
+    vehicles; the second gets a channel of its own, and each runs as it runs alone."""
+    examples = Path(DEFAULT_CONFIG).parent.parent / "examples"
+
+    def made() -> FleetProgram:
+        cfg = load_config(examples / "workshop.toml")
+        p = FleetProgram(cfg)
+        programs.append(p)
+        return p
+
+    alone = made()
+    alone.rt.start()
+    alone.rt.run(duration=60)
+    expected = [(r["node"], r["rounds"]) for r in alone.vehicle_rows()]
+    alone.close()
+    a, b = made(), made()
+    assert (a.bus_channel, b.bus_channel) == ("agv", "agv~2")
+    a.rt.start()
+    with pytest.warns(RuntimeWarning, match="watchdog interrupt not available"):
+        b.rt.start()  # (one SIGALRM per process: b's watchdog checks after each scan)
+    for _ in range(round(60 / a.cfg.cycle_time)):
+        a.rt.step()
+        b.rt.step()
+    for p in (a, b):
+        assert [(r["node"], r["rounds"]) for r in p.vehicle_rows()] == expected
+        assert p.reservation.refused_reports == 0
+    b.close()
+    again = made()  # a's channel is still taken, b's is free again
+    assert again.bus_channel == "agv~2"

@@ -252,7 +252,7 @@ def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program
     standing(p, 2)
     before = p.reservation.held_by(2)
     codec = Codec()
-    forger = can.Bus(interface="virtual", channel=p.cfg.bus_channel)
+    forger = can.Bus(interface="virtual", channel=p.bus_channel)
     try:
         counter = p.fleet._counter[STATUS + 2] + 1  # the counter of its last frame, and on
         for k in range(2):  # two consecutive statuses agree: the link takes the position
