@@ -474,13 +474,27 @@ def _orders_of(job: RecipeSequencer | OrderRunner) -> str | None:
 
 
 class _Startup(FunctionBlock):
-    """OB100 for the fleet: build the heuristic table and bind the record views."""
+    """OB100 for the fleet: build the heuristic table and bind the record views.
+
+    A fleet program starts once. Its state is the run's, not only the blocks' variables
+    that a warm restart resets: the nodes each vehicle holds, the routes released, the
+    orders on board. At a stop the outputs went to their safe state (every vehicle stopped)
+    and the vehicles kept moving until they did, so none of that matches the plant any
+    more, and a restart would drive on stale holds. A second start is refused; a new
+    FleetProgram takes over from where the vehicles report they stand."""
 
     def __init__(self, table: HeuristicTable, records: VehicleRecordsView) -> None:
         super().__init__()
         self.table, self.records = table, records
+        self.started = False
 
     def startup(self, ctx: CycleContext) -> None:
+        if self.started:
+            raise RuntimeError(
+                "a fleet program starts once: after stop() or a fault, build a new "
+                "FleetProgram (README, The Python API)"
+            )
+        self.started = True
         self.table.startup(ctx)
         self.records.bind(ctx)
 

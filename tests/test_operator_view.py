@@ -16,7 +16,7 @@ from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, load_config, parse_config
 from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
-from plc_runtime.errors import ConfigError
+from plc_runtime.errors import ConfigError, StartupError
 from topology import grid
 from vehicles.fleet import Faults
 
@@ -398,3 +398,16 @@ def test_two_programs_in_one_process_each_drive_their_own_fleet(programs):
     b.close()
     again = made()  # a's channel is still taken, b's is free again
     assert again.bus_channel == "agv~2"
+
+
+def test_a_fleet_program_starts_once(programs):
+    """After a stop the vehicles stood where the safe state stopped them, not where the
+    program's holds and routes say: a restart would drive on stale holds, so it is refused
+    with the reason, and a new program takes over."""
+    p = default_program(programs)
+    p.rt.start()
+    p.rt.run(duration=5)
+    p.rt.stop()
+    with pytest.raises(StartupError, match="a fleet program starts once: after stop"):
+        p.rt.start()
+    assert p.rt.state == "FAULT"
