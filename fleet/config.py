@@ -332,6 +332,57 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     return cfg
 
 
+def check_config(cfg: FleetConfig) -> None:
+    """The checks a configuration file gets, for a FleetConfig built or changed in code
+    (``FleetProgram`` runs them): the first problem is a ConfigError naming the field, not
+    a KeyError deep in a block or a silent fallback. Cheap, and nothing is changed."""
+    where = f"{cfg.source}: "
+    if cfg.traffic not in TRAFFIC_MODES:
+        raise ConfigError(
+            f"{where}traffic: must be one of {', '.join(TRAFFIC_MODES)}, got {cfg.traffic!r}"
+        )
+    for name, value, least in (
+        ("cycle_time", cfg.cycle_time, 0.0),
+        ("watchdog", cfg.watchdog, 0.0),
+        ("astar_budget", cfg.astar_budget, 1),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= least:
+            raise ConfigError(f"{where}{name}: must be a number >= {least}, got {value!r}")
+    if not cfg.starts:
+        raise ConfigError(f"{where}starts: at least one vehicle is needed")
+    top = VEHICLES_PER_BUS * MAX_BUSES
+    seen: dict[int, int] = {}
+    for v, start in cfg.starts.items():
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= top:
+            raise ConfigError(f"{where}starts: vehicle ids are integers 1..{top}, got {v!r}")
+        if start not in cfg.plant.index:
+            raise ConfigError(f"{where}starts: vehicle {v}: node {start!r} is not in the plant")
+        if start in seen:
+            raise ConfigError(
+                f"{where}starts: vehicle {v}: node {start} is already vehicle {seen[start]}'s start"
+            )
+        seen[start] = v
+    for v, names in cfg.vehicle_recipes.items():
+        if v not in cfg.starts:
+            raise ConfigError(f"{where}vehicle_recipes: vehicle {v} has no start")
+        for name in names:
+            if name not in cfg.recipes:
+                known = ", ".join(cfg.recipes) or "none"
+                raise ConfigError(
+                    f"{where}vehicle_recipes: vehicle {v}: unknown recipe {name!r} ({known})"
+                )
+    for recipe in cfg.recipes.values():
+        for f in recipe.functions:
+            if not cfg.clusters.get(f):
+                raise ConfigError(
+                    f"{where}recipes: {recipe.name!r} needs function {f}, which no station "
+                    "provides (clusters)"
+                )
+    problems = standing_steps(cfg) + stranded_starts(cfg)
+    if problems:
+        raise ConfigError(f"{where}vehicles: {problems[0]}")
+
+
 def idle_settings(cfg: FleetConfig) -> list[str]:
     """Settings of the configuration that the run as configured (after any command-line
     overrides) does not use: the operator would believe something tuned that does not run.

@@ -79,8 +79,11 @@ def standing_steps(cfg: FleetConfig) -> list[str]:
     """Recipe steps a vehicle would complete where it stands: the same function twice in a
     row with a single station offering it. Each is a configuration error."""
     problems = []
+    # a recipe that ends at an exit with a return lane drives it back to the entry: an
+    # exit step after an exit step is a whole lap, not a step completed standing
+    lapped = {e.source for e in cfg.plant.edges if not e.routable}
     for v, k, f in _repeated_functions(cfg):
-        if len(cfg.clusters.get(f, ())) == 1:
+        if len(cfg.clusters.get(f, ())) == 1 and cfg.clusters[f][0] not in lapped:
             station = cfg.clusters[f][0]
             problems.append(
                 f"vehicle {v}: step {k + 1} of its recipe sequence needs function {f} again, "

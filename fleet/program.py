@@ -50,7 +50,7 @@ from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
 
-from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, modbus_endpoint
+from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, check_config, modbus_endpoint
 from .events import EventLog
 from .order_system import OrderSystem, targets
 from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
@@ -150,6 +150,7 @@ class FleetProgram:
         bus: tuple[str, str] | None = None,
         retain_file: str | None = None,
     ) -> None:
+        check_config(cfg)  # one built or changed in code is checked as a file is
         self.cfg = cfg
         plant = cfg.plant
         vehicles = sorted(cfg.starts)

@@ -17,7 +17,7 @@ from fleet.config import DEFAULT_CONFIG, load_config, parse_config
 from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
 from plc_runtime.errors import ConfigError, StartupError
-from topology import grid
+from topology import grid, model_plant
 from vehicles.fleet import Faults
 
 
@@ -411,3 +411,29 @@ def test_a_fleet_program_starts_once(programs):
     with pytest.raises(StartupError, match="a fleet program starts once: after stop"):
         p.rt.start()
     assert p.rt.state == "FAULT"
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        (lambda c: setattr(c, "traffic", "timewindows"), "test: traffic: must be one of"),
+        (lambda c: setattr(c, "astar_budget", 0), "test: astar_budget: must be a number >= 1"),
+        (lambda c: c.starts.update({2: 0}), "test: starts: vehicle 2: node 0 is already vehicle 1"),
+        (lambda c: c.starts.update({2: 999}), "test: starts: vehicle 2: node 999 is not in the"),
+        (
+            lambda c: c.starts.update({0: 5}),
+            "test: starts: vehicle ids are integers 1..1008, got 0",
+        ),
+        (lambda c: c.vehicle_recipes.update({1: ["nope"]}), "vehicle 1: unknown recipe 'nope'"),
+        (lambda c: c.clusters.pop(3), "recipes: 'r' needs function 3, which no station provides"),
+    ],
+    ids=["traffic", "budget", "same-start", "no-node", "id-0", "recipe", "function"],
+)
+def test_a_configuration_built_in_code_is_checked_as_a_file_is(change, says):
+    """A FleetConfig made or changed in code gets the file's checks when the program is
+    built: a typo is an error naming the field, not a silent fallback or a KeyError."""
+    cfg = make_config(model_plant(), {1: 0, 2: 10}, {"r": [2, 3]}, {2: [15, 16], 3: [17, 18]})
+    change(cfg)
+    with pytest.raises(ConfigError) as caught:
+        FleetProgram(cfg)
+    assert says in str(caught.value)
