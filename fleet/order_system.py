@@ -51,6 +51,9 @@ from .config import FleetConfig
 # scan inside the default 10 ms cycle and 150 ms watchdog, and takes 200 scans; a pool of a
 # few hundred orders known at once (the allocation experiments) is still released whole
 RELEASE_BUDGET = 500
+# requests from Python (submit, withdraw) that may wait for the scan at once: the most an
+# order file may hold
+MAX_WAITING = 100_000
 
 
 def order_stations(plant: Plant) -> dict[int, str]:
@@ -193,6 +196,7 @@ class OrderSystem:
         configured = configured_orders(cfg)
         self.feed = OrderFeed(configured, cfg.orders.lead_s if cfg.orders else 0.0)
         self.intake = OrderIntake(self.book, self.feed, configured)
+        self.closed = False
         self.claims = Claims(occupied)
         self.charging: ChargePolicy = cfg.battery.policy()
         self.table = table
@@ -262,10 +266,34 @@ class OrderSystem:
 
     def _request(self, action: str, arg: object) -> Future:
         """A Future the intake ends; cancelled before the intake takes it, it is never
-        applied."""
+        applied. Refused at once (the Future ends with the reason) once the program is
+        closed, when no scan will ever answer, and while MAX_WAITING requests wait: the
+        intake takes a budget a scan, and a script that submits without stepping must not
+        fill the memory."""
+        if self.closed:
+            return _answered(RuntimeError("the fleet program is closed: no scan will answer"))
+        if self.intake.requests.qsize() >= MAX_WAITING:
+            return _answered(
+                RuntimeError(
+                    f"{MAX_WAITING:,} requests wait for the scan already: step the runtime "
+                    f"(it takes {self.intake.budget} a scan)"
+                )
+            )
         done: Future = Future()
         self.intake.requests.put((action, arg, done))
         return done
+
+    def close(self) -> None:
+        """No scan will run any more: the requests waiting end with the reason, and the
+        later ones at once."""
+        self.closed = True
+        while True:
+            try:
+                _action, _arg, done = self.intake.requests.get_nowait()
+            except queue.Empty:
+                return
+            if done.set_running_or_notify_cancel():
+                done.set_exception(RuntimeError("the fleet program was closed before the scan"))
 
     def blocks(self) -> list[FunctionBlock]:
         """The blocks that run before the per-vehicle cycle, in scan order."""

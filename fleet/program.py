@@ -280,10 +280,11 @@ class FleetProgram:
         )
         self.commands = FleetCommands(plant, self.blockades, vehicles, self._acknowledge)
         self.status = FleetStatus(self, self.commands)
+        self._startup = _Startup(self.table, self.records)
         self.rt.add_task(
             "fleet",
             [
-                _Startup(self.table, self.records),
+                self._startup,
                 self.schedule,
                 self.commands,
                 *(self.orders.blocks() if self.orders else ()),
@@ -436,6 +437,9 @@ class FleetProgram:
             bus.shutdown()
         self._sim_buses = []
         _VIRTUAL_CHANNELS.release(self)
+        self._startup.why_not = "this fleet program was closed: build a new FleetProgram"
+        if self.orders is not None:
+            self.orders.close()
 
     # ----- what the program reports ----------------------------------------------------------
     def vehicle_rows(self) -> list[dict[str, object]]:
@@ -487,15 +491,15 @@ class _Startup(FunctionBlock):
     def __init__(self, table: HeuristicTable, records: VehicleRecordsView) -> None:
         super().__init__()
         self.table, self.records = table, records
-        self.started = False
+        self.why_not: str | None = None  # why a start is refused
 
     def startup(self, ctx: CycleContext) -> None:
-        if self.started:
-            raise RuntimeError(
-                "a fleet program starts once: after stop() or a fault, build a new "
-                "FleetProgram (README, The Python API)"
-            )
-        self.started = True
+        if self.why_not is not None:
+            raise RuntimeError(self.why_not)
+        self.why_not = (
+            "a fleet program starts once: after stop() or a fault, build a new "
+            "FleetProgram (README, The Python API)"
+        )
         self.table.startup(ctx)
         self.records.bind(ctx)
 

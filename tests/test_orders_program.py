@@ -15,13 +15,13 @@ from test_operator_view import one_way_plant
 from test_suspect_vehicles import free_node, move_by_hand
 
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder
-from fleet import liveness
+from fleet import liveness, order_system
 from fleet.config import first_vehicles, parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_drawing
 from fleet.tags import ACK_DONE, ACK_REFUSED
 from fleet.web.views import FleetCopy, render_vehicles
-from plc_runtime.errors import ConfigError
+from plc_runtime.errors import ConfigError, StartupError
 from vehicles.fleet import Faults
 
 WORKSHOP = Path(__file__).resolve().parent.parent / "examples" / "plants" / "workshop.toml"
@@ -647,3 +647,28 @@ def test_order_vehicles_with_batteries_need_a_charger(tmp_path, battery, warned)
         "takes no order and cannot recharge"
     )
     assert (clause in found) is warned
+
+
+def test_requests_to_a_closed_program_end_at_once_with_the_reason(tmp_path, made):
+    """A script that closed its program must not wait for ever for a scan: the requests
+    still waiting and the later ones end with the reason, and a start is refused."""
+    p = start(config(ORDERS, tmp_path), made)
+    waiting = p.orders.submit(TransportOrder("w", 20, 24))
+    p.close()
+    with pytest.raises(RuntimeError, match="closed before the scan"):
+        waiting.result(0)
+    with pytest.raises(RuntimeError, match="the fleet program is closed"):
+        p.orders.submit(TransportOrder("x", 20, 24)).result(0)
+    with pytest.raises(StartupError, match="this fleet program was closed"):
+        p.rt.start()
+
+
+def test_requests_waiting_for_the_scan_are_bounded(tmp_path, made, monkeypatch):
+    monkeypatch.setattr(order_system, "MAX_WAITING", 3)
+    p = start(config(ORDERS, tmp_path), made)
+    taken = [p.orders.submit(TransportOrder(f"q{k}", 20, 24)) for k in range(3)]
+    with pytest.raises(RuntimeError, match="3 requests wait for the scan already"):
+        p.orders.submit(TransportOrder("q3", 20, 24)).result(0)
+    run(p, p.cfg.cycle_time)
+    assert [f.result(0).state for f in taken] == [OrderState.DISPATCHABLE] * 3
+    assert p.orders.submit(TransportOrder("q3", 20, 24))  # room again
