@@ -308,7 +308,11 @@ class FleetProgram:
         self.monitor: ConflictMonitor | None = None
         self._sim_buses: list[can.BusABC] = []
         if cosimulate:
-            self._add_simulation(interface, channel, n_buses)
+            try:
+                self._add_simulation(interface, channel, n_buses)
+            except BaseException:  # no bus of a program that was never made stays open
+                self.close()
+                raise
 
     def _vehicle_link(
         self, interface: str, channel: str, k: int, n_buses: int, local: list[int], base: int
