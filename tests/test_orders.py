@@ -475,3 +475,17 @@ def test_sections_run_only_while_the_order_is_being_processed(state):
     with pytest.raises(OrderError, match=f"Go_To_Cluster cannot start: the order is {state}"):
         b.start_section(o, "Go_To_Cluster", 5.0)
     assert o.sections == {}
+
+
+def test_numpy_ids_and_a_null_deadline_from_python_are_taken_as_plain_values():
+    """A station id read from ``plant.ids`` is a numpy integer, and None is "no deadline"
+    as null is in an order file or over HTTP: both are what the caller meant."""
+    import numpy as np
+
+    from blocks.dispatch.orders import check_order, plain_order
+
+    order = plain_order(TransportOrder("o", get=np.int64(10), put=np.int32(20), end_s=None))
+    check_order(order)
+    assert (type(order.get), type(order.put), order.end_s) == (int, int, math.inf)
+    with pytest.raises(OrderError, match="field 'get'"):
+        check_order(plain_order(TransportOrder("b", get=np.bool_(True), put=20)))

@@ -378,3 +378,14 @@ def test_reordered_plant_is_another_topology_for_the_table():
     rt.step()
     assert "topology change rejected" in table.error and table.served_plant is same
     rt.stop()
+
+
+@pytest.mark.parametrize("a", ["7", 7.0, True])
+def test_a_segment_named_by_something_else_than_integers_says_so(a):
+    """block("7", "8") is a type mistake, not a segment the plant lacks."""
+    from topology import TopologyError
+
+    with pytest.raises(TopologyError, match="node ids are integers, got"):
+        RoutingConstraints(model_plant()).block(a, 8)
+    with pytest.raises(TypeError, match="penalty must be a number, got '3'"):
+        RoutingConstraints(model_plant()).penalize(7, 8, "3")

@@ -206,6 +206,12 @@ class Plant:
 
     def arcs_between(self, a: int, b: int, both_ways: bool = True) -> list[int]:
         """Arc ids of the segment a -> b (and b -> a); TopologyError if there is none."""
+        for node in (a, b):
+            if isinstance(node, bool) or not isinstance(node, int | np.integer):
+                raise TopologyError(
+                    f"node ids are integers, got {node!r} ({type(node).__name__})",
+                    where=self.name,
+                )
         arcs = list(self.arc_index.get((a, b), []))
         if both_ways:
             arcs += self.arc_index.get((b, a), [])

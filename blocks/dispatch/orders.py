@@ -31,6 +31,8 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+import numpy as np
+
 from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
@@ -218,6 +220,8 @@ def plain_order(order: object) -> TransportOrder:
             value = list(value)
         elif name == "sections" and type(value) is dict:
             value = dict(value)
+        elif name == "end_s" and value is None:
+            value = math.inf  # no deadline, as null in an order file or over HTTP
         elif name != "state":  # an OrderState stays one (check_order compares identity)
             value = plain_value(value)
         values[name] = value
@@ -226,9 +230,14 @@ def plain_order(order: object) -> TransportOrder:
 
 def plain_value(value: object) -> object:
     """``value`` as the built-in type if it is an instance of a subclass of str, int or
-    float (whose methods it may redefine); anything else as it is, a bool included."""
-    if isinstance(value, bool):
+    float (whose methods it may redefine), or a numpy scalar (a node id taken from
+    ``plant.ids``); anything else as it is, a bool included."""
+    if isinstance(value, bool | np.bool_):
         return value
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
     if isinstance(value, str):
         return str.__str__(value)  # the base class's own copy, whatever the subclass defines
     if isinstance(value, int):

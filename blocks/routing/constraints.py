@@ -50,6 +50,8 @@ class RoutingConstraints:
 
     def penalize(self, a: int, b: int, extra: float, both_ways: bool = False) -> None:
         """Set the extra cost of a -> b (default one direction: the one an oncoming vehicle uses)."""
+        if isinstance(extra, bool) or not isinstance(extra, int | float | np.number):
+            raise TypeError(f"penalty must be a number, got {extra!r} ({type(extra).__name__})")
         if not (math.isfinite(extra) and extra >= 0):
             raise ValueError(
                 f"penalty must be a finite number >= 0 (a blockade is block()), got {extra!r}"
