@@ -118,6 +118,7 @@ class CanDriver:
         self.max_frames = max_frames
         self.codec = Codec()
         self.bus: can.BusABC | None = None
+        self.records: VehicleRecords | None = None  # made at open (the image's records)
         self.counters = dict.fromkeys(
             (
                 "frames_in",
@@ -161,11 +162,12 @@ class CanDriver:
 
     def stats(self) -> dict[str, object]:
         # as of the last tick, so a summary taken after the link closed shows how it ended
+        records = self.records
         return {
             **self.counters,
-            **self.records.counters,
-            "online": len(self.records.online()),
-            "stale": self.records.stale(),
+            **(records.counters if records else {"unconfirmed": 0}),
+            "online": len(records.online()) if records else 0,
+            "stale": records.stale() if records else [],
         }
 
     # ----- the scan -------------------------------------------------------------------------

@@ -73,6 +73,7 @@ class ModbusVehicleLink:
         self.go_refresh_ns = round(go_refresh * 1e9)
         self.input_base, self.output_base = input_base, output_base
         self.codec = Codec()
+        self.records: VehicleRecords | None = None  # made at open (the image's records)
         self.counters = dict.fromkeys(
             ("polls", "reads", "writes", "failures", "malformed", "crc_errors", "bad_commands"),
             0,
@@ -125,11 +126,12 @@ class ModbusVehicleLink:
 
     def stats(self) -> dict[str, object]:
         # as of the last tick, so a summary taken after the link closed shows how it ended
+        records = self.records
         return {
             **self.counters,
-            **self.records.counters,
-            "online": len(self.records.online()),
-            "stale": self.records.stale(),
+            **(records.counters if records else {"unconfirmed": 0}),
+            "online": len(records.online()) if records else 0,
+            "stale": records.stale() if records else [],
         }
 
     # ----- the scan ---------------------------------------------------------------------

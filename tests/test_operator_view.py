@@ -16,6 +16,7 @@ from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, load_config, parse_config
 from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
+from fleet.report import summary
 from plc_runtime.errors import ConfigError, StartupError
 from topology import grid, model_plant
 from vehicles.fleet import Faults
@@ -437,3 +438,11 @@ def test_a_configuration_built_in_code_is_checked_as_a_file_is(change, says):
     with pytest.raises(ConfigError) as caught:
         FleetProgram(cfg)
     assert says in str(caught.value)
+
+
+def test_the_summary_of_a_program_not_started_yet(programs):
+    """Nothing ran: no vehicle online, no cycle, and no error from a link not opened."""
+    p = default_program(programs)
+    result = summary(p, wall_s=0.0)
+    assert result["state"] == "STOP" and result["cycles"] == 0
+    assert result["drivers"]["can"]["online"] == 0
