@@ -437,6 +437,8 @@ class Runtime:
         """Step until ``predicate()`` is true (checked after every tick); False if it never was."""
         self._require(RUN, "run")
         self._refuse_inside_scan("run_until()")
+        if isinstance(max_cycles, bool) or not isinstance(max_cycles, int) or max_cycles < 0:
+            raise ConfigError(f"max_cycles must be a non-negative integer, got {max_cycles!r}")
         if predicate():
             return True
         for _ in range(max_cycles):

@@ -72,6 +72,10 @@ def test_run_until():
     assert rt.ticks == 10
     assert rt.run_until(lambda: False, max_cycles=5) is False
     assert rt.ticks == 15
+    for bad in (-1, 2.5, True):  # a count that can mean nothing is an error, not "never"
+        with pytest.raises(ConfigError, match="max_cycles must be a non-negative integer"):
+            rt.run_until(lambda: False, max_cycles=bad)
+    assert rt.ticks == 15
     rt.stop()
 
 
