@@ -12,6 +12,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -234,24 +235,33 @@ def test_the_modbus_vehicle_link_from_the_configuration(tmp_path):
     assert "vehicles' process" in summary["conflict_monitor"]
 
 
-def test_ctrl_c_ends_the_run_cleanly_and_says_so(tmp_path):
-    out = tmp_path / "out"
-    cmd = [*PLC, "run", "--speed", "1", "--duration", "600", "--json", "--out", str(out)]
-    cmd += WIDE_WATCHDOG
+def signalled(
+    cmd: list[str], ready: Callable[[], bool], settle_s: float, sig: int
+) -> tuple[int, str, str]:
+    """Run ``cmd``; once ``ready()`` (or after 60 s) and ``settle_s`` more, send ``sig``;
+    its exit code and output. The process never outlives the call."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        # the output folder is made (checked) right before the run starts
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not out.exists():
+        while time.monotonic() < deadline and not ready():
             time.sleep(0.1)
-        time.sleep(1.5)
-        proc.send_signal(signal.SIGINT)
+        time.sleep(settle_s)
+        proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 130, stderr[-2000:]
+    return proc.returncode, stdout, stderr
+
+
+def test_ctrl_c_ends_the_run_cleanly_and_says_so(tmp_path):
+    out = tmp_path / "out"
+    cmd = [*PLC, "run", "--speed", "1", "--duration", "600", "--json", "--out", str(out)]
+    cmd += WIDE_WATCHDOG
+    # the output folder is made (checked) right before the run starts
+    code, stdout, stderr = signalled(cmd, out.exists, 1.5, signal.SIGINT)
+    assert code == 130, stderr[-2000:]
     summary = json.loads(stdout.strip().splitlines()[-1])
     assert summary["interrupted"] is True and 0 < summary["sim_time_s"] < 600
     assert json.loads((out / "summary.json").read_text())["interrupted"] is True
@@ -285,23 +295,14 @@ def test_sigterm_ends_a_realtime_run_like_ctrl_c_and_stops_its_vehicle_process(t
     out = tmp_path / "out"
     cmd = [*PLC, "run", "--realtime", "--bus", f"modbus:127.0.0.1:{base}", "--duration", "600"]
     cmd += ["--json", "--out", str(out), *WIDE_WATCHDOG]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60  # the vehicle process serves once it is ready
-        while time.monotonic() < deadline and not accepts(base + 1):
-            time.sleep(0.1)
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGTERM)
-        stdout, stderr = proc.communicate(timeout=60)
+    try:  # the vehicle process serves once it is ready
+        code, stdout, stderr = signalled(cmd, lambda: accepts(base + 1), 1.0, signal.SIGTERM)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
         left = vehicle_processes(base)
         for pid in left:  # (never, if the run stops its child: asserted below)
             os.kill(pid, signal.SIGKILL)
     assert not left, f"vehicle process left running: {left}"
-    assert proc.returncode == 128 + signal.SIGTERM, stderr[-2000:]
+    assert code == 128 + signal.SIGTERM, stderr[-2000:]
     assert "stopped by SIGTERM at" in stderr and "results written" in stderr
     summary = json.loads(stdout.strip().splitlines()[-1])
     assert summary["interrupted"] is True and 0 < summary["sim_time_s"] < 600
