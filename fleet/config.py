@@ -335,7 +335,9 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
 def check_config(cfg: FleetConfig) -> None:
     """The checks a configuration file gets, for a FleetConfig built or changed in code
     (``FleetProgram`` runs them): the first problem is a ConfigError naming the field, not
-    a KeyError deep in a block or a silent fallback. Cheap, and nothing is changed."""
+    a KeyError deep in a block or a silent fallback. Cheap, and nothing is changed. A
+    recipe step completed where the vehicle stands stays allowed here: a script may park
+    a vehicle at its one station on purpose."""
     where = f"{cfg.source}: "
     if cfg.traffic not in TRAFFIC_MODES:
         raise ConfigError(
@@ -378,7 +380,7 @@ def check_config(cfg: FleetConfig) -> None:
                     f"{where}recipes: {recipe.name!r} needs function {f}, which no station "
                     "provides (clusters)"
                 )
-    problems = standing_steps(cfg) + stranded_starts(cfg)
+    problems = stranded_starts(cfg)
     if problems:
         raise ConfigError(f"{where}vehicles: {problems[0]}")
 

@@ -209,8 +209,10 @@ def test_the_route_command_prices_highways_as_the_fleet_does(capsys):
     assert find_route(plant, 40, 30, highway_factor=1.0)["route"] == west_on_row_0
     assert cli(["route", "kiva", "--from", "40", "--to", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["highway_factor"] == 3.0
-    assert cli(["route", "kiva", "--from", "40", "--to", "30", "--highway-factor", "0.5"]) == 2
-    assert "--highway-factor must be a number >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # the argument parser refuses it
+        cli(["route", "kiva", "--from", "40", "--to", "30", "--highway-factor", "0.5"])
+    assert refused.value.code == 2
+    assert "--highway-factor: must be a finite number >= 1: '0.5'" in capsys.readouterr().err
 
 
 def test_a_drawing_shows_each_highway_direction_with_a_faint_arrow():
