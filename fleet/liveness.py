@@ -79,11 +79,15 @@ def standing_steps(cfg: FleetConfig) -> list[str]:
     """Recipe steps a vehicle would complete where it stands: the same function twice in a
     row with a single station offering it. Each is a configuration error."""
     problems = []
-    # a recipe that ends at an exit with a return lane drives it back to the entry: an
-    # exit step after an exit step is a whole lap, not a step completed standing
+    # a recipe that ends at an exit with a return lane drives it back to the entry: the
+    # same exit again as the next recipe's first step is a whole lap, not a step
+    # completed standing (within one recipe it is)
     lapped = {e.source for e in cfg.plant.edges if not e.routable}
+    lapped |= {e.target for e in cfg.plant.edges if not e.routable and e.bidirectional}
     for v, k, f in _repeated_functions(cfg):
-        if len(cfg.clusters.get(f, ())) == 1 and cfg.clusters[f][0] not in lapped:
+        ends = _recipe_ends(cfg, v)
+        lap = (k - 1) % len(ends[1]) in ends[0] and cfg.clusters.get(f, [None])[0] in lapped
+        if len(cfg.clusters.get(f, ())) == 1 and not lap:
             station = cfg.clusters[f][0]
             problems.append(
                 f"vehicle {v}: step {k + 1} of its recipe sequence needs function {f} again, "
@@ -169,6 +173,17 @@ class _Reach:
                 self._of[c] = found
             seen |= self._of[c]
         return seen
+
+
+def _recipe_ends(cfg: FleetConfig, vehicle: int) -> tuple[set[int], list[int]]:
+    """The indices of a vehicle's steps (its recipes one after the other) that end a
+    recipe, and the steps' functions."""
+    steps: list[int] = []
+    ends = set()
+    for name in cfg.vehicle_recipes[vehicle]:
+        steps += cfg.recipes[name].functions
+        ends.add(len(steps) - 1)
+    return ends, steps
 
 
 def _repeated_functions(cfg: FleetConfig) -> Iterator[tuple[int, int, int]]:

@@ -446,3 +446,27 @@ def test_the_summary_of_a_program_not_started_yet(programs):
     result = summary(p, wall_s=0.0)
     assert result["state"] == "STOP" and result["cycles"] == 0
     assert result["drivers"]["can"]["online"] == 0
+
+
+@pytest.mark.parametrize(
+    ("functions", "rounds", "refused"),
+    [([2, 1, 1], 1, True), ([2, 1], 0, False), ([1], 0, False)],
+    ids=["twice-in-one-recipe", "exit-then-next-round", "exit-only-laps"],
+)
+def test_the_same_exit_twice_is_a_lap_only_across_a_recipes_end(
+    tmp_path, functions, rounds, refused
+):
+    """The workshop's exit 1 has a return lane to the entry: a recipe that ends there drives
+    it, so the next recipe's exit step is a lap. Within one recipe the second exit step
+    would be completed where the vehicle stands."""
+    examples = Path(DEFAULT_CONFIG).parent.parent / "examples"
+    text = (
+        f'[plant]\nfile = "{examples / "plants" / "workshop.toml"}"\n'
+        f"[sequencer]\nrounds = {rounds}\n[stations.clusters]\n1 = [1]\n2 = [20]\n"
+        f'[[recipes]]\nname = "r"\nfunctions = {functions}\n[[vehicles]]\nid = 1\nstart = 0\n'
+    )
+    if refused:
+        with pytest.raises(ConfigError, match="would complete the step without moving"):
+            parse_config(text, "w.toml")
+    else:
+        assert parse_config(text, "w.toml").recipes["r"].functions == tuple(functions)

@@ -202,6 +202,24 @@ def test_an_order_a_blockade_cuts_off_waits_and_is_driven_once_it_reopens(tmp_pa
     assert x.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
 
 
+def test_an_order_set_aside_that_is_taken_and_given_back_is_not_lost(tmp_path, made):
+    """A round that began before an order was set aside may still give it out, and the
+    vehicle give it back: the order must be checked again, not stay out of the pool once
+    its station is reachable again."""
+    links = sorted({b for (a, b) in config(ORDERS, tmp_path).plant.arc_index if a == 20})
+    extra = "".join(f"[[blockades]]\nfrom = 20\nto = {b}\nat_s = 0\nuntil_s = 150\n" for b in links)
+    p = start(config("id,get,put\nx,20,29\n", tmp_path, extra=extra), made)
+    run(p, 60)
+    x, book = p.orders.book.get("x"), p.orders.book
+    assert p.orders.dispatcher.cut_off == 1
+    book.transition(x, OrderState.BEING_PROCESSED, 60.0, "taken by a round begun before")
+    book.transition(x, OrderState.DISPATCHABLE, 60.0, "given back")
+    run(p, 30)
+    assert x.state is OrderState.DISPATCHABLE and p.orders.dispatcher.cut_off == 1
+    run(p, 250)
+    assert x.state is OrderState.FINISHED
+
+
 def test_orders_a_blockade_cuts_off_do_not_keep_the_others_from_being_given_out(tmp_path, made):
     """1,100 urgent orders wait at station 20, which a blockade cuts off; rounds pass over
     at most 1,000 orders they cannot give out before they stop looking. Set aside, those

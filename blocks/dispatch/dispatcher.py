@@ -131,8 +131,9 @@ class Dispatcher(FunctionBlock):
         # orders whose routes were checked since the blockades changed, and the waiting
         # orders still to check again after a change
         self._checked: set[str] = set()
-        self._recheck: deque[TransportOrder] = deque()
-        self._cut_off: set[str] = set()  # waiting orders closed segments keep from a station
+        self._recheck: deque[str] = deque()  # ids
+        # waiting orders closed segments keep from a station (ids, in the order found)
+        self._cut_off: dict[str, None] = {}
         self._aside_recheck_ns = 0  # when those are next checked again, segments unchanged
         self._revision = 0  # the book's revision when the routes were last checked
         # the waiting orders by urgency (two_stage also plans orders whose start is to come)
@@ -173,7 +174,7 @@ class Dispatcher(FunctionBlock):
             # every waiting order again, ROUTE_BUDGET a scan (a backlog may hold 100,000);
             # meanwhile a round checks its own pool (_start_round)
             self._checked.clear()
-            self._recheck = deque(self.book.dispatchable())
+            self._recheck = deque(o.id for o in self.book.dispatchable())
         # the orders that changed state since the last check can be new to it (a few per
         # scan); if the book's journal overran, every waiting order again
         changed = self.book.changed_since(self._revision)
@@ -182,19 +183,21 @@ class Dispatcher(FunctionBlock):
             self._cut_off.clear()  # (and the index's orders set aside, rebuilt whole)
             self._urgent.rebuild(self.book.dispatchable(), ctx.time)
             self._urgent_revision = self.book.revision
-            self._recheck = deque(self.book.dispatchable())
+            self._recheck = deque(o.id for o in self.book.dispatchable())
             changed = []
         fresh = [o for o in changed if o.state is OrderState.DISPATCHABLE and o.assigned is None]
-        for order in changed:  # taken, withdrawn, given back: counted again once checked
-            self._cut_off.discard(order.id)
+        for order in changed:  # taken, withdrawn, given back: checked again if it waits
+            self._cut_off.pop(order.id, None)
+            self._checked.discard(order.id)
         if self._cut_off and not self._recheck and ctx.time_ns >= self._aside_recheck_ns:
             # vehicles move, come online, go out of service: an order no vehicle could
             # reach a while ago may be reachable now with no segment reopened
             self._aside_recheck_ns = ctx.time_ns + round(ASIDE_RECHECK_S * 1e9)
-            self._checked -= self._cut_off
-            self._recheck.extend(self.book.get(i) for i in sorted(self._cut_off))
+            self._recheck.extend(self._cut_off)
         for _ in range(min(ROUTE_BUDGET, len(self._recheck))):
-            fresh.append(self._recheck.popleft())
+            order_id = self._recheck.popleft()
+            self._checked.discard(order_id)
+            fresh.append(self.book.get(order_id))
         positions: _Positions | None = None  # the vehicles' nodes, read once a scan
         for order in fresh:
             if order.id in self._checked or order.state is not OrderState.DISPATCHABLE:
@@ -203,13 +206,13 @@ class Dispatcher(FunctionBlock):
             positions = positions or _Positions.of(self.runners, self.reach.plant)
             why = self._unroutable(order, positions)
             if why is not None:
-                self._cut_off.discard(order.id)
+                self._cut_off.pop(order.id, None)
                 self.book.transition(order, OrderState.UNROUTABLE, ctx.time, why)
             elif not self._routable_now(order, positions):
-                self._cut_off.add(order.id)
+                self._cut_off[order.id] = None
                 self._urgent.set_aside(order)  # no round looks at it until it is driveable
-            elif order.id in self._cut_off:
-                self._cut_off.discard(order.id)
+            else:  # (back in the pool if it was set aside, however it came here)
+                self._cut_off.pop(order.id, None)
                 self._urgent.restore(order, ctx.time)
         self.cut_off = len(self._cut_off)
         self._revision = self.book.revision
