@@ -380,6 +380,17 @@ def check_config(cfg: FleetConfig) -> None:
                     f"{where}recipes: {recipe.name!r} needs function {f}, which no station "
                     "provides (clusters)"
                 )
+    for k, blockade in enumerate(cfg.blockades):
+        try:
+            cfg.plant.arcs_between(blockade.a, blockade.b)
+        except TopologyError as exc:
+            raise ConfigError(f"{where}blockades[{k}]: {exc}") from None
+        until = blockade.until_s
+        if not (0 <= blockade.at_s and (until is None or until > blockade.at_s)):
+            raise ConfigError(
+                f"{where}blockades[{k}]: at_s must be >= 0 and until_s after it, got "
+                f"{blockade.at_s!r}..{until!r}"
+            )
     problems = stranded_starts(cfg)
     if problems:
         raise ConfigError(f"{where}vehicles: {problems[0]}")

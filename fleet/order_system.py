@@ -196,7 +196,8 @@ class OrderSystem:
         configured = configured_orders(cfg)
         self.feed = OrderFeed(configured, cfg.orders.lead_s if cfg.orders else 0.0)
         self.intake = OrderIntake(self.book, self.feed, configured)
-        self.closed = False
+        # why a request would never be answered now (None: it will be); its owner sets it
+        self.refusal: Callable[[], str | None] = lambda: None
         self.claims = Claims(occupied)
         self.charging: ChargePolicy = cfg.battery.policy()
         self.table = table
@@ -270,8 +271,8 @@ class OrderSystem:
         closed, when no scan will ever answer, and while MAX_WAITING requests wait: the
         intake takes a budget a scan, and a script that submits without stepping must not
         fill the memory."""
-        if self.closed:
-            return _answered(RuntimeError("the fleet program is closed: no scan will answer"))
+        if (why := self.refusal()) is not None:
+            return _answered(RuntimeError(why))
         if self.intake.requests.qsize() >= MAX_WAITING:
             return _answered(
                 RuntimeError(
@@ -286,7 +287,7 @@ class OrderSystem:
     def close(self) -> None:
         """No scan will run any more: the requests waiting end with the reason, and the
         later ones at once."""
-        self.closed = True
+        self.refusal = lambda: "the fleet program is closed: no scan will answer"
         while True:
             try:
                 _action, _arg, done = self.intake.requests.get_nowait()

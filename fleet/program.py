@@ -157,8 +157,8 @@ class FleetProgram:
         self.vehicles = vehicles
         n_buses = bus_of(vehicles[-1])[0] + 1
         interface, channel = bus or (cfg.bus_interface, cfg.bus_channel)
-        if interface == "virtual":
-            channel = _VIRTUAL_CHANNELS.claim(channel, n_buses, self)
+        if interface == "virtual":  # taken once the program is built (below)
+            channel = _VIRTUAL_CHANNELS.free(channel, n_buses)
         self.bus_channel = channel  # the channel(s) the vehicle link uses
         self.rt = Runtime(
             cycle_time=cfg.cycle_time,
@@ -313,6 +313,17 @@ class FleetProgram:
             except BaseException:  # no bus of a program that was never made stays open
                 self.close()
                 raise
+        if interface == "virtual":
+            _VIRTUAL_CHANNELS.take(channel, n_buses, self)
+        if self.orders is not None:
+            self.orders.refusal = self._order_refusal
+
+    def _order_refusal(self) -> str | None:
+        """Why a request from Python would never be answered: the program started once and
+        is not running any more (stopped, faulted; closed says so itself)."""
+        if self.rt.state == "RUN" or self._startup.why_not is None:
+            return None  # running, or not started yet: the first scans answer
+        return f"the fleet program is in {self.rt.state} and starts once: no scan will answer"
 
     def _vehicle_link(
         self, interface: str, channel: str, k: int, n_buses: int, local: list[int], base: int
@@ -436,14 +447,18 @@ class FleetProgram:
         return (self.jobs[vehicle].priority_ns, vehicle)
 
     def close(self) -> None:
-        self.rt.stop()
-        for bus in self._sim_buses:
-            bus.shutdown()
-        self._sim_buses = []
-        _VIRTUAL_CHANNELS.release(self)
-        self._startup.why_not = "this fleet program was closed: build a new FleetProgram"
-        if self.orders is not None:
-            self.orders.close()
+        """Stop the runtime (outputs to their safe state), then close the simulated buses,
+        give the channel back and end the waiting order requests, whatever failed first."""
+        try:
+            self.rt.stop()
+        finally:
+            for bus in self._sim_buses:
+                bus.shutdown()
+            self._sim_buses = []
+            _VIRTUAL_CHANNELS.release(self)
+            self._startup.why_not = "this fleet program was closed: build a new FleetProgram"
+            if self.orders is not None:
+                self.orders.close()
 
     # ----- what the program reports ----------------------------------------------------------
     def vehicle_rows(self) -> list[dict[str, object]]:
@@ -523,14 +538,17 @@ class _VirtualChannels:
             weakref.WeakValueDictionary()
         )
 
-    def claim(self, channel: str, n_buses: int, program: FleetProgram) -> str:
+    def free(self, channel: str, n_buses: int) -> str:
+        """``channel``, or the first of its numbered variants no live program holds."""
         candidate, k = channel, 1
         while any(_channel(candidate, b) in self._holders for b in range(n_buses)):
             k += 1
             candidate = ",".join(f"{name}~{k}" for name in bus_channels(channel))
-        for b in range(n_buses):
-            self._holders[_channel(candidate, b)] = program
         return candidate
+
+    def take(self, channel: str, n_buses: int, program: FleetProgram) -> None:
+        for b in range(n_buses):
+            self._holders[_channel(channel, b)] = program
 
     def release(self, program: FleetProgram) -> None:
         for name in [n for n, p in self._holders.items() if p is program]:

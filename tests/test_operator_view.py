@@ -13,7 +13,7 @@ from test_fleet_deadlock import corridor
 
 from fleet import liveness
 from fleet.cli import main
-from fleet.config import DEFAULT_CONFIG, load_config, parse_config
+from fleet.config import DEFAULT_CONFIG, Blockade, load_config, parse_config
 from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
 from fleet.report import summary
@@ -399,6 +399,11 @@ def test_two_programs_in_one_process_each_drive_their_own_fleet(programs):
     b.close()
     again = made()  # a's channel is still taken, b's is free again
     assert again.bus_channel == "agv~2"
+    broken = load_config(examples / "workshop.toml")
+    broken.traffic = "no such mode"
+    with pytest.raises(ConfigError):
+        FleetProgram(broken)  # a program that was never built holds no channel
+    assert made().bus_channel == "agv~3"
 
 
 def test_a_fleet_program_starts_once(programs):
@@ -427,8 +432,12 @@ def test_a_fleet_program_starts_once(programs):
         ),
         (lambda c: c.vehicle_recipes.update({1: ["nope"]}), "vehicle 1: unknown recipe 'nope'"),
         (lambda c: c.clusters.pop(3), "recipes: 'r' needs function 3, which no station provides"),
+        (
+            lambda c: c.blockades.append(Blockade(3, 999, 5.0, None)),
+            "test: blockades[0]: model-plant: no routable segment between nodes 3 and 999",
+        ),
     ],
-    ids=["traffic", "budget", "same-start", "no-node", "id-0", "recipe", "function"],
+    ids=["traffic", "budget", "same-start", "no-node", "id-0", "recipe", "function", "blockade"],
 )
 def test_a_configuration_built_in_code_is_checked_as_a_file_is(change, says):
     """A FleetConfig made or changed in code gets the file's checks when the program is

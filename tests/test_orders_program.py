@@ -681,6 +681,15 @@ def test_requests_to_a_closed_program_end_at_once_with_the_reason(tmp_path, made
         p.rt.start()
 
 
+def test_a_request_to_a_stopped_program_ends_at_once(tmp_path, made):
+    """A fleet program starts once: after a stop no scan answers, so a request says so."""
+    p = start(config(ORDERS, tmp_path), made)
+    run(p, 1)
+    p.rt.stop()
+    with pytest.raises(RuntimeError, match="is in STOP and starts once: no scan will answer"):
+        p.orders.submit(TransportOrder("late", 20, 24)).result(0)
+
+
 def test_requests_waiting_for_the_scan_are_bounded(tmp_path, made, monkeypatch):
     monkeypatch.setattr(order_system, "MAX_WAITING", 3)
     p = start(config(ORDERS, tmp_path), made)
