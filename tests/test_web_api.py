@@ -330,6 +330,13 @@ def test_a_quoted_utf_8_charset_is_json_too(ctl):
     assert reply.status == 200, reply.body
 
 
+def test_a_write_with_a_query_parameter_it_does_not_take_is_refused_and_changes_nothing(ctl):
+    reply = ctl.call("PUT", f"{API}/tags/agv2.hold?dry_run=1", {"value": 1}, token=TOKEN)
+    assert reply.status == 422 and reply.body["field"] == "dry_run", reply.body
+    assert "not a parameter of this request (none)" in reply.body["error"]
+    assert ctl.call("GET", f"{API}/tags/agv2.hold").body["value"] == 0
+
+
 def test_a_request_that_takes_no_parameters_ignores_one_as_a_cache_would_add():
     """The page, the plant and the like take none: a link with ``?v=2`` is still served."""
     with Controller() as ctl:

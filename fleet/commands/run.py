@@ -203,8 +203,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         # from here on Ctrl-C and SIGTERM end the run cleanly, a vehicle process starting
         # or running included, until the results are written
         with stop_on_signals(program.rt) as stopped:
-            result, state, interrupted = _run(args, setup, program, total, stopped)
+            result, state = _run(args, setup, program, total, stopped)
             write_all(program, out, result)
+        interrupted = stopped.number is not None  # (a signal while writing counts too)
     finally:
         release_out_dir(out_lock)
     if args.json:
@@ -222,7 +223,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
 
 def _run(
     args: argparse.Namespace, setup: Setup, program: FleetProgram, total: int, stopped: StopSignal
-) -> tuple[dict[str, Any], str, bool]:
+) -> tuple[dict[str, Any], str]:
     """Start the vehicle process if there is one, run, stop both, and sum up."""
     vehicles_proc, monitor_file = None, None
     if setup.spawn:
@@ -245,11 +246,12 @@ def _run(
     finally:
         wall = time.monotonic() - wall_start
         state = program.rt.state
-        program.close()
-        monitor = stop_vehicles(vehicles_proc, monitor_file)
-    interrupted = stopped.number is not None
+        try:
+            program.close()
+        finally:  # the vehicle process goes whatever closing the program raised
+            monitor = stop_vehicles(vehicles_proc, monitor_file)
     result = summary(program, wall, state)
-    result["interrupted"] = interrupted
+    result["interrupted"] = stopped.number is not None
     result["vehicles_mode"] = (
         "in this process" if setup.cosimulate else "child process" if setup.spawn else "external"
     )
@@ -259,7 +261,7 @@ def _run(
         result["area_conflicts"] = monitor.get("area_conflicts")
         result["conflict_monitor"] = "simulated positions, in the vehicles' process"
         result["faults"]["injected"] = monitor.get("faults_injected")
-    return result, state, interrupted
+    return result, state
 
 
 def plan(args: argparse.Namespace, cfg: FleetConfig) -> Setup:
@@ -370,6 +372,12 @@ def stop_vehicles(proc: subprocess.Popen | None, monitor_file: Path | None) -> d
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
+    except BaseException:  # a second Ctrl-C meanwhile: it goes all the same
+        proc.kill()
+        proc.wait()
+        if monitor_file:
+            monitor_file.unlink(missing_ok=True)
+        raise
     try:
         return json.loads(monitor_file.read_text()) if monitor_file else None
     except (OSError, ValueError):

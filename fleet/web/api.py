@@ -476,9 +476,9 @@ async def _given_once(request: Request) -> None:
     dependant = getattr(route, "dependant", None)
     taken = _query_names(dependant) if dependant is not None else None
     for name, _ in request.query_params.multi_items():
-        # only where the request takes parameters: a link to the page or the stream may
-        # carry one for a cache, and no typo of a parameter can hide there
-        if taken and name not in taken:
+        # a read that takes none may carry one for a cache (a link to the page, the
+        # plant); a write never: it must not be carried out with a parameter unheard
+        if (taken or request.method not in ("GET", "HEAD")) and name not in taken:
             known = ", ".join(sorted(taken)) or "none"
             raise ApiError(422, f"field '{name}': not a parameter of this request ({known})", name)
         if name in seen:
