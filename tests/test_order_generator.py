@@ -180,6 +180,8 @@ BAD = [
     (dict(relations=[Relation("hrl", "hrl", 5.0)]), "station 10 would be Get and Put"),
     (dict(units=UNITS | {"picking": [30, 10]}), "station 10 would be Get and Put"),
     (dict(control_station=1), "relation receiving -> hrl: station 1 would be Get and Put"),
+    (dict(seed=1.5), "seed must be an integer, got 1.5"),
+    (dict(units=UNITS | {"hrl": 10}), "unit 'hrl': expected a list of station node ids, got 10"),
 ]
 
 

@@ -79,7 +79,7 @@ def generate_orders(
     ``units``: unit name -> its Get/Put station node ids. Without a ``control_station`` no
     extra orders are made. ValueError names what is wrong with the arguments.
     """
-    _check_arguments(relations, units, duration_s, control_station, extra_per_100, window_s)
+    _check_arguments(relations, units, duration_s, control_station, extra_per_100, window_s, seed)
     counts = order_counts(relations, duration_s, control_station is not None, extra_per_100)
     timed: list[tuple[float, int, int]] = []  # (start, get, put)
     for relation, (n, extra) in zip(relations, counts, strict=True):
@@ -155,7 +155,16 @@ def _check_arguments(
     control_station: int | None,
     extra_per_100: float,
     window_s: float,
+    seed: object,
 ) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        # the seed names the random streams as text: 1.5 and 1 would be other runs silently
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+    for name, stations in units.items():
+        if isinstance(stations, str | bytes) or not isinstance(stations, Sequence):
+            raise ValueError(
+                f"unit {name!r}: expected a list of station node ids, got {stations!r}"
+            )
     if not math.isfinite(duration_s) or duration_s <= 0:
         raise ValueError(f"duration must be a positive number of seconds, got {duration_s!r}")
     if not math.isfinite(window_s) or window_s < 0:
