@@ -421,7 +421,13 @@ class Runtime:
         if cycles is not None and duration is not None:
             raise ConfigError("give either cycles or duration, not both")
         if duration is not None:
-            cycles = round(_seconds(duration, "duration", high=math.inf) / self.cycle_time)
+            seconds = _seconds(duration, "duration", high=math.inf)
+            cycles = round(seconds / self.cycle_time)
+            if seconds > 0 and cycles == 0:  # asked for time, and no cycle would run
+                raise ConfigError(
+                    f"duration {seconds:g} s is less than half a cycle ({self.cycle_time:g} s): "
+                    "no cycle would run"
+                )
         if cycles is not None and (not isinstance(cycles, int) or cycles < 0):
             raise ConfigError(f"cycles must be a non-negative integer, got {cycles!r}")
         done = 0

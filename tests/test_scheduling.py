@@ -72,10 +72,13 @@ def test_run_until():
     assert rt.ticks == 10
     assert rt.run_until(lambda: False, max_cycles=5) is False
     assert rt.ticks == 15
+    with pytest.raises(ConfigError, match=r"duration 0.004 s is less than half a cycle \(0.01 s\)"):
+        rt.run(duration=0.004)
+    assert rt.run(duration=0) == 0 and rt.run(duration=0.006) == 1
     for bad in (-1, 2.5, True):  # a count that can mean nothing is an error, not "never"
         with pytest.raises(ConfigError, match="max_cycles must be a non-negative integer"):
             rt.run_until(lambda: False, max_cycles=bad)
-    assert rt.ticks == 15
+    assert rt.ticks == 16
     rt.stop()
 
 
