@@ -85,10 +85,13 @@ def standing_steps(cfg: FleetConfig) -> list[str]:
     lapped = {e.source for e in cfg.plant.edges if not e.routable}
     lapped |= {e.target for e in cfg.plant.edges if not e.routable and e.bidirectional}
     for v, k, f in _repeated_functions(cfg):
-        ends = _recipe_ends(cfg, v)
-        lap = (k - 1) % len(ends[1]) in ends[0] and cfg.clusters.get(f, [None])[0] in lapped
-        if len(cfg.clusters.get(f, ())) == 1 and not lap:
-            station = cfg.clusters[f][0]
+        stations = cfg.clusters.get(f, [])
+        if len(stations) != 1:
+            continue
+        ends, steps = _recipe_ends(cfg, v)
+        after_a_recipe = (k - 1) % len(steps) in ends  # (k = 0: after the last recipe)
+        if not (after_a_recipe and stations[0] in lapped):
+            station = stations[0]
             problems.append(
                 f"vehicle {v}: step {k + 1} of its recipe sequence needs function {f} again, "
                 f"and only station {station} offers it: the vehicle would complete the step "
