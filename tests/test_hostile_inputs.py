@@ -903,3 +903,26 @@ def test_ctrl_c_while_the_command_is_still_being_imported_is_one_line(monkeypatc
     monkeypatch.setattr(sys, "meta_path", [Interrupted(), *sys.meta_path])
     assert console.main() == 130
     assert capsys.readouterr().err == "plc-runtime: interrupted\n"
+
+
+def test_sigterm_while_the_program_is_built_unwinds_like_ctrl_c(monkeypatch, tmp_path, capsys):
+    """SIGTERM before the run's own handling is in place (here: while the fleet program is
+    built) ends the command with exit code 143 and one line, and the run's ``finally``
+    clauses run: no output lock is left in the results folder, nothing is written."""
+    import os
+    import signal
+
+    from fleet import console
+    from fleet.commands import run as fleet_run
+
+    def terminated_while_building(*_args, **_kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not end the build")
+
+    monkeypatch.setattr(fleet_run, "FleetProgram", terminated_while_building)
+    out = tmp_path / "out"
+    before = signal.getsignal(signal.SIGTERM)
+    assert console.main(["run", "--cycles", "5", "--out", str(out)]) == 143
+    assert capsys.readouterr().err.splitlines()[-1] == "plc-runtime: stopped by SIGTERM"
+    assert list(out.iterdir()) == []  # the lock went, and no result was written
+    assert signal.getsignal(signal.SIGTERM) is before  # the caller's handling is back
