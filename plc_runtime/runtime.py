@@ -440,13 +440,17 @@ class Runtime:
         return done
 
     def run_until(self, predicate: Callable[[], object], max_cycles: int) -> bool:
-        """Step until ``predicate()`` is true (checked after every tick); False if it never was."""
+        """Step until ``predicate()`` is true after a tick, at most ``max_cycles`` ticks;
+        False if it never was.
+
+        At least one tick runs before the predicate is asked: what the caller has just
+        changed (a block's input, a forced tag) takes effect in the next scan, so the
+        outputs read before it would still be the last scan's (a search's ``done`` of the
+        request before)."""
         self._require(RUN, "run")
         self._refuse_inside_scan("run_until()")
-        if isinstance(max_cycles, bool) or not isinstance(max_cycles, int) or max_cycles < 0:
-            raise ConfigError(f"max_cycles must be a non-negative integer, got {max_cycles!r}")
-        if predicate():
-            return True
+        if isinstance(max_cycles, bool) or not isinstance(max_cycles, int) or max_cycles < 1:
+            raise ConfigError(f"max_cycles must be a positive integer, got {max_cycles!r}")
         for _ in range(max_cycles):
             self._tick()
             if predicate():

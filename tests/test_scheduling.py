@@ -75,10 +75,13 @@ def test_run_until():
     with pytest.raises(ConfigError, match=r"duration 0.004 s is less than half a cycle \(0.01 s\)"):
         rt.run(duration=0.004)
     assert rt.run(duration=0) == 0 and rt.run(duration=0.006) == 1
-    for bad in (-1, 2.5, True):  # a count that can mean nothing is an error, not "never"
-        with pytest.raises(ConfigError, match="max_cycles must be a non-negative integer"):
+    for bad in (0, -1, 2.5, True):  # a count that can mean nothing is an error, not "never"
+        with pytest.raises(ConfigError, match="max_cycles must be a positive integer"):
             rt.run_until(lambda: False, max_cycles=bad)
     assert rt.ticks == 16
+    # the predicate is first asked after a scan: an output true before it is not enough
+    assert rt.run_until(lambda: rt.image.read("%QX0.0"), max_cycles=5) is True
+    assert rt.ticks == 17
     rt.stop()
 
 
