@@ -145,9 +145,13 @@ class RetainFile:
                 f"({file_layout}, this program is {layout})"
             )
         try:
-            values = json.loads(body)
+            values = json.loads(body, object_pairs_hook=_without_duplicates)
+        except _DuplicateKey as exc:
+            raise RetainError(f"{self.path}: retain file gives {exc} twice") from None
         except ValueError:
             raise RetainError(f"{self.path}: retain file body is not valid JSON") from None
+        except RecursionError:
+            raise RetainError(f"{self.path}: retain file body is nested too deeply") from None
         if not isinstance(values, dict):
             raise RetainError(f"{self.path}: retain file body is not an object")
         return values
@@ -264,3 +268,17 @@ class RetainStore:
             if self.error != str(exc):  # once per distinct problem, not once per tick
                 warnings.warn(f"retain file not {action}: {exc}", RuntimeWarning, stacklevel=4)
             self.error = str(exc)
+
+
+class _DuplicateKey(Exception):
+    """A key given twice in one JSON object: the file was not written by save (which
+    cannot write one), and which of the two a person meant cannot be told."""
+
+
+def _without_duplicates(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    values: dict[str, object] = {}
+    for key, value in pairs:
+        if key in values:
+            raise _DuplicateKey(repr(key))
+        values[key] = value
+    return values

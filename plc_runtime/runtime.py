@@ -657,10 +657,16 @@ class Runtime:
     def _retained_problem(self, retained: dict[str, object]) -> str | None:
         """What in a retain file's values its tags cannot take, or None.
 
-        The layout hash already matched, so the keys are this program's; a tag's value is
-        checked as a write from outside would be (its type and range). A block variable is
-        a plain attribute whose type nothing fixes (a counter may hold a float), so its
-        value is restored as it was saved."""
+        The layout hash matched, so the file was written for this program's retentive
+        variables, but a file edited by hand may carry others, which would be kept and
+        written back for ever unnoticed: they are refused. A tag's value is checked as a
+        write from outside would be (its type and range). A block variable is a plain
+        attribute whose type nothing fixes (a counter may hold a float), so its value is
+        restored as it was saved."""
+        known = {key for key, _ in self._retain_layout_before}
+        unknown = [key for key in retained if key not in known]
+        if unknown:
+            return f"{unknown[0]!r} is no retentive variable of this program"
         for key, value in retained.items():
             kind, _, name = key.partition(":")
             if kind == "tag" and name in self.image.tags:

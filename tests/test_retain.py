@@ -158,6 +158,39 @@ def test_a_value_its_variable_cannot_take_gives_a_cold_start_and_keeps_the_file(
     rt.stop()
 
 
+def _with_body(path, body: bytes) -> None:
+    """The file with this body under a valid header (a hand edit or another tool)."""
+    magic, version, layout, _crc, _length = path.read_bytes().split(b"\n", 1)[0].split(b" ")
+    head = b" ".join([magic, version, layout, b"%08x" % zlib.crc32(body), b"%d" % len(body)])
+    path.write_bytes(head + b"\n" + body)
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        (
+            lambda kept: kept[:-1] + b', "junk": 5}',
+            "'junk' is no retentive variable of this program",
+        ),
+        (lambda kept: kept[:-1] + b', "tag:kept": 7}', "retain file gives 'tag:kept' twice"),
+        (lambda kept: b"[" * 100_000 + b"]" * 100_000, "retain file body is nested too deeply"),
+    ],
+)
+def test_a_file_with_other_keys_or_a_key_twice_gives_a_cold_start(tmp_path, body, message):
+    """Values a program does not have would be written back for ever unnoticed, and of a key
+    given twice nobody can tell which was meant: both are refused as damage is, with the
+    file set aside, and so is a body nested too deeply to read."""
+    path = _saved(tmp_path)
+    _with_body(path, body(path.read_bytes().split(b"\n", 1)[1]))
+    edited = path.read_bytes()
+    rt, m = build(path)
+    with pytest.warns(RuntimeWarning, match=re.escape(f"{path}: {message}")):
+        rt.start()
+    assert rt.start_info.startswith("cold:") and values(rt, m) == (0, 0, 0, 0, 0)
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == edited
+    rt.stop()
+
+
 class Odometer(FunctionBlock):
     """Declared with an int, holds a float: nothing fixes a block variable's type."""
 
