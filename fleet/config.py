@@ -224,6 +224,8 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: {exc}") from None
+    except ValueError:  # what the TOML reader passes on: an integer too long to convert
+        raise ConfigError(f"{source}: unreadable TOML: a number with too many digits") from None
     except RecursionError:
         raise ConfigError(f"{source}: nested too deeply") from None
     if "plant" not in doc and {"nodes", "edges"} & doc.keys():
@@ -488,6 +490,7 @@ def host_port(
         not sep
         or not host
         or not (port.isascii() and port.isdigit())
+        or len(port) > 5
         or not 0 <= int(port) <= 65535
         or any(c in host for c in "[]")
         or any(c.isspace() for c in host)

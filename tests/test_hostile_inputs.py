@@ -641,6 +641,16 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             r"time_windows\.wait_free_s: wait_free_s = 40 s must not exceed wait_occupied_s = 30 s "
             r"\(the default\)",
         ),
+        (
+            "[bus]",
+            "[routing.extra]\nvalue = " + "9" * 5000 + "\n[bus]",
+            r"^d\.toml: unreadable TOML: a number with too many digits$",
+        ),
+        (
+            "[bus]",
+            '[web]\naddress = "127.0.0.1:' + "8" * 5000 + '"\n[bus]',
+            r"web\.address: expected HOST:PORT, e\.g\. 127\.0\.0\.1:8080, got '127\.0\.0\.1:888",
+        ),
     ],
     ids=[
         "superscript-function-id",
@@ -653,6 +663,8 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
         "stale-sooner-than-default-status",
         "escape-in-recipe-name",
         "wait-thresholds-backwards",
+        "integer-of-5000-digits",
+        "port-of-5000-digits",
     ],
 )
 def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old, new, message):
