@@ -21,6 +21,7 @@ from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import FileProblem, read_limited
 from topology import SAMPLES, Plant, TopologyError, load
+from topology.formats.numbers import parse_int
 from topology.validate import text_problem
 from vehicles.agv import AgvParams
 from vehicles.fleet import Faults
@@ -177,6 +178,17 @@ class FleetConfig:
     agv: AgvParams = field(default_factory=AgvParams)
     # [web] address: serve the HTTP API and the operator's page there (None: not served)
     web_address: tuple[str, int] | None = None
+    plant_file: Path | None = None  # [plant] file, None for a sample plant
+    config_file: Path | None = None  # the file read, None for the embedded default
+
+    def input_files(self) -> dict[str, Path]:
+        """The files a run reads, by the words an error names them with: a run must not
+        write over one of them."""
+        files = {"the plant file": self.plant_file}
+        if self.orders is not None:
+            files["the order file"] = self.orders.file
+        files["the configuration file"] = self.config_file
+        return {what: path for what, path in files.items() if path is not None}
 
     @property
     def level(self) -> str:
@@ -216,7 +228,9 @@ def load_config(path: str | Path | None = None) -> FleetConfig:
             f"{source}: {other[0]} ({path.suffix}), not a fleet configuration (TOML); a "
             f"configuration names it under {other[1]} (docs/fleet-config.md)"
         )
-    return parse_config(text, source, path.parent)
+    cfg = parse_config(text, source, path.parent)
+    cfg.config_file = None if path == DEFAULT_CONFIG else path
+    return cfg
 
 
 def parse_config(text: str, source: str = "<config>", base: Path | None = None) -> FleetConfig:
@@ -234,7 +248,9 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
             '[plant] file = "..." (docs/fleet-config.md)'
         )
     top = TableReader(source, doc, "")
-    plant = _plant(TableReader(source, top.get("plant", dict), "plant."), base or Path("."))
+    plant, plant_file = _plant(
+        TableReader(source, top.get("plant", dict), "plant."), base or Path(".")
+    )
     runtime = TableReader(source, top.get("runtime", dict, {}), "runtime.")
     routing = TableReader(source, top.get("routing", dict, {}), "routing.")
     stations = TableReader(source, top.get("stations", dict, {}), "stations.")
@@ -261,6 +277,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
     cfg = FleetConfig(
         source=source,
         plant=plant,
+        plant_file=plant_file,
         starts=starts,
         recipes=recipes,
         vehicle_recipes=vehicle_recipes,
@@ -508,7 +525,8 @@ def host_port(
     return host, int(port)
 
 
-def _plant(reader: TableReader, base: Path) -> Plant:
+def _plant(reader: TableReader, base: Path) -> tuple[Plant, Path | None]:
+    """The plant, and the file it was read from (None for a sample)."""
     sample = reader.get("sample", str, None)
     file = reader.get("file", str, None)
     reader.finish()
@@ -519,7 +537,7 @@ def _plant(reader: TableReader, base: Path) -> Plant:
             raise reader.fail(
                 "sample", f"unknown sample plant {sample!r} (one of {', '.join(SAMPLES)})"
             )
-        return SAMPLES[sample]()
+        return SAMPLES[sample](), None
     path = Path(file)
     if not path.is_absolute():
         path = base / path
@@ -530,7 +548,7 @@ def _plant(reader: TableReader, base: Path) -> Plant:
     problem = link_node_problem(plant)
     if problem is not None:
         raise ConfigError(f"{reader.source}: plant.file: {path}: {problem}")
-    return plant
+    return plant, path
 
 
 def link_node_problem(plant: Plant) -> str | None:
@@ -585,9 +603,16 @@ def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
         for f in node.functions:
             clusters.setdefault(f, []).append(node.id)
     given = reader.get("clusters", dict, {})
+    spelt: dict[int, str] = {}  # how each function id was written, to name a second spelling
     for key, stations in given.items():
-        if not (key.isascii() and key.isdigit()):
+        function = parse_int(key) if key.isascii() and key.isdigit() else None
+        if function is None:
             raise reader.fail(f"clusters.{key}", "function ids are integers >= 0")
+        if function in spelt:
+            raise reader.fail(
+                f"clusters.{key}", f"function {function} again (given as {spelt[function]!r})"
+            )
+        spelt[function] = key
         if (
             not isinstance(stations, list)
             or not stations
@@ -603,7 +628,7 @@ def _clusters(reader: TableReader, plant: Plant) -> dict[int, list[int]]:
             if s in seen:
                 raise reader.fail(f"clusters.{key}", f"node {s} is listed twice")
             seen.add(s)
-        clusters[int(key)] = list(stations)
+        clusters[function] = list(stations)
     return clusters
 
 
@@ -622,7 +647,7 @@ def _vehicles(
         if not isinstance(item, dict):
             raise ConfigError(f"{source}: vehicles[{k}]: expected a table")
         r = TableReader(source, item, f"vehicles[{k}].")
-        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS * MAX_BUSES)
+        vid = r.integer("id", ..., 1, VEHICLES_PER_BUS * MAX_BUSES)
         start = _node(r, "start", plant)
         own = r.get("recipes", list, None)
         charge = r.number("battery", 100.0, 0.0, 100.0)
@@ -675,7 +700,7 @@ def _faults(reader: TableReader, starts: dict[int, int]) -> dict[int, Faults]:
         if not isinstance(item, dict):
             raise ConfigError(f"{reader.source}: faults.vehicles[{k}]: expected a table")
         r = TableReader(reader.source, item, f"faults.vehicles[{k}].")
-        vid = r.integer("id", 0, 1, VEHICLES_PER_BUS * MAX_BUSES)
+        vid = r.integer("id", ..., 1, VEHICLES_PER_BUS * MAX_BUSES)
         if vid not in starts:
             raise r.fail("id", f"no vehicle {vid} in [[vehicles]]")
         if vid in given:  # the later entry would replace the earlier one without a word

@@ -43,7 +43,8 @@ class TableReader:
             raise self.fail(key, f"must be in {low}..{high}, got {value}")
         return value
 
-    def integer(self, key: str, default: int, low: int, high: int) -> int:
+    def integer(self, key: str, default: Any, low: int, high: int) -> int:
+        """The key's integer in low..high; ``default`` ``...`` makes the key required."""
         value = self.get(key, int, default)
         if not low <= value <= high:
             raise self.fail(key, f"must be in {low}..{high}, got {value}")

@@ -18,8 +18,10 @@ import warnings
 from pathlib import Path
 from typing import IO, Any
 
+from blocks.dispatch.order_file import HISTORY_COLUMNS
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
+from plc_runtime.files import same_path
 
 from .order_report import order_summary, station_use, write_orders_csv
 from .program import FleetProgram
@@ -251,7 +253,18 @@ OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png", "orders.csv")
 LOCK_FILE = ".plc-runtime.lock"
 
 
-def claim_out_dir(out_dir: Path) -> IO[bytes]:
+def is_order_history(path: Path) -> bool:
+    """Does the file begin as the order history a run writes (``orders.csv``)? Another
+    file of that name, such as an order file to read, is no run's output to replace."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        header = f.readline(4096).strip().split(",")
+    return header[: len(HISTORY_START)] == list(HISTORY_START)
+
+
+HISTORY_START = HISTORY_COLUMNS[:5]  # id, get, put, vehicle, state
+
+
+def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[bytes]:
     """Make sure the results can be written before a run starts, not after it finished,
     and that no other run writes its results into the same folder meanwhile (one run's
     summary beside another's drawing would describe neither).
@@ -259,7 +272,9 @@ def claim_out_dir(out_dir: Path) -> IO[bytes]:
     Creates the folder and takes an exclusive lock on a file in it, ``.plc-runtime.lock``,
     held until :func:`release_out_dir` (or, however the process ends, until it ends); an
     existing output file that is not a writable file (a folder of that name, no
-    permission) is refused too."""
+    permission) is refused too, and so is an output file that is one of the run's
+    ``inputs`` (what it is -> path), or an ``orders.csv`` that no run wrote: the results
+    replace or remove their files, and a user's own file must never be one of them."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"--out {out_dir}: a file, not a folder")
     try:
@@ -278,9 +293,22 @@ def claim_out_dir(out_dir: Path) -> IO[bytes]:
         ) from None
     for name in OUTPUT_FILES:
         path = out_dir / name
-        if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
+        problem = None
+        for what, given in (inputs or {}).items():
+            if same_path(path, given):
+                problem = f"{name} there is {what} of this run ({given}); give another folder"
+                break
+        else:
+            if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
+                problem = f"{name} exists and cannot be overwritten"
+            elif name == "orders.csv" and path.exists() and not is_order_history(path):
+                problem = (
+                    "orders.csv there is no order history a run wrote (a run replaces or "
+                    "removes it): move it, or give another folder"
+                )
+        if problem is not None:
             release_out_dir(lock)  # ours: no other run holds it
-            raise ConfigError(f"--out {out_dir}: {name} exists and cannot be overwritten")
+            raise ConfigError(f"--out {out_dir}: {problem}")
     return lock
 
 

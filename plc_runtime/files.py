@@ -56,3 +56,12 @@ def kind(mode: int) -> str:
     if stat.S_ISSOCK(mode):
         return "a socket"
     return "not a file"
+
+
+def same_path(a: Path, b: Path) -> bool:
+    """Do the two paths name one file: one existing file (links and relative paths
+    included), or, where one does not exist yet, one place."""
+    try:
+        return a.samefile(b)
+    except OSError:
+        return a.resolve() == b.resolve()

@@ -122,7 +122,9 @@ def test_an_output_folder_holds_one_runs_results(tmp_path, capsys):
 
     out = tmp_path / "out"
     out.mkdir()
-    (out / "orders.csv").write_text("id,get,put\nfrom-an-earlier-run,20,21\n")
+    (out / "orders.csv").write_text(  # an earlier run's order history
+        "id,get,put,vehicle,state,created_s\nfrom-an-earlier-run,20,21,1,FINISHED,0\n"
+    )
     with open(out / ".plc-runtime.lock", "ab") as other:  # another run, holding the lock
         fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
         assert main(["run", "--cycles", "10", "--out", str(out)]) == 2

@@ -599,9 +599,19 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
             r"stations\.clusters\.2: node 15 is listed twice",
         ),
         (
+            "[stations]",
+            '[stations.clusters]\n2 = [15]\n"02" = [22]\n[stations]',
+            r"stations\.clusters\.02: function 2 again \(given as '2'\)",
+        ),
+        (
             "[bus]",
             '[web]\naddress = "[::1"\n[bus]',
             r"web\.address: expected HOST:PORT, e\.g\. 127\.0\.0\.1:8080, got '\[::1'",
+        ),
+        (
+            "id = 1\n",
+            "",
+            r"vehicles\[0\]\.id: missing",
         ),
         (
             "start = 0",
@@ -655,7 +665,9 @@ def test_a_rejected_file_that_cannot_be_moved_is_not_overwritten(tmp_path, monke
     ids=[
         "superscript-function-id",
         "cluster-station-twice",
+        "cluster-function-spelt-twice",
         "web-address-unclosed-bracket",
+        "vehicle-without-id",
         "no-recipes",
         "nested-recipes",
         "faults-vehicle-twice",
@@ -755,20 +767,65 @@ def test_simulated_vehicles_no_controller_could_reach_are_refused(args, message,
     assert err.count("\n") == 1 and message in err and "ready" not in err
 
 
-@pytest.mark.parametrize("where", ["missing/m.json", "."])
+@pytest.mark.parametrize(
+    ("where", "plant", "message"),
+    [
+        ("missing/m.json", "model-plant", "no folder 'missing'"),
+        (".", "model-plant", "a folder, not a file"),
+        ("pipe", "model-plant", "a named pipe, not a file"),
+        ("plant.toml", "plant.toml", "that is the plant file"),
+        ("./sub/../c.toml", None, "that is the configuration file"),
+    ],
+)
 def test_a_monitor_report_that_cannot_be_written_is_refused_before_the_run(
-    where, tmp_path, monkeypatch, capsys
+    where, plant, message, tmp_path, monkeypatch, capsys
 ):
     """The vehicles' monitor writes its report at exit: a run of hours must not learn only
-    then that its folder is missing (or that the name is a folder)."""
+    then that its folder is missing (or that the name is a folder), a named pipe would
+    block the exit for ever, and the report must not replace the files the vehicles run
+    on."""
     from fleet.cli import main
+    from fleet.config import DEFAULT_CONFIG
 
     monkeypatch.chdir(tmp_path)
-    args = ["vehicles", "--plant", "model-plant", "--duration", "60", "--monitor-out", where]
+    os.mkfifo("pipe")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "plant.toml").write_bytes(
+        (Path(__file__).parent.parent / "examples" / "plants" / "workshop.toml").read_bytes()
+    )
+    (tmp_path / "c.toml").write_text(DEFAULT_CONFIG.read_text())
+    kept = {p.name: p.read_bytes() for p in tmp_path.glob("*.toml")}
+    source = (
+        ["--plant", plant]
+        if plant
+        else ["--config", "c.toml", "--bus", "udp_multicast:239.74.163.2"]
+    )
+    args = ["vehicles", *source, "--duration", "60", "--monitor-out", where]
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"--monitor-out {where}: " in err
+    assert err.count("\n") == 1 and f"--monitor-out {where}: {message}" in err
     assert "vehicles ready" not in err  # refused before any vehicle started
+    assert {p.name: p.read_bytes() for p in tmp_path.glob("*.toml")} == kept
+
+
+def test_a_monitor_report_that_fails_to_be_written_names_the_option(tmp_path, monkeypatch, capsys):
+    """A full disk at exit: one line naming the option and the file, no traceback."""
+    from ports import free_base_port
+
+    from fleet.cli import main
+    from fleet.commands import vehicles
+
+    def disk_full(*_args, **_kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(vehicles.json, "dump", disk_full)
+    report = tmp_path / "m.json"
+    args = ["vehicles", "--plant", "model-plant", "--modbus-base-port", str(free_base_port(4))]
+    assert main([*args, "--duration", "0.2", "--monitor-out", str(report)]) == 2
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert (
+        err == f"plc-runtime: error: --monitor-out {report}: cannot write: No space left on device"
+    )
 
 
 _PLANT_WITH_ID = """name = "big ids"
@@ -843,6 +900,72 @@ def test_the_retain_file_may_not_be_the_configuration(tmp_path, capsys):
     assert "that is the configuration file" in capsys.readouterr().err
     assert config.read_text() == DEFAULT_CONFIG.read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fleet.toml", "sub"]
+
+
+def _workshop_copy(folder: Path, orders: str = "orders.csv") -> Path:
+    """examples/workshop-orders.toml with its plant beside it and its orders in ``orders``."""
+    examples = Path(__file__).parent.parent / "examples"
+    (folder / "plants").mkdir(parents=True)
+    (folder / "plants" / "workshop.toml").write_bytes(
+        (examples / "plants" / "workshop.toml").read_bytes()
+    )
+    (folder / orders).write_bytes((examples / "orders" / "workshop.csv").read_bytes())
+    text = (examples / "workshop-orders.toml").read_text()
+    assert 'file = "orders/workshop.csv"' in text
+    config = folder / "w.toml"
+    config.write_text(text.replace('file = "orders/workshop.csv"', f'file = "{orders}"'))
+    return config
+
+
+@pytest.mark.parametrize(
+    ("retain", "message"),
+    [
+        ("plants/workshop.toml", "that is the plant file"),
+        ("orders.csv", "that is the order file"),
+        ("w.toml", "that is the configuration file"),
+        ("out/summary.json", "that is the output out/summary.json"),
+        ("out/orders.csv", "that is the output out/orders.csv"),
+    ],
+)
+def test_the_retain_file_may_be_no_input_and_no_output(
+    tmp_path, capsys, monkeypatch, retain, message
+):
+    """A file the run reads would be moved aside at start as retain data it cannot read,
+    and an output would overwrite or remove the retain data at the end."""
+    from fleet.cli import main
+
+    _workshop_copy(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert main(["run", "w.toml", "--retain", retain, "--out", "out", "--cycles", "2"]) == 2
+    assert message in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_results_never_replace_or_remove_a_file_the_run_did_not_write(
+    tmp_path, capsys, monkeypatch
+):
+    """``--out .`` beside the configuration: its order file named orders.csv is the run's
+    input, and an orders.csv that no run wrote (a user's order file) is not removed by a
+    run without orders either; an order history an earlier run wrote is replaced."""
+    from fleet.cli import main
+
+    config = _workshop_copy(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    orders = (tmp_path / "orders.csv").read_bytes()
+    assert main(["run", "w.toml", "--out", ".", "--cycles", "2"]) == 2
+    assert "--out .: orders.csv there is the order file of this run" in capsys.readouterr().err
+    assert main(["run", "--out", ".", "--cycles", "2"]) == 2  # the default job: no orders
+    assert "orders.csv there is no order history a run wrote" in capsys.readouterr().err
+    assert (tmp_path / "orders.csv").read_bytes() == orders and config.exists()
+    assert (
+        not (tmp_path / "summary.json").exists() and not (tmp_path / ".plc-runtime.lock").exists()
+    )
+    # a history a run wrote is the run's own to replace
+    assert main(["run", "w.toml", "--out", "out", "--cycles", "2", "--json"]) == 0
+    assert (tmp_path / "out" / "orders.csv").read_text().startswith("id,get,put,vehicle,state,")
+    assert main(["run", "--out", "out", "--cycles", "2", "--json"]) == 0
+    assert not (tmp_path / "out" / "orders.csv").exists()
 
 
 def test_fleet_options_are_refused_for_another_program(capsys):
@@ -938,3 +1061,26 @@ def test_sigterm_while_the_program_is_built_unwinds_like_ctrl_c(monkeypatch, tmp
     assert capsys.readouterr().err.splitlines()[-1] == "plc-runtime: stopped by SIGTERM"
     assert list(out.iterdir()) == []  # the lock went, and no result was written
     assert signal.getsignal(signal.SIGTERM) is before  # the caller's handling is back
+
+
+@pytest.mark.parametrize(
+    ("functions", "message"),
+    [
+        ('"1" = "a"\n"01" = "b"', "function id '01' is function 1 again (given as '1')"),
+        ('"1" = "a"\n"+1" = "b"', "function id '+1' is function 1 again (given as '1')"),
+        ('"\u0661" = "a"', "function id '\u0661' is not an integer >= 0 in ASCII digits"),
+        ('"1_0" = "a"', "function id '1_0' is not an integer >= 0 in ASCII digits"),
+        ('"-1" = "a"', "function id '-1' is not an integer >= 0 in ASCII digits"),
+        ('"' + "9" * 5000 + '" = "a"', "is not an integer >= 0 in ASCII digits"),
+    ],
+)
+def test_a_plant_function_id_is_one_spelling_of_ascii_digits(tmp_path, functions, message):
+    """int() takes "01", "+1", " 1", "1_0" and Arabic-Indic digits: two spellings of one id
+    overwrote each other silently, and a 5000-digit one raised Python's conversion error."""
+    plant = tmp_path / "p.toml"
+    plant.write_text(
+        f"[functions]\n{functions}\n"
+        "[[nodes]]\nid = 0\n[[nodes]]\nid = 1\nx = 1.0\n[[edges]]\nfrom = 0\nto = 1\n"
+    )
+    with pytest.raises(TopologyError, match=re.escape(message)):
+        load(plant)

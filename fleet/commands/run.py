@@ -46,6 +46,7 @@ from plc_runtime.cli import (
 )
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
+from plc_runtime.files import same_path
 
 from .. import liveness
 from ..config import (
@@ -63,7 +64,13 @@ from ..config import (
 )
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
-from ..report import claim_out_dir, release_out_dir, summary, write_all
+from ..report import (
+    OUTPUT_FILES,
+    claim_out_dir,
+    release_out_dir,
+    summary,
+    write_all,
+)
 from ..web import options as web
 from .vehicles import READY_LINE
 
@@ -128,14 +135,6 @@ def add_options(run: argparse.ArgumentParser) -> None:
     web.add_options(run)
 
 
-def same_file(a: str, b: str) -> bool:
-    """Do the two paths name one existing file (links and relative paths included)?"""
-    try:
-        return Path(a).samefile(b)
-    except OSError:  # one of them does not exist (yet): not the same
-        return False
-
-
 def run(args: argparse.Namespace, modbus: Any) -> int:
     cfg = load_config(args.config)
     if args.cycle_time is not None:
@@ -169,13 +168,18 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             "--vehicles-count: only with vehicles simulated in this process (the vehicle "
             "process simulates every vehicle of the configuration)"
         )
-    if args.retain is not None and args.config is not None and same_file(args.retain, args.config):
-        # a retain file that holds no retain data is moved aside at start
-        raise CliError(
-            f"--retain {args.retain}: that is the configuration file; name a file of its own"
-        )
     out = Path(args.out if args.out is not None else DEFAULT_OUT)
-    out_lock = claim_out_dir(out)
+    inputs = cfg.input_files()
+    if args.retain is not None:
+        # a retain file that holds no retain data is moved aside at start, and the
+        # results would write over one of the outputs
+        retain = Path(args.retain)
+        taken = {**inputs, **{f"the output {out / name}": out / name for name in OUTPUT_FILES}}
+        for what, path in taken.items():
+            if same_path(retain, path):
+                raise CliError(f"--retain {args.retain}: that is {what}; name a file of its own")
+        inputs["the retain file"] = retain
+    out_lock = claim_out_dir(out, inputs)
     try:  # the lock file goes however the run ends (a failed start too)
         broken = liveness.violations(cfg)
         if broken:

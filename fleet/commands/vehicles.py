@@ -15,6 +15,7 @@ from typing import Any
 
 from plc_runtime.cli import MAX_DURATION_S, path_name, whole
 from plc_runtime.errors import ConfigError
+from plc_runtime.files import is_special, same_path
 
 from ..config import LOOPBACK, MODBUS, link_problem, modbus_endpoint, parse_bus
 from ..route import load_plant
@@ -80,13 +81,20 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
 INJECTED = ("dropped", "corrupted", "spoofed")  # the simulator's counters of injected faults
 
 
-def check_writable(name: str) -> None:
+def check_writable(name: str, inputs: dict[str, Path]) -> None:
     """ConfigError unless a file can be written at ``name``: the monitor's report is written
-    at exit, and a run of hours must not find out only then that its folder is missing."""
+    at exit, and a run of hours must not find out only then that its folder is missing.
+    A device or a pipe (which could block the exit for ever) is refused, and so is one of
+    the command's ``inputs`` (what it is -> path), which the report would replace."""
     path = Path(name)
     folder = path.parent
     if path.is_dir():
         raise ConfigError(f"--monitor-out {name}: a folder, not a file")
+    if (what := is_special(path)) is not None:
+        raise ConfigError(f"--monitor-out {name}: {what}, not a file")
+    for what, given in inputs.items():
+        if same_path(path, given):
+            raise ConfigError(f"--monitor-out {name}: that is {what}; name a file of its own")
     if not folder.is_dir():
         raise ConfigError(f"--monitor-out {name}: no folder {str(folder)!r}")
     if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
@@ -127,8 +135,6 @@ def vehicles_command(args: argparse.Namespace) -> int:
     from vehicles.monitor import ConflictMonitor
     from vehicles.runner import default_starts, run_fleet
 
-    if args.monitor_out:
-        check_writable(args.monitor_out)
     if args.config and args.count is not None:
         raise ConfigError("--count applies with --plant: a configuration names its vehicles")
     status_period, faults, params, charges = 0.1, None, None, None
@@ -138,6 +144,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
         from ..config import load_config
 
         cfg = load_config(args.config)
+        inputs = cfg.input_files()
         plant, starts, status_period = cfg.plant, cfg.starts, cfg.status_period_s
         faults = cfg.faults or None  # the configuration's [faults]: a commissioning test
         params, charges = cfg.agv, cfg.battery.start  # [simulation] and start charges
@@ -147,6 +154,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
         from ..config import link_node_problem
 
         plant = load_plant(args.plant)
+        inputs = {"the plant file": Path(args.plant)}  # (a sample's name matches no file)
         problem = link_node_problem(plant)
         if problem is not None:
             raise ConfigError(f"{args.plant}: {problem}")
@@ -154,6 +162,8 @@ def vehicles_command(args: argparse.Namespace) -> int:
             starts = default_starts(plant, 4 if args.count is None else args.count)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
+    if args.monitor_out:
+        check_writable(args.monitor_out, inputs)
     interface, channel, modbus_base_port = shared_link(bus, args.modbus_base_port, where)
     link = (MODBUS, f"127.0.0.1:{modbus_base_port}") if modbus_base_port else (interface, channel)
     if (problem := link_problem(*link, max(starts))) is not None:
@@ -205,8 +215,13 @@ def vehicles_command(args: argparse.Namespace) -> int:
             "faults_injected": {k: sum(f.counters[k] for _, f in fleets) for k in INJECTED},
             "events": [e.__dict__ for e in m.events[:100]],
         }
-        with open(args.monitor_out, "w", encoding="utf-8") as f:
-            json.dump(report, f)
+        try:
+            with open(args.monitor_out, "w", encoding="utf-8") as f:
+                json.dump(report, f)
+        except OSError as exc:
+            raise ConfigError(
+                f"--monitor-out {args.monitor_out}: cannot write: {exc.strerror or exc}"
+            ) from None
     final = {
         v + offset: {
             "node": a.node,

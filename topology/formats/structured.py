@@ -40,7 +40,7 @@ from typing import Any
 from ..errors import TopologyError
 from ..limits import MAX_FILE_BYTES
 from ..model import Edge, Node, Plant
-from .numbers import shown
+from .numbers import parse_int, shown
 
 NODE_KEYS = {"id", "name", "x", "y", "role", "functions", "queue_for", "zone", "area"}
 EDGE_KEYS = {"from", "to", "length", "max_speed", "directed", "ports", "routable", "highway"}
@@ -232,15 +232,22 @@ def from_dict(data: Any, source: str) -> Plant:
             raise TopologyError(f"'{key}' must be a list of tables", source, key)
     name = _typed(data.get("name", Path(source).stem), str, "name", source, "name")
     functions: dict[int, str] = {}
+    spelt: dict[int, str] = {}  # how each id was written, to name a second spelling
     for key, value in _typed(
         data.get("functions", {}), dict, "functions", source, "functions"
     ).items():
-        try:
-            function = int(key)
-        except ValueError:
+        function = parse_int(key)
+        if function is None or function < 0:
             raise TopologyError(
-                f"function id {key!r} is not an integer", source, "functions"
-            ) from None
+                f"function id {key!r} is not an integer >= 0 in ASCII digits", source, "functions"
+            )
+        if function in functions:
+            raise TopologyError(
+                f"function id {key!r} is function {function} again (given as {spelt[function]!r})",
+                source,
+                "functions",
+            )
+        spelt[function] = key
         functions[function] = _typed(value, str, f"name of function {key}", source, "functions")
     nodes = [_node(item, i, source) for i, item in enumerate(data["nodes"])]
     edges = [_edge(item, i, source) for i, item in enumerate(data["edges"])]
