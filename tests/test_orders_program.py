@@ -286,6 +286,29 @@ def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, ma
     assert b.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
 
 
+@pytest.mark.parametrize("which", ["next", "active"])
+def test_an_order_withdrawn_in_the_scan_a_blockade_cuts_it_off_stays_withdrawn(
+    which, tmp_path, made
+):
+    """An operator closes the segments round a station and withdraws the order bound for
+    it at one quiet point (as the web API can). The withdrawal is applied at the start of
+    the next scan and the dispatcher's blockade check runs in the same scan, before the
+    vehicle's own: it must not hand the withdrawn order back to the pool (an illegal
+    WITHDRAWN -> DISPATCHABLE that faulted the runtime and stopped every vehicle)."""
+    cfg, p, runner = carrying_a_with_b_next(tmp_path, made)
+    order = runner.next if which == "next" else runner.active
+    station = order.get if which == "next" else order.put
+    for a, b in sorted(cfg.plant.arc_index):
+        if station in (a, b):
+            p.blockades.block(a, b)
+    withdrawal = p.orders.withdraw(order.id)
+    run(p, 60)  # (run() asserts the runtime stays in RUN)
+    assert withdrawal.result(0).state is OrderState.WITHDRAWN
+    assert order.state is OrderState.WITHDRAWN
+    assert runner.next is None or runner.next.id != order.id
+    assert runner.active is None or runner.active.id != order.id
+
+
 def test_a_next_order_is_given_back_when_the_charge_falls_below_good(tmp_path, made):
     """The dispatcher gave a next order while the charge allowed it; on the way the charge
     reads far lower (to 8 %, below critical). Once the active order is delivered the
@@ -399,6 +422,24 @@ def test_a_vehicle_out_of_service_gives_its_orders_up(dead_s, tmp_path, made):
     # loading when it fell silent: that load stays on board, for the operator to confirm
     assert runner.load_left == (dead_s == 14) and runner.load == ("o1" if dead_s == 14 else "")
     assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+def test_an_order_withdrawn_in_the_scan_its_vehicle_gives_it_up_stays_withdrawn(tmp_path, made):
+    """Vehicle 1, loading at station 20, falls silent; the operator withdraws its order
+    just as the vehicle's out-of-service time runs out: giving its orders up must not
+    touch the withdrawn one (WITHDRAWN -> FAILED faulted the runtime)."""
+    extra = "out_of_service_s = 30\n[faults]\n[[faults.vehicles]]\nid = 1\ndead_after_s = 14\n"
+    p = start(config(ORDERS, tmp_path, extra=extra), made)
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(lambda: runner.out_since_ns is not None, max_cycles=round(60 / 0.05))
+    order = runner.active
+    assert order is not None and runner.phase in ("get", "to_put")
+    runner.out_since_ns -= runner.out_of_service_ns  # it gives up in the next scan
+    withdrawal = p.orders.withdraw(order.id)
+    run(p, 5)
+    assert p.orders.runners[1].claims.out_of_service == {1}  # it did give up
+    assert withdrawal.result(0).state is OrderState.WITHDRAWN
+    assert order.state is OrderState.WITHDRAWN and runner.active is None
 
 
 @pytest.mark.parametrize(

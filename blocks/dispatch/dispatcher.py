@@ -145,6 +145,11 @@ class Dispatcher(FunctionBlock):
 
     # ----- the scan --------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
+        # an order withdrawn (or failed) since the last scan is still a runner's active or
+        # next order until the runner's own scan, after this one: dropped now, or a check
+        # below would hand it back to the pool from its final state
+        for runner in self.runners.values():
+            runner.withdrawn(ctx)
         self._check_routes(ctx)
         self._index_changes(ctx)
         self._urgent.advance(ctx.time, STARTABLE_BUDGET)

@@ -354,11 +354,19 @@ class OrderRunner(FunctionBlock):
         self._let_go()
         self.hold, self.phase, self.target = False, "idle", self.current
 
+    def _left_area(self) -> None:
+        """Once the vehicle has left the station it was leaving and its single-vehicle
+        area, the station's claim goes: the next vehicle may come."""
+        if self.leaving is not None and self.current not in self._area(self.leaving):
+            self.claims.leave(self.leaving, self.vehicle)
+            self.leaving = None
+
     def _let_go(self) -> None:
         """Give up the claims of an order that ended early, but those of where the vehicle
         stands: the place it stands on, and a station whose area it is in, which it keeps
         until it has left the area, as after a visit (a vehicle sent into a station's spur
         past it would meet it face to face)."""
+        self._left_area()  # (before another station may become the one it is leaving)
         for station, holder in self.claims.holder.items():
             if (
                 holder == self.vehicle
@@ -377,15 +385,13 @@ class OrderRunner(FunctionBlock):
         if self.in_service:
             self.out_since_ns = None
             self.claims.out_of_service.discard(self.vehicle)
-        elif self._given_up(ctx):
-            self.withdrawn(ctx)
-            return  # nothing new for a vehicle that may never come back
+        else:
+            self.withdrawn(ctx)  # first: giving orders up must not touch a final one
+            if self._given_up(ctx):
+                return  # nothing new for a vehicle that may never come back
         if self.battery is not None:  # (no reading yet is not an empty battery)
             self.min_battery = min(self.min_battery, self.battery)
-        if self.leaving is not None and self.current not in self._area(self.leaving):
-            # it has left the station and its single-vehicle area: the next may come
-            self.claims.leave(self.leaving, self.vehicle)
-            self.leaving = None
+        self._left_area()
         if self.vacating is not None and self.current != self.vacating:
             if self.target != self.vacating:  # (unless it took the same place again)
                 self.claims.release(self.vacating, self.vehicle)
