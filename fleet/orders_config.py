@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from blocks.dispatch.charging import ChargePolicy
-from blocks.dispatch.generator import SEED_RELATIONS, Relation, order_counts
+from blocks.dispatch.generator import SEED_RELATIONS, WINDOW_S, Relation, order_counts
 from blocks.dispatch.strategies import STRATEGIES
 from plc_runtime.errors import ConfigError
 from topology import Plant
@@ -118,7 +118,7 @@ def _generator(r: TableReader, plant: Plant) -> GeneratorConfig:
     cfg = GeneratorConfig(
         duration_s=r.number("duration_s", 3600.0, 1.0, 1e7),
         seed=r.integer("seed", 0, 0, 2**32 - 1),
-        window_s=r.number("window_s", 600.0, 0.0, 1e7),
+        window_s=r.number("window_s", WINDOW_S, 0.0, 1e7),
         units=dict(units),
         control=control,
         relations=tuple(relations),

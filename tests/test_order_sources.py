@@ -39,7 +39,12 @@ def config_error(text: str) -> str:
 
 def test_a_file_and_a_generator_give_their_orders_together():
     file_orders = len((EXAMPLES / "orders" / "workshop.csv").read_text().splitlines()) - 1
-    assert len(configured_orders(parse_config(CONFIG, "test.toml"))) == file_orders + 10
+    orders = configured_orders(parse_config(CONFIG, "test.toml"))
+    assert len(orders) == file_orders + 10
+    # the generator's time window is generate_orders' default (docs/orders.md): 900 s
+    generated = [o for o in orders if o.id.startswith("o0")]
+    assert len(generated) == 10
+    assert all(o.end_s - o.start_s == pytest.approx(900.0) for o in generated)
 
 
 @pytest.mark.parametrize(
