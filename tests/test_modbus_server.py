@@ -283,7 +283,7 @@ def test_a_bad_modbus_address_is_one_line(capsys, spec, line):
     assert capsys.readouterr().err == f"plc-runtime: error: {line}\n"
 
 
-def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys):
+def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys, tmp_path):
     assert main(["run", "--program", "demo", "--modbus-writable", "%MW20"]) == 2
     assert "--modbus-writable" in capsys.readouterr().err
     argv = ["run", "--program", "demo", "--modbus", "127.0.0.1:0", "--duration", "0.05"]
@@ -291,6 +291,10 @@ def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "writable '%QW5': the output image (%Q)" in err
     assert main([*argv, "--modbus-writable", "analog_filtered, %MW20..%MW21"]) == 0
+    # the example README and --help give works for either program
+    assert main([*argv, "--modbus-writable", "%MX900.0,%MW900..%MW909"]) == 0
+    fleet = ["run", "--modbus", "127.0.0.1:0", "--cycles", "2", "--out", str(tmp_path)]
+    assert main([*fleet, "--modbus-writable", "%MX900.0,%MW900..%MW909"]) == 0
 
 
 def test_map_entries_name_where_a_location_is_served():
