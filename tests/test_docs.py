@@ -79,9 +79,10 @@ SHORTEN = [  # (pattern, replacement): long runs cut to seconds; every entry mus
     (r"--duration 600\b", "--duration 60"),
     (r"--duration 60\b", "--duration 5"),
     (r"--duration 10\b", "--duration 1"),
-    # benchmarks take minutes: only their command line is checked here; their reduced runs
-    # are make bench-quick and tests/test_bench_quick.py
-    (r"(bench/\w+\.py)\b", r"\1 --help"),
+    # benchmarks take minutes: only their command line is checked here, parsed by the
+    # script's own parser (tests/options_only.py); their reduced runs are make bench-quick
+    # and tests/test_bench_quick.py
+    (r"(bench/\w+\.py)\b", r"tests/options_only.py \1"),
 ]
 EXTERNAL_TOOLS = {
     "mbpoll": "Debian package mbpoll; .ci/run installs it",
@@ -501,6 +502,42 @@ UNITS = units()
 def test_every_page_is_found_and_has_blocks():
     assert ROOT / "README.md" in PAGES and len(PAGES) >= 2
     assert {u.block.language for u in UNITS} >= {"python", "sh", "toml"}
+
+
+INDENTED_COMMAND = re.compile(r"^ {4,}(\.venv/bin/|plc-runtime |make |python |curl |mbpoll )")
+
+
+def test_no_command_hides_in_an_indented_block():
+    """Markdown shows four indented spaces as code too, but only fenced blocks are run
+    here: a command written that way would never be checked."""
+    hidden = []
+    for page in PAGES:
+        fenced = {k for b in blocks(page) for k in range(b.line, b.line + b.text.count("\n") + 1)}
+        for k, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1):
+            if k not in fenced and INDENTED_COMMAND.match(line):
+                hidden.append(f"{page.relative_to(ROOT)}:{k}: {line.strip()}")
+    assert not hidden, "fence these commands (```sh):\n" + "\n".join(hidden)
+
+
+def test_benchmark_options_are_parsed_by_the_script_itself(tmp_path):
+    """A documented bench command is checked by its script's own parser: an option it does
+    not take fails (``--help`` would have ended the parse before reaching it)."""
+    script = ROOT / "tests" / "options_only.py"
+    bench = ROOT / "bench" / "allocation.py"
+    ok = subprocess.run(
+        [sys.executable, script, bench, "--experiments", "buffer", "--seeds", "3"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert ok.returncode == 0, ok.stderr
+    bad = subprocess.run(
+        [sys.executable, script, bench, "--experiments", "buffer", "--no-such-option"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert bad.returncode == 2 and "unrecognized arguments: --no-such-option" in bad.stderr
 
 
 def test_shortening_applies_each_substitution_once():

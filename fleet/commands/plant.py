@@ -59,7 +59,11 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[[type], Any]
         "--block", action="append", default=[], metavar="A-B", help="close segment A-B (repeatable)"
     )
     route.add_argument(
-        "--heuristic", choices=["table", "euclidean", "manhattan", "zero"], default="table"
+        "--heuristic",
+        choices=["table", "euclidean", "manhattan", "zero"],
+        default="table",
+        help="A* heuristic: the exact distance table (default), straight-line or grid "
+        "distance, or none (Dijkstra)",
     )
     route.add_argument(
         "--cell-size",

@@ -23,8 +23,9 @@ operator's page and the security rules: [operator-guide.md](operator-guide.md),
 [security.md](security.md#the-http-api). Every path below is under `{prefix}`.
 
 Every error is a JSON object `{{"error": "one line", "field": "name" or null}}`; the status
-codes each endpoint may answer are listed with it. Methods marked **token** need the header
-`Authorization: Bearer TOKEN`: 401 without it, 403 with a wrong one.
+codes each endpoint may answer are listed with it; a method a path does not take is 405,
+for every path. Methods marked **token** need the header `Authorization: Bearer TOKEN`:
+401 without it, 403 with a wrong one.
 """
 
 
