@@ -16,7 +16,7 @@ from fleet.dashboard import dashboard
 from fleet.program import FleetProgram
 from fleet.report import summary
 from fleet.tags import ACK_DONE, ACK_REFUSED
-from io_drivers.protocol import NO_NODE, STATUS, Codec, Status
+from io_drivers.protocol import NO_NODE, STATUS, Codec, RouteCommand, Status
 
 
 @pytest.fixture
@@ -192,10 +192,13 @@ def test_a_second_jump_right_after_the_first_is_seen_and_restarts_the_recovery(p
     assert c.suspect_events == 1
 
 
-def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program):
+@pytest.mark.parametrize("cancel_lost", [False, True])
+def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program, cancel_lost):
     """Pushed by hand while it was driving, the vehicle still carries the route it had
     from its old place. An operator's acknowledge moves its holds to where it stands; the
-    old route is cancelled before it may go again, so it drives only what it is released."""
+    old route is cancelled before it may go again, so it drives only what it is released.
+    The cancel may be lost on the link: the vehicle then still reports the old route's
+    next node, so it is kept stopped and the cancel repeated until it reports none."""
     p = program
     plant = p.cfg.plant
     p.rt.run(duration=10)
@@ -227,6 +230,17 @@ def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program):
     agv.driven.append(x)  # the route on board is left as it was
     p.rt.run(duration=1)
     assert c.suspect and list(agv.route) == carried
+    if cancel_lost:  # the first route command for v after the acknowledge never arrives
+        receive, lost = p.fleet.receive, []
+
+        def losing(frame_id, data):
+            message = Codec().decode(frame_id, data)
+            if isinstance(message, RouteCommand) and message.vehicle == v and not lost:
+                lost.append(message)
+                return
+            receive(frame_id, data)
+
+        p.fleet.receive = losing
     p.rt.image.write(f"agv{v}.ack", 1)
     for _ in range(round(5 / p.cfg.cycle_time)):
         p.rt.step()
@@ -239,6 +253,9 @@ def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program):
     p.rt.run(duration=30)
     assert p.rt.image.read(f"agv{v}.ack_result") == ACK_DONE
     assert c.suspect_events == 1, c.suspect_reason  # it never drove what it was not given
+    assert not c.foreign_route and len(agv.driven) > 1 + agv.driven.index(x)  # it drove on
+    if cancel_lost:
+        assert lost and lost[0].nodes == ()  # (what was lost was the cancel)
     assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 

@@ -133,13 +133,20 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
     xs, ys = [node.x for node in nodes], [node.y for node in nodes]
     functions_ok = np.ones(n, dtype=bool)
     may_provide = np.ones(n, dtype=bool)
+    once = np.ones(n, dtype=bool)  # no function listed twice on one node
     for i in (i for i, node in enumerate(nodes) if node.functions):
         functions_ok[i] = all(map(_is_id, nodes[i].functions))
         may_provide[i] = roles[i] in FUNCTION_ROLES
+        once[i] = not functions_ok[i] or len(set(nodes[i].functions)) == len(nodes[i].functions)
 
     def bad_function(i: int) -> str:
         wrong = next(f for f in nodes[i].functions if not _is_id(f))
         return f"function ids must be integers 0..{MAX_NODE_ID}, got {_short(wrong)}"
+
+    def function_twice(i: int) -> str:
+        functions = nodes[i].functions
+        twice = next(f for k, f in enumerate(functions) if f in functions[:k])
+        return f"function {twice} is listed twice"
 
     _raise_first_failure(
         [
@@ -162,6 +169,7 @@ def _check_nodes(plant: Plant, source: str | None) -> None:
                 ),
             ),
             (functions_ok, bad_function),
+            (once, function_twice),
             (
                 may_provide,
                 lambda i: (

@@ -109,6 +109,8 @@ class VehicleControl(FunctionBlock):
     consistent_since_ns = Static(None)  # suspect: reporting a held node since then
     link_jumps = Static(0)  # the link's count of this vehicle's counter jumps, last seen
     reported = Static(None)  # the last reported node, plausible or not (None: not in the plant)
+    # stopped because it reports a next node it was not released (see _keep_to_released)
+    foreign_route = Output(False, doc="stopped: it reports a next node it was not released")
 
     def __init__(
         self,
@@ -208,7 +210,26 @@ class VehicleControl(FunctionBlock):
         elif not self.released and not self.route and not self.planning:
             self._not_waiting()
         self._resend_if_lost(ctx, reported_next)
+        self._keep_to_released(ctx, reported_next)
         self._publish_state()
+
+    def _keep_to_released(self, ctx: CycleContext, reported_next: int) -> None:
+        """A vehicle carries the route of the last command it got, and the released nodes
+        are that route as it is passed, so the next node it reports is one of them or none.
+        Any other is a route it was not released: the old route of a vehicle pushed by hand
+        whose cancel was lost, one of a controller before a restart. Its holds do not cover
+        it, so the vehicle is stopped (the go bit off, whatever else this scan commanded)
+        and the command repeated until it reports no other; then it may go again."""
+        if reported_next == NO_NODE or reported_next in self.released:
+            if self.foreign_route:
+                self.foreign_route = False
+                self._command(go=True)
+            return
+        self.foreign_route = True
+        if ctx.time_ns - self.sent_ns >= RESEND_AFTER_NS:
+            self.sequence = self.sequence % 255 + 1
+            self.sent_ns = ctx.time_ns
+        self._command(go=False)
 
     def _passed(self, current: int, clear: bool) -> None:
         """A plausible report: the nodes up to ``current`` are passed."""
