@@ -55,6 +55,8 @@ class TON(FunctionBlock):
         if not self.IN:
             self.start_ns, self.Q, self.ET = None, False, 0.0
             return
+        if self.Q:
+            return  # on until IN falls, whatever PT does now (docs/runtime.md)
         if self.start_ns is None:
             self.start_ns = ctx.time_ns
         elapsed = ctx.time_ns - self.start_ns
@@ -107,11 +109,12 @@ class TP(FunctionBlock):
 
     def cycle(self, ctx: CycleContext) -> None:
         pt_ns = _duration_ns(self, self.PT)
-        if not self.Q and self.IN and not self.in_prev and self.start_ns is None:
+        rising = not self.Q and self.IN and not self.in_prev and self.start_ns is None
+        if rising:
             self.start_ns, self.Q = ctx.time_ns, True
         if self.start_ns is not None:
             elapsed = ctx.time_ns - self.start_ns
-            if elapsed >= pt_ns:
+            if elapsed >= pt_ns and not rising:  # (PT = 0: a pulse of the one call)
                 self.Q, self.ET = False, pt_ns / 1e9
                 if not self.IN:
                     self.start_ns, self.ET = None, 0.0

@@ -57,7 +57,8 @@ def _seconds(
     if ok and (value >= low if low_ok else value > low) and value <= high:
         return float(value)
     lower = f">= {low:g}" if low_ok else f"> {low:g}"
-    raise ConfigError(f"{what} must be a number of seconds {lower} and <= {high:g}, got {value!r}")
+    upper = "" if high == math.inf else f" and <= {high:g}"
+    raise ConfigError(f"{what} must be a finite number of seconds {lower}{upper}, got {value!r}")
 
 
 def _ticks(value: float, tick: float, what: str) -> int:
@@ -366,16 +367,7 @@ class Runtime:
             if was_running and self._drivers_open:
                 # the safe state goes out through every driver before it closes: the devices
                 # must see it, not only the image
-                now = self.clock.now_ns()
-                for driver in self.drivers:
-                    try:
-                        driver.write_outputs(self.image, now)
-                    except Exception as exc:  # a driver that cannot write still gets closed
-                        warnings.warn(
-                            f"{type(driver).__name__}: safe state not written at stop: {exc}",
-                            RuntimeWarning,
-                            stacklevel=2,
-                        )
+                self._write_safe_state("at stop")
             for driver in self.drivers:
                 driver.close()
             if retained is not None:
@@ -406,7 +398,7 @@ class Runtime:
         """Run ``n`` base ticks; return how many ran (fewer if the runtime faulted)."""
         self._require(RUN, "step")
         self._refuse_inside_scan("step()")
-        if not isinstance(n, int) or n < 0:
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ConfigError(f"step count must be a non-negative integer, got {n!r}")
         for done in range(n):
             self._tick()
@@ -428,7 +420,9 @@ class Runtime:
                     f"duration {seconds:g} s is less than half a cycle ({self.cycle_time:g} s): "
                     "no cycle would run"
                 )
-        if cycles is not None and (not isinstance(cycles, int) or cycles < 0):
+        if cycles is not None and (
+            isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 0
+        ):
             raise ConfigError(f"cycles must be a non-negative integer, got {cycles!r}")
         done = 0
         while (cycles is None or done < cycles) and self.state == RUN:
@@ -453,10 +447,10 @@ class Runtime:
             raise ConfigError(f"max_cycles must be a positive integer, got {max_cycles!r}")
         for _ in range(max_cycles):
             self._tick()
+            if self.state != RUN:  # (the safe state may satisfy the predicate: not success)
+                return False
             if predicate():
                 return True
-            if self.state != RUN:
-                return False
         return False
 
     # ----- the scan -----------------------------------------------------------------------
@@ -511,7 +505,7 @@ class Runtime:
         self.ticks = k + 1
         try:
             self._alarm.begin_scan(tick_real_start)
-            completed = self._scan(k, release)
+            completed = self._scan(k, release, tick_real_start)
         except WatchdogTimeout:
             self._fault(
                 f"watchdog: scan {k} exceeded the maximum cycle time of {self.watchdog * 1e3:g} ms and was aborted"
@@ -534,13 +528,18 @@ class Runtime:
                 f"watchdog: scan {k} took {tick_exec / 1e6:.1f} ms, maximum cycle time is {self.watchdog * 1e3:g} ms"
             )
 
-    def _scan(self, k: int, release: int) -> bool:
-        """Quiet point, copy-in, due tasks, copy-out; False if the runtime faulted."""
+    def _scan(self, k: int, release: int, started_ns: int) -> bool:
+        """Quiet point, copy-in, due tasks, copy-out; False if the runtime faulted.
+
+        Drivers get the tick's IEC time (its release since the start) on both sides. A
+        scan found over the watchdog's limit after its tasks (the interrupt cannot reach
+        a runtime outside the main thread, and a block may swallow it) faults before its
+        copy-out: late and perhaps half-computed outputs never reach the field."""
         image = self.image
         image.apply_quiet_point()
-        now = release - self._t0
+        iec_now = release - self._t0
         for driver in self.drivers:
-            if not self._run_driver(driver.read_inputs, driver, now):
+            if not self._run_driver(driver.read_inputs, driver, iec_now):
                 return False
         copied_in = False
         for task in self.tasks:
@@ -557,9 +556,16 @@ class Runtime:
             if not self._scan_task(task, release, now):
                 return False
         if copied_in:
+            took = perf_counter_ns() - started_ns
+            if took > self._watchdog_ns:
+                self._fault(
+                    f"watchdog: scan {k} took {took / 1e6:.1f} ms, maximum cycle time is "
+                    f"{self.watchdog * 1e3:g} ms; its outputs were not copied out"
+                )
+                return False
             image.copy_out()
         for driver in self.drivers:
-            if not self._run_driver(driver.write_outputs, driver, now):
+            if not self._run_driver(driver.write_outputs, driver, iec_now):
                 return False
         self._scan_ran = copied_in
         return True
@@ -617,8 +623,25 @@ class Runtime:
             self.state = FAULT
             self.fault_reason = reason
             self.image.publish_safe_state(self.safe_outputs)
+            if self._drivers_open:
+                # at once, as a CPU going to STOP does: a driver that pushes outputs (a
+                # bus, a coupler) would hold the last scan's until stop() otherwise
+                self._write_safe_state("at the fault")
         finally:
             self._alarm.held = False
+
+    def _write_safe_state(self, when: str) -> None:
+        """The safe state out through every driver; one that cannot write is reported."""
+        now = self.clock.now_ns() - self._t0
+        for driver in self.drivers:
+            try:
+                driver.write_outputs(self.image, now)
+            except Exception as exc:
+                warnings.warn(
+                    f"{type(driver).__name__}: safe state not written {when}: {exc}",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
 
     def _fault_on(self, who: str, exc: BaseException) -> None:
         """FAULT because ``exc`` escaped a block or a driver, whatever its class.

@@ -1103,3 +1103,18 @@ def test_a_node_listing_a_function_twice_is_refused(tmp_path, name, text):
     plant.write_text(text)
     with pytest.raises(TopologyError, match=r"nodes\[0\] \(id 0\): function 2 is listed twice"):
         load(plant)
+
+
+@pytest.mark.parametrize(
+    ("text", "line"),
+    [
+        ("0 -1 0 1 1.0 -1 0 -1 0 x=0 y=0\n1 -1 0 -1 0 -1 0 0 1.0\n", 2),
+        ("0 -1 0 1 1.0 -1 0 -1 0 x=0\n1 -1 0 -1 0 -1 0 0 1.0 x=1 y=0\n", 1),
+    ],
+)
+def test_a_node_list_gives_positions_on_every_node_or_on_none(tmp_path, text, line):
+    """Positions on some nodes only put the others at (0, 0) silently: a drawing that lies."""
+    plant = tmp_path / "p.nodes"
+    plant.write_text(text)
+    with pytest.raises(TopologyError, match=rf"p\.nodes: line {line}: x and y are given on some"):
+        load(plant)

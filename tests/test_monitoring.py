@@ -393,3 +393,98 @@ def test_a_stats_copy_freezes_the_counters_and_may_share_the_window():
     assert shared.exec_percentile_ns(100) == 1000  # the live window, moved on by one scan
     assert shared.late_percentile_ns(100) == 7
     assert live.cycles == 5 and live.exec_max_ns == 1000
+
+
+class Field:
+    """A driver that pushes %QX0.0 out whenever it is asked (a coupler, a bus): what the
+    field saw, and the times the runtime handed it."""
+
+    name = "field"
+
+    def __init__(self) -> None:
+        self.sent: list[bool] = []
+        self.times: list[tuple[str, int]] = []
+
+    def open(self, image) -> None:
+        self._q = image.output_reader("%QX0.0")
+
+    def read_inputs(self, image, now_ns: int) -> None:
+        self.times.append(("in", now_ns))
+
+    def write_outputs(self, image, now_ns: int) -> None:
+        self.sent.append(self._q())
+        self.times.append(("out", now_ns))
+
+    def close(self) -> None: ...
+
+    def stats(self) -> dict[str, object]:
+        return {}
+
+
+def test_a_fault_sends_the_safe_state_to_the_field_at_once():
+    """A CPU going to STOP drives its outputs to their substitute values at once; a driver
+    that pushes outputs must not hold the last scan's until someone calls stop()."""
+
+    def cycle(ctx):
+        ctx.image.write("%QX0.0", True)
+        if ctx.cycle == 2:
+            raise ValueError("sensor table empty")
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=1.0)
+    field = Field()
+    rt.add_driver(field)
+    rt.add_task("main", [Probe(cycle)])
+    rt.start()
+    rt.step(5)
+    assert rt.state == "FAULT" and field.sent == [True, True, False]
+    rt.stop()
+    assert field.sent == [True, True, False, False]
+
+
+def test_a_scan_over_the_watchdog_never_sends_its_outputs():
+    """Without the interrupt (a runtime outside the main thread, or a block swallowing it)
+    the limit is checked after the tasks: the late scan's outputs are not copied out, the
+    field gets the safe state."""
+    rt = Runtime(cycle_time=1.0, clock=VirtualClock(), watchdog=0.020, watchdog_interrupt=False)
+    field = Field()
+    rt.add_driver(field)
+    rt.add_task("main", [Probe(lambda ctx: ctx.image.write("%QX0.0", ctx.cycle == 1))])
+    rt.add_task("busy", [Busy(0.030, scans={1})], priority=1)
+    rt.start()
+    rt.step(3)
+    assert rt.state == "FAULT" and "its outputs were not copied out" in rt.fault_reason
+    assert field.sent == [False, False] and rt.image.read("%QX0.0") is False
+    rt.stop()
+
+
+def test_drivers_get_the_tick_s_iec_time_on_both_sides():
+    """read_inputs and write_outputs get the same time base (the tick's release since the
+    start), whichever task ran and whatever the clock's own time: a driver times its
+    heartbeats and repeats from it."""
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(start=100.0), watchdog=1.0)
+    field = Field()
+    rt.add_driver(field)
+    rt.add_task("slow", [Probe(lambda ctx: None)], interval=0.020)
+    rt.start()
+    rt.step(4)
+    tick = 10_000_000
+    assert field.times == [(side, k * tick) for k in range(4) for side in ("in", "out")]
+    rt.stop()
+    assert field.times[-1] == ("out", 3 * tick)  # the safe state at stop: the same base
+
+
+def test_run_until_is_no_success_when_the_runtime_faulted():
+    """The safe state may satisfy the predicate (an output gone off); that is a fault."""
+
+    def cycle(ctx):
+        ctx.image.write("%QX0.0", True)
+        if ctx.cycle == 3:
+            raise ValueError("sensor table empty")
+
+    rt = Runtime(cycle_time=0.010, clock=VirtualClock(), watchdog=1.0)
+    rt.add_task("main", [Probe(cycle)])
+    rt.start()
+    rt.step()
+    assert rt.run_until(lambda: not rt.image.read("%QX0.0"), max_cycles=100) is False
+    assert rt.state == "FAULT"
+    rt.stop()

@@ -75,6 +75,15 @@ def test_run_until():
     with pytest.raises(ConfigError, match=r"duration 0.004 s is less than half a cycle \(0.01 s\)"):
         rt.run(duration=0.004)
     assert rt.run(duration=0) == 0 and rt.run(duration=0.006) == 1
+    for bad in (True, False):  # a truth value is no count
+        with pytest.raises(ConfigError, match="must be a non-negative integer"):
+            rt.step(bad)
+        with pytest.raises(ConfigError, match="must be a non-negative integer"):
+            rt.run(cycles=bad)
+    with pytest.raises(
+        ConfigError, match=r"duration must be a finite number of seconds >= 0, got inf"
+    ):
+        rt.run(duration=float("inf"))
     for bad in (0, -1, 2.5, True):  # a count that can mean nothing is an error, not "never"
         with pytest.raises(ConfigError, match="max_cycles must be a positive integer"):
             rt.run_until(lambda: False, max_cycles=bad)
@@ -130,9 +139,9 @@ def test_deadline_passes_where_the_clock_charges_execution():
         ({"interval": 0.020, "phase": 0.005}, "phase 0.005 s is not a multiple"),
         ({"overrun": "ignore"}, "overrun policy 'ignore'"),
         ({"priority": 1.5}, "priority must be an integer"),
-        ({"interval": -1}, "interval must be a number of seconds > 0"),
-        ({"interval": float("inf")}, "interval must be a number of seconds > 0"),
-        ({"budget": float("nan")}, "budget must be a number of seconds"),
+        ({"interval": -1}, "interval must be a finite number of seconds > 0"),
+        ({"interval": float("inf")}, "interval must be a finite number of seconds > 0"),
+        ({"budget": float("nan")}, "budget must be a finite number of seconds"),
     ],
 )
 def test_task_configuration_errors(kwargs, message):

@@ -52,6 +52,24 @@ def test_ton_zero_preset_is_immediate():
     assert out["Q"] == bits("0 1 0")
 
 
+def test_ton_stays_on_while_in_stays_true_when_pt_is_raised():
+    """Raising PT after Q rose (a recipe's longer delay) does not drop Q mid-run: it stays
+    on until IN falls, as MatIEC's TON does; the next rise times the new PT."""
+    out = drive(
+        TON(),
+        {"IN": bits("1 1 1 1 1 0 1 1 1 1"), "PT": [0.1, 0.1, 0.1, 0.5, 0.5] + [0.3] * 5},
+        ("Q", "ET"),
+    )
+    assert out["Q"] == bits("0 1 1 1 1 0 0 0 0 1")
+    assert out["ET"] == [0, 0.1, 0.1, 0.1, 0.1, 0, 0, 0.1, 0.2, 0.3]
+
+
+def test_tp_zero_preset_is_a_pulse_of_one_call():
+    out = drive(TP(), {"IN": bits("0 1 1 0 1 0"), "PT": [0.0] * 6}, ("Q", "ET"))
+    assert out["Q"] == bits("0 1 0 0 1 0")
+    assert out["ET"] == [0] * 6
+
+
 def test_tof():
     out = drive(TOF(), {"IN": bits("0 1 1 0 0 0 0 0 1 0 0 1"), "PT": [0.3] * 12}, ("Q", "ET"))
     assert out["Q"] == bits("0 1 1 1 1 1 0 0 1 1 1 1")

@@ -90,8 +90,18 @@ def load_nodes(path: str | Path) -> Plant:
             else:
                 edges.append(Edge(node_id, other, dist, bidirectional=False, port_source=port))
             done.add((node_id, other, port))
-    if not any(("x" in o or "y" in o) for o, _p, _l in records.values()):
+    placed = [("x" in o) + ("y" in o) for o, _p, _l in records.values()]
+    if not any(placed):
         nodes = _layout(nodes, edges)
+    elif not all(count == 2 for count in placed):
+        # some at their given place, the others at (0, 0): a drawing that lies
+        line = next(r[2] for r, n in zip(records.values(), placed, strict=True) if n < 2)
+        raise TopologyError(
+            "x and y are given on some nodes but not both here: give them on every node, "
+            "or on none (positions are then laid out from the ports)",
+            source,
+            f"line {line}",
+        )
     return Plant.build(nodes, edges, name=escaped_name(path.stem), source=source)
 
 
