@@ -197,8 +197,9 @@ def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program, can
     """Pushed by hand while it was driving, the vehicle still carries the route it had
     from its old place. An operator's acknowledge moves its holds to where it stands; the
     old route is cancelled before it may go again, so it drives only what it is released.
-    The cancel may be lost on the link: the vehicle then still reports the old route's
-    next node, so it is kept stopped and the cancel repeated until it reports none."""
+    The first command after the acknowledge may be lost on the link: the vehicle then still
+    reports the old route's next node, which the controller claims for it if it is free
+    (else it keeps it stopped and repeats the command), so what it drives stays held."""
     p = program
     plant = p.cfg.plant
     p.rt.run(duration=10)
@@ -255,7 +256,39 @@ def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program, can
     assert c.suspect_events == 1, c.suspect_reason  # it never drove what it was not given
     assert not c.foreign_route and len(agv.driven) > 1 + agv.driven.index(x)  # it drove on
     if cancel_lost:
-        assert lost and lost[0].nodes == ()  # (what was lost was the cancel)
+        assert lost  # (a command after the acknowledge was lost)
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+def test_a_vehicle_braked_on_a_segment_it_was_not_released_finishes_it_once_held(program):
+    """A vehicle stands on a segment towards a node nobody released to it (braked there when
+    a controller before a restart stopped, or pushed by hand there): after the operator's
+    acknowledge its released route is empty, yet it reports that node as its next. The
+    node is free, so it is claimed for it and the vehicle finishes the segment, held all
+    the way, instead of standing there for ever or driving on into a node it does not
+    hold."""
+    p = program
+    plant = p.cfg.plant
+    p.rt.run(duration=10)
+    standing(p, 3)
+    agv, c = p.fleet.vehicles[3], p.controls[3]
+    x = free_node(p)
+    used = {a.node for a in p.fleet.vehicles.values()} | {
+        int(plant.ids[n]) for h in p.reservation.holds.values() for n in h
+    }
+    t = next(b for (a, b) in plant.arc_index if a == x and b not in used)
+    agv.node, agv.target, agv.progress, agv.speed, agv.turn_left = x, t, 0.1, 0.0, 0.0
+    agv.route.clear()
+    agv.driven.append(x)
+    p.rt.run(duration=1)
+    assert c.suspect
+    p.rt.image.write("agv3.ack", 1)
+    for _ in range(round(20 / p.cfg.cycle_time)):
+        p.rt.step()
+        held = {int(plant.ids[n]) for n in p.reservation.held_by(3)}
+        assert not agv.go or agv.target is None or agv.target in held, (agv.target, held)
+    assert p.rt.image.read("agv3.ack_result") == ACK_DONE
+    assert t in agv.driven[agv.driven.index(x) :] and not c.foreign_route and not c.suspect
     assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 

@@ -111,6 +111,7 @@ class VehicleControl(FunctionBlock):
     reported = Static(None)  # the last reported node, plausible or not (None: not in the plant)
     # stopped because it reports a next node it was not released (see _keep_to_released)
     foreign_route = Output(False, doc="stopped: it reports a next node it was not released")
+    foreign_since_ns = Static(0)  # since when (a spoofed status lasts one status period)
 
     def __init__(
         self,
@@ -217,15 +218,34 @@ class VehicleControl(FunctionBlock):
         """A vehicle carries the route of the last command it got, and the released nodes
         are that route as it is passed, so the next node it reports is one of them or none.
         Any other is a route it was not released: the old route of a vehicle pushed by hand
-        whose cancel was lost, one of a controller before a restart. Its holds do not cover
-        it, so the vehicle is stopped (the go bit off, whatever else this scan commanded)
-        and the command repeated until it reports no other; then it may go again."""
+        whose cancel was lost, one a controller gave before a restart. Its holds do not
+        cover that node. It is stopped (the go bit off, whatever else this scan commanded)
+        and its command repeated until it reports no other; then it may go. With nothing
+        released (the cases above), no hold, and the node next to it free, the node is
+        claimed for it once the report has lasted a resend interval, as a grant does, and
+        the vehicle is sent there: what it may do is then covered, and a vehicle braked on
+        its way there finishes the segment instead of standing on it for ever. (The wait:
+        a spoofed status frame lasts until the vehicle's next, and must not move it.)"""
         if reported_next == NO_NODE or reported_next in self.released:
             if self.foreign_route:
                 self.foreign_route = False
                 self._command(go=True)
             return
-        self.foreign_route = True
+        if not self.foreign_route:
+            self.foreign_route, self.foreign_since_ns = True, ctx.time_ns
+        if (
+            not self.released
+            and not self.hold
+            and (self.current, reported_next) in self.arc_index
+            and ctx.time_ns - self.foreign_since_ns >= RESEND_AFTER_NS
+            and self.reservation.may_enter(self.vehicle, self.index[reported_next])[0]
+        ):
+            self._forget_route(ctx)  # planned again from there
+            self._claim(reported_next)
+            self._not_waiting()
+            self.foreign_route = False
+            self._send(ctx)
+            return
         if ctx.time_ns - self.sent_ns >= RESEND_AFTER_NS:
             self.sequence = self.sequence % 255 + 1
             self.sent_ns = ctx.time_ns
@@ -454,7 +474,14 @@ class VehicleControl(FunctionBlock):
     def request(self, ctx: CycleContext) -> int | None:
         """The node (id) a vehicle standing at a node wants to start to, or None: nothing to
         drive, planning, on hold, giving way, or the next segment closed (it replans)."""
-        if self.released or self.planning or self.hold or self.suspect or not self.route:
+        if (
+            self.released
+            or self.planning
+            or self.hold
+            or self.suspect
+            or self.foreign_route  # (stopped until it carries only what it was released)
+            or not self.route
+        ):
             return None
         here, there = self.current, self.route[0]
         withheld, giving_way_to = self._step_withheld(ctx, here, there)
