@@ -122,14 +122,28 @@ def test_damaged_file_gives_a_message_and_a_cold_start(tmp_path, damage, message
     rt.stop()
 
 
-def _rewritten(path, change) -> None:
-    """The file with its values changed and its header made valid again (a hand edit)."""
-    head, body = path.read_bytes().split(b"\n", 1)
-    values = change(json.loads(body))
-    body = json.dumps(values).encode()
-    magic, version, layout, _crc, _length = head.split(b" ")
+def _with_body(path, body: bytes) -> None:
+    """The file with this body under a valid header (a hand edit or another tool)."""
+    magic, version, layout, _crc, _length = path.read_bytes().split(b"\n", 1)[0].split(b" ")
     head = b" ".join([magic, version, layout, b"%08x" % zlib.crc32(body), b"%d" % len(body)])
     path.write_bytes(head + b"\n" + body)
+
+
+def _rewritten(path, change) -> None:
+    """The file with its values changed and its header made valid again (a hand edit)."""
+    _with_body(path, json.dumps(change(json.loads(path.read_bytes().split(b"\n", 1)[1]))).encode())
+
+
+def _refused_at_start(tmp_path, path, message: str) -> None:
+    """A start on the edited file: one warning naming the file and why, a cold start, and
+    the file set aside as it was, as a damaged file is."""
+    edited = path.read_bytes()
+    rt, m = build(path)
+    with pytest.warns(RuntimeWarning, match=re.escape(f"{path}: {message}")):
+        rt.start()
+    assert rt.start_info.startswith("cold:") and values(rt, m) == (0, 0, 0, 0, 0)
+    assert (tmp_path / "plc.retain.rejected").read_bytes() == edited
+    rt.stop()
 
 
 @pytest.mark.parametrize(
@@ -149,20 +163,7 @@ def test_a_value_its_variable_cannot_take_gives_a_cold_start_and_keeps_the_file(
     path = _saved(tmp_path)
     assert key in json.loads(path.read_bytes().split(b"\n", 1)[1])  # a key the program uses
     _rewritten(path, lambda values: {**values, key: value})
-    edited = path.read_bytes()
-    rt, m = build(path)
-    with pytest.warns(RuntimeWarning, match=re.escape(f"{path}: {message}")):
-        rt.start()
-    assert rt.start_info.startswith("cold:") and values(rt, m) == (0, 0, 0, 0, 0)
-    assert (tmp_path / "plc.retain.rejected").read_bytes() == edited
-    rt.stop()
-
-
-def _with_body(path, body: bytes) -> None:
-    """The file with this body under a valid header (a hand edit or another tool)."""
-    magic, version, layout, _crc, _length = path.read_bytes().split(b"\n", 1)[0].split(b" ")
-    head = b" ".join([magic, version, layout, b"%08x" % zlib.crc32(body), b"%d" % len(body)])
-    path.write_bytes(head + b"\n" + body)
+    _refused_at_start(tmp_path, path, message)
 
 
 @pytest.mark.parametrize(
@@ -182,13 +183,7 @@ def test_a_file_with_other_keys_or_a_key_twice_gives_a_cold_start(tmp_path, body
     file set aside, and so is a body nested too deeply to read."""
     path = _saved(tmp_path)
     _with_body(path, body(path.read_bytes().split(b"\n", 1)[1]))
-    edited = path.read_bytes()
-    rt, m = build(path)
-    with pytest.warns(RuntimeWarning, match=re.escape(f"{path}: {message}")):
-        rt.start()
-    assert rt.start_info.startswith("cold:") and values(rt, m) == (0, 0, 0, 0, 0)
-    assert (tmp_path / "plc.retain.rejected").read_bytes() == edited
-    rt.stop()
+    _refused_at_start(tmp_path, path, message)
 
 
 class Odometer(FunctionBlock):
