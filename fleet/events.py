@@ -26,6 +26,7 @@ from plc_runtime import CycleContext, FunctionBlock
 
 # vehicle states worth an event when a vehicle enters them
 ALARM_STATES = ("offline", "stale", "fault", "no_route", "suspect")
+FOREIGN_NEWS_S = 2.0  # a vehicle stopped for a route it was not released this long is news
 KINDS = ("deadlock", "livelock", "replan", "blockade", "reopened", "vehicle", "recovered")
 
 
@@ -75,6 +76,8 @@ class EventLog(FunctionBlock):
         self._deadlocks_seen = 0
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
+        # vehicles stopped for a route they were not released: since when, and whether told
+        self._foreign: dict[int, tuple[float, bool]] = {}
         # vehicles that take orders, and the order whose load each was left with ('': none)
         self._runners = {v: j for v, j in sequencers.items() if isinstance(j, OrderRunner)}
         self._loads = dict.fromkeys(self._runners, "")
@@ -107,6 +110,7 @@ class EventLog(FunctionBlock):
                 elif before in ALARM_STATES and (before != "offline" or v in self._silent):
                     self._silent.discard(v)
                     self.add(now, "recovered", v, f"{before} -> {state}")
+        self._foreign_routes(now)
         self._started = True
         if not self._silence_checked and now > self.silent_after_s:
             self._silence_checked = True
@@ -130,6 +134,27 @@ class EventLog(FunctionBlock):
             self.segment_changes.append((round(now, 3), "reopened", a, b))
             self.lifted.add((a, b))
         self._blocked = blocked
+
+    def _foreign_routes(self, now: float) -> None:
+        """A vehicle kept stopped because it reports a next node it was not released (a
+        route it still carries): news once it has lasted FOREIGN_NEWS_S, since a spoofed
+        status frame stops one for a moment and that is no operator's business."""
+        for v, control in self.controls.items():
+            if control.foreign_route:
+                since, told = self._foreign.setdefault(v, (now, False))
+                if not told and now - since >= FOREIGN_NEWS_S:
+                    self._foreign[v] = (since, True)
+                    self.add(
+                        now,
+                        "vehicle",
+                        v,
+                        f"stopped at node {control.current}: it reports a next node it was "
+                        "not released (a route it still carries); the command is repeated",
+                    )
+            elif v in self._foreign:
+                _since, told = self._foreign.pop(v)
+                if told:
+                    self.add(now, "recovered", v, "carries only what it was released")
 
     def _loads_left(self, now: float) -> None:
         """An order ended without its Put (withdrawn, failed): its load is still on the

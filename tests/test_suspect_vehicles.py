@@ -292,6 +292,43 @@ def test_a_vehicle_braked_on_a_segment_it_was_not_released_finishes_it_once_held
     assert p.monitor.head_on == 0 and p.monitor.node == 0
 
 
+def test_a_vehicle_braked_towards_a_node_another_holds_waits_stopped_and_is_reported(program):
+    """The same, but the node ahead is held by a vehicle standing there (on hold): the
+    braked vehicle stays stopped (go off) and the event log says why once it has lasted;
+    when the other has gone, the node is claimed for it and it finishes the segment."""
+    p = program
+    plant = p.cfg.plant
+    p.rt.run(duration=10)
+    standing(p, 2)
+    p.rt.image.write("agv2.hold", 1)
+    t = p.fleet.vehicles[2].node
+    used = {a.node for a in p.fleet.vehicles.values()} | {
+        int(plant.ids[n]) for h in p.reservation.holds.values() for n in h
+    }
+    x = next(a for (a, b) in sorted(plant.arc_index) if b == t and a not in used)
+    agv, c = p.fleet.vehicles[3], p.controls[3]
+    agv.node, agv.target, agv.progress, agv.speed, agv.turn_left = x, t, 0.1, 0.0, 0.0
+    agv.route.clear()
+    agv.driven.append(x)
+    p.rt.run(duration=1)
+    assert c.suspect and agv.speed == 0.0
+    braked_at = agv.progress  # (it rolled on a little until the stop reached it)
+    p.rt.image.write("agv3.ack", 1)
+    for _ in range(round(5 / p.cfg.cycle_time)):
+        p.rt.step()
+        assert agv.progress == braked_at
+    assert c.foreign_route and not c.suspect
+    told = [e.text for e in p.events.events if e.vehicle == 3 and "not released" in e.text]
+    assert told == [
+        f"stopped at node {x}: it reports a next node it was not released (a route it still "
+        "carries); the command is repeated"
+    ]
+    p.rt.image.write("agv2.hold", 0)
+    assert p.rt.run_until(lambda: t in agv.driven[agv.driven.index(x) :], round(120 / 0.05))
+    assert any(e.vehicle == 3 and e.kind == "recovered" for e in p.events.events)
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
 def test_a_report_of_a_node_not_in_the_plant_makes_it_suspect_not_faulty(program):
     """A status that passes the link's checks (a forged frame with the right CRC and
     counter, or a vehicle configured for another plant) names node 60000: nothing in it can
