@@ -485,7 +485,10 @@ class Runtime:
                     self._after_scan()
                     self._full.after_scan()  # (it costs lateness, not scan time)
         finally:
-            self.between_scans.set()
+            # (an Event's set() takes its lock and wakes waiters even when it is set: a
+            # tenth of a trivial scan's cost, so only where a path above left it clear)
+            if not self.between_scans.is_set():
+                self.between_scans.set()
 
     def _after_scan(self) -> None:
         """The drivers' ``after_scan`` (io.py): outside the scan's time and watchdog."""

@@ -113,6 +113,20 @@ def test_quick_bench_prints_its_table_with_a_ratio(args, ratio_column, rows):
     assert last.startswith("wall time ") and last.endswith(" s"), last
 
 
+def test_order_backlog_runs_its_rounds_without_a_fault():
+    """The backlog bench times the dispatcher's pool against a plain sort in every round:
+    a fault (a changed dispatcher it no longer fits) measures nothing and must fail it."""
+    result = run(
+        "bench/order_backlog.py", "--orders", "1000", "--strategies", "dhht", "--after-s", "10"
+    )
+    assert result.returncode == 0, result.stderr
+    columns, body, header = table(result.stdout)
+    assert header in DOCS, "order_backlog.py prints other columns than docs/benchmarks.md"
+    (row,) = body
+    assert row[columns.index("faults")] == "0" and int(row[columns.index("rounds")]) > 0, row
+    assert float(row[columns.index("sort / ours")]) > 0, row
+
+
 def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
     """The contract for scripts: --json prints one JSON object per run (plant, traffic
     mode, fleet size, seed), one per line."""
