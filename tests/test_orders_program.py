@@ -740,3 +740,61 @@ def test_requests_waiting_for_the_scan_are_bounded(tmp_path, made, monkeypatch):
     run(p, p.cfg.cycle_time)
     assert [f.result(0).state for f in taken] == [OrderState.DISPATCHABLE] * 3
     assert p.orders.submit(TransportOrder("q3", 20, 24))  # room again
+
+
+DC = Path(__file__).resolve().parent.parent / "examples" / "distribution-centre.toml"
+
+
+def dc_program(made, tmp_path, vehicles: int, orders: list[TransportOrder], **battery):
+    """The distribution centre's program with its first ``vehicles`` and these orders only."""
+    from blocks.dispatch.order_file import write_orders
+    from fleet.config import load_config
+
+    cfg = load_config(DC)
+    first_vehicles(cfg, vehicles)
+    cfg.watchdog = 5.0
+    cfg.battery.enabled = bool(battery)
+    for key, value in battery.items():
+        setattr(cfg.battery, key, value)
+    write_orders(tmp_path / "orders.csv", orders)
+    cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = tmp_path / "orders.csv", None, 1e9
+    return start(cfg, made)
+
+
+def test_closing_the_segment_a_loaded_vehicle_is_on_does_not_fail_its_order(tmp_path, made):
+    """The vehicle is partway along a segment, its load on board, when an operator closes
+    that segment. It drives on to the segment's end (released to it), from where its Put
+    station is still reachable: the order is delivered, not failed as cut off."""
+    p = dc_program(made, tmp_path, 1, [TransportOrder("o1", 21, 31, 0.0)])
+    agv, runner = p.fleet.vehicles[1], p.orders.runners[1]
+    assert p.rt.run_until(
+        lambda: runner.phase == "to_put" and agv.target is not None and agv.progress > 1.0,
+        max_cycles=round(600 / 0.05),
+    )
+    a, b = agv.node, agv.target
+    p.blockades.block(a, b, both_ways=True)
+    run(p, 300)
+    order = p.orders.book.get("o1")
+    assert order.state is OrderState.FINISHED, order.reason
+    assert not runner.load_left
+
+
+def test_a_vehicle_waiting_for_a_charger_does_not_wait_on_the_station_it_served(tmp_path, made):
+    """Every charger is taken when vehicle 5's charge falls below good during its Put:
+    it waits for a charger, but off the station and its single-vehicle area, so vehicle 6,
+    bound for the same station, is served meanwhile (chargers free up only after an hour)."""
+    starts = {1: 30.0, 2: 30.0, 3: 30.0, 4: 30.0, 5: 80.0, 6: 90.0}  # 1-4 take every charger
+    orders = [
+        TransportOrder("o1", 21, 71, 0.0, vehicle=5),
+        TransportOrder("o2", 22, 71, 300.0, vehicle=6),
+    ]
+    p = dc_program(made, tmp_path, 6, orders, start=starts)
+    r5 = p.orders.runners[5]
+    assert p.rt.run_until(lambda: r5.phase == "put", max_cycles=round(600 / 0.05))
+    battery = p.fleet.vehicles[5].battery
+    battery.charge_as = 0.33 * battery.params.capacity_as
+    o2 = p.orders.book.get("o2")
+    assert p.rt.run_until(lambda: o2.state is OrderState.FINISHED, max_cycles=round(900 / 0.05))
+    assert r5.phase == "to_charger" and r5.current not in r5._area(71)
+    assert all(p.orders.runners[v].phase == "charging" for v in (1, 2, 3, 4))
+    assert p.monitor.head_on == 0 and p.monitor.node == 0 and p.monitor.area == 0

@@ -229,12 +229,14 @@ class Dispatcher(FunctionBlock):
 
     def _check_active(self, ctx: CycleContext, runner: OrderRunner) -> None:
         """After a blockade: an active order whose next station the vehicle can no longer
-        reach fails (load on board) or goes back to the pool (not picked up yet)."""
+        reach fails (load on board) or goes back to the pool (not picked up yet). Reached
+        from where it will stand: the nodes released to it are driven whatever closes (a
+        vehicle on the closed segment itself drives on to its end)."""
         order = runner.active
         if order is not None and runner.current is not None:
             loaded = runner.phase in ("to_put", "put_queue", "put")
             station = order.put if loaded else order.get
-            if self.reach.reaches(runner.current, station):
+            if self.reach.reaches(_standing(runner), station):
                 return
             if loaded:
                 self.book.transition(
@@ -255,7 +257,7 @@ class Dispatcher(FunctionBlock):
         order = runner.next
         if order is None or runner.current is None:
             return
-        start = runner.active.put if runner.active is not None else runner.current
+        start = runner.active.put if runner.active is not None else _standing(runner)
         if self.reach.reaches(start, order.get) and self.reach.reaches(order.get, order.put):
             return
         runner.next, order.assigned = None, None
@@ -491,3 +493,8 @@ class _Positions:
             return self.nodes
         mine = self.by_vehicle.get(order.vehicle)
         return self.nodes[:0] if mine is None else np.array([mine], dtype=np.intp)
+
+
+def _standing(runner: OrderRunner) -> int:
+    """Where the vehicle will stand once it has driven what it was released."""
+    return runner.frontier if runner.frontier is not None else runner.current

@@ -179,6 +179,9 @@ class Claims:
 class OrderRunner(FunctionBlock):
     arrived = Input(False, doc="the vehicle control reports: at the target, nothing left to drive")
     current = Input(None, doc="the node the vehicle last reported")
+    frontier = Input(
+        None, doc="the last node released to the vehicle, where it will stand (None: current)"
+    )
     battery = Input(
         None, doc="state of charge in %, from the vehicle's info frames; None: none yet"
     )
@@ -654,8 +657,8 @@ class OrderRunner(FunctionBlock):
         if self.place not in self.chargers or not self._holds(self.place):
             # (one it holds already counts: it may stand on it, back from an outage)
             free = [c for c in self.chargers if self._holds(c) or self.claims.free(c, self.vehicle)]
-            if not free:  # it waits where it is for a charger, holding none
-                self.phase, self.target, self.place = "to_charger", self.current, None
+            if not free:
+                self._await_charger()
                 return
             self.place = min(free, key=lambda c: self.distance(self.current, c))
             self._forget()
@@ -665,6 +668,26 @@ class OrderRunner(FunctionBlock):
             self.phase, self.hold = "charging", True
             self.charges += 1
             self.charging_since = ctx.time
+
+    def _await_charger(self) -> None:
+        """Every charger is taken: the vehicle waits for one, holding none, on a parking
+        place off the lanes if one is free, else where it is, but not on the station it
+        was served at (the next vehicle for that station would wait the hour a charger
+        takes to come free)."""
+        self.phase = "to_charger"
+        if self.place in self.parking and self._holds(self.place):
+            self.target = self.place
+            return
+        self.place, self.target = None, self.current
+        spots = [p for p in self.parking if self.claims.free(p, self.vehicle)]
+        if spots:
+            self.place = min(spots, key=lambda p: self.distance(self.current, p))
+            self.claims.claim(self.place, self.vehicle)
+            self.target = self.place
+        elif self.leaving is not None and self.current in self._area(self.leaving):
+            aside = self._aside()
+            if aside is not None:
+                self.target = aside
 
     def _go_parking(self, ctx: CycleContext) -> None:
         if self.place not in self.parking or not self._holds(self.place):
