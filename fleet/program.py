@@ -112,7 +112,7 @@ class FleetCycle(FunctionBlock):
                     ctx,
                     arrived=control.arrived,
                     current=control.current,
-                    frontier=control.frontier if control.current is not None else None,
+                    frontier=control.frontier,
                     battery=self.battery(control.vehicle),
                     in_service=control.state not in OUT_OF_SERVICE,
                 )
