@@ -37,7 +37,8 @@ Experiments (the seed's, ``docs/benchmarks.md`` "Order allocation"):
 
 Ratios against the seed's published figures are printed beside ours: two_stage against
 dhht (the seed: -13.6 % mean order time at 17 vehicles, the largest gap of its fleet-size
-experiment, -7.45 % with 100 orders, makespan -6.57 %), and the buffer with the least mean order time (the seed: 38 s).
+experiment, -7.45 % with 100 orders, makespan -6.57 %), and the buffer with the least mean
+order time (the seed: 38 s).
 
     .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery arrival]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
