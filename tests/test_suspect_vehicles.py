@@ -192,6 +192,76 @@ def test_a_second_jump_right_after_the_first_is_seen_and_restarts_the_recovery(p
     assert c.suspect_events == 1
 
 
+def clear_on_a_segment(p: FleetProgram) -> int:
+    """Run until a vehicle has left its node and is well short of the next one: the node
+    behind it is free for others, the one ahead held by it."""
+    for _ in range(round(120 / p.cfg.cycle_time)):
+        p.rt.step()
+        for v, agv in p.fleet.vehicles.items():
+            left = p.reservation.cleared[v] == p.cfg.plant.index[agv.node]  # reported clear
+            if left and agv.target is not None and agv.length - agv.progress > 0.4:
+                return v
+    raise AssertionError("no vehicle drove a segment")
+
+
+def test_acknowledging_a_vehicle_suspect_on_a_segment_keeps_the_node_it_drives_to(program):
+    """A vehicle whose link restarted while it drove a segment (clear of the node behind
+    it) is suspect, stopped on the segment. An operator's acknowledge confirms what its
+    holds already say: the node ahead stays its own (given to it, the node behind would
+    free the one it stands in front of for the next vehicle), and it drives on."""
+    p = program
+    v = clear_on_a_segment(p)
+    agv, c = p.fleet.vehicles[v], p.controls[v]
+    ahead = agv.target
+    jump_counter(p, v)
+    assert p.rt.run_until(lambda: c.suspect, max_cycles=100)
+    held = p.cfg.plant.index[ahead]
+    assert agv.target == ahead and held in p.reservation.held_by(v)
+    p.rt.image.write(f"agv{v}.ack", 1)
+    p.rt.step()
+    assert p.rt.image.read(f"agv{v}.ack_result") == ACK_DONE
+    assert not c.suspect and held in p.reservation.held_by(v)
+    assert p.rt.run_until(lambda: agv.node == ahead, max_cycles=round(10 / p.cfg.cycle_time))
+    p.rt.run(duration=60)
+    assert (p.monitor.head_on, p.monitor.node, p.monitor.area) == (0, 0, 0)
+    assert not any(c.suspect for c in p.controls.values())
+
+
+def test_acknowledging_a_vehicle_pushed_past_a_node_holds_it_for_the_node_ahead(program):
+    """Pushed by hand onto a segment it was never released, past the crossing of the node
+    behind it (its report: that node, clear of it, the next one ahead), a vehicle is
+    suspect. The operator confirms it: it is held for the node ahead, not for the node it
+    has left, and sent on to it."""
+    p = program
+    plant = p.cfg.plant
+    p.rt.run(duration=10)
+    standing(p, 3)
+    agv, c = p.fleet.vehicles[3], p.controls[3]
+    x = free_node(p)
+    used = {a.node for a in p.fleet.vehicles.values()} | {
+        int(plant.ids[n]) for h in p.reservation.holds.values() for n in h
+    }
+    t = next(b for (a, b) in plant.arc_index if a == x and b not in used)
+    agv.node, agv.target, agv.speed, agv.turn_left = x, t, 0.0, 0.0
+    agv.length = float(agv._lengths[(x, t)].length)
+    agv.progress = 2 * agv.params.length + 0.1  # its rear off the crossing of x
+    assert agv.clear and agv.progress < agv.length
+    agv.route.clear()
+    agv.driven.append(x)
+    p.rt.run(duration=1)
+    assert c.suspect
+    p.rt.image.write("agv3.ack", 1)
+    p.rt.step()
+    assert p.rt.image.read("agv3.ack_result") == ACK_DONE
+    assert p.reservation.held_by(3) == [plant.index[t]]
+    for _ in range(round(20 / p.cfg.cycle_time)):
+        p.rt.step()
+        held = {int(plant.ids[n]) for n in p.reservation.held_by(3)}
+        assert not agv.go or agv.target is None or agv.target in held, (agv.target, held)
+    assert t in agv.driven[agv.driven.index(x) :] and not c.suspect
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
 @pytest.mark.parametrize("cancel_lost", [False, True])
 def test_an_acknowledge_cancels_the_route_the_vehicle_still_carries(program, cancel_lost):
     """Pushed by hand while it was driving, the vehicle still carries the route it had

@@ -182,9 +182,10 @@ class ReservationMatrix(FunctionBlock):
         self._sync_areas(vehicle)
         return True
 
-    def relocate(self, vehicle: int, node: int) -> str | None:
-        """An operator confirmed the vehicle really stands at node index ``node``: its holds
-        move there if the node is free (or its own). Returns why not, or None when done."""
+    def relocate(self, vehicle: int, node: int, cleared: int | None = None) -> str | None:
+        """An operator confirmed where the vehicle really is: at node index ``node``, or,
+        with ``cleared``, on its way there from the node index ``cleared`` it has left. Its
+        holds move to ``node`` if that is free (or its own). Returns why not, or None."""
         other = int(self.holder[node])
         if other != FREE and other != vehicle:
             return f"node {self.plant.ids[node]} is held by vehicle {other}"
@@ -192,7 +193,7 @@ class ReservationMatrix(FunctionBlock):
             self.holder[n] = FREE
         self.holds[vehicle][:] = [node]
         self.holder[node] = vehicle
-        self.cleared[vehicle] = None
+        self.cleared[vehicle] = cleared
         self._sync_areas(vehicle)
         return None
 

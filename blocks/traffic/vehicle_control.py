@@ -309,20 +309,38 @@ class VehicleControl(FunctionBlock):
         self._publish_state()
 
     def acknowledge(self, ctx: CycleContext) -> str | None:
-        """An operator has checked the vehicle: it stands where it reports. Its holds move
-        there (if that node is free) and it returns to service. Returns why not, or None."""
+        """An operator has checked the vehicle: it is where it reports. A report its holds
+        already cover (a vehicle made suspect by its link, not by where it is) changes
+        none of them. Otherwise its holds move there, if that place is free, and it returns
+        to service. "Where it reports" is the node, or, once the vehicle is clear of that
+        node, the segment to the next node it reports: it is then held for that next node,
+        as a vehicle driving there is, and sent on to it; holding the node behind it would
+        free the one it stands in front of for another vehicle. Returns why not, or None."""
         if not self.suspect:
             return "not suspect"
         if self.reported is None:
             return "no position reported"
+        _current, reported_next, _state, _battery, _speed, flags = self.records.inputs(
+            self.vehicle
+        ).item()
+        clear = bool(flags & CLEAR)
         node = self.index[self.reported]
-        if node not in self.reservation.holds[self.vehicle]:
-            why = self.reservation.relocate(self.vehicle, node)
+        if self.reservation.plausible(self.vehicle, node, clear) is None:
+            self._passed(self.reported, clear)
+        else:
+            where = self.reported
+            if clear:
+                if (self.reported, reported_next) not in self.arc_index:
+                    return f"clear of node {self.reported}, but on the way to no node next to it"
+                where = reported_next
+            why = self.reservation.relocate(
+                self.vehicle, self.index[where], cleared=node if clear else None
+            )
             if why is not None:
                 return why
-            # the route it still carries leads from where it was: cancel it (an empty
-            # route command) before it may go again
-            self.released = []
+            # the route it still carries leads from where it was: replace it (by the node
+            # it is on the way to, or an empty route) before it may go again
+            self.released = [where] if clear else []
             self.sequence = self.sequence % 255 + 1
             self.sent_ns = ctx.time_ns
             self._command(go=False)
