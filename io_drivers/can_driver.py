@@ -27,7 +27,9 @@ Every frame is end-to-end protected (io_drivers/e2e.py). A frame that fails a ch
 counted and dropped, never applied: wrong length or out-of-range values (``malformed``), a
 CRC mismatch (``crc_errors``), an id outside the plan (``unknown_id``), a repeated or
 out-of-sequence counter (``repeated``, ``out_of_sequence``; ``lost`` counts the frames a
-counter step skipped, ``resyncs`` the senders whose counter jumped). What passes goes to
+counter step skipped, ``resyncs`` the senders whose counter jumped). What the bus interface
+cannot make a frame of at all (a datagram udp_multicast cannot unpack) is counted as
+``receive_errors``. What passes goes to
 the vehicle records, which confirm positions (``unconfirmed``: positions never repeated).
 Nothing a frame contains can raise out of the scan. Per tick at most ``max_frames`` frames
 are read (the rest waits for the next tick, counted as ``deferred``), so a flooded bus
@@ -128,6 +130,7 @@ class CanDriver:
                 "unknown_id",
                 "unknown_vehicle",
                 "send_errors",
+                "receive_errors",
                 "deferred",
                 "bad_commands",
             ),
@@ -174,7 +177,13 @@ class CanDriver:
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:
         recv, handle = self.bus.recv, self._handle
         for _ in range(self.max_frames):
-            msg = recv(timeout=0)
+            try:
+                msg = recv(timeout=0)
+            except can.CanError:
+                # what the interface could not make a frame of (a datagram udp_multicast
+                # cannot unpack, a socket error): counted, and the reading goes on
+                self.counters["receive_errors"] += 1
+                continue
             if msg is None:
                 break
             handle(msg, now_ns)

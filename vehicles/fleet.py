@@ -115,7 +115,7 @@ class Fleet:
             "spoofed": 0,  # injected: well-formed frames of a faulty or foreign node
             "delays": 0,  # injected: random stops
             "received": 0,
-            "ignored": 0,  # malformed, or an unknown id
+            "ignored": 0,  # malformed, an unknown id, or nothing the interface could read
             "crc_errors": 0,
             "rejected": 0,  # route commands that did not fit where the vehicle was
         }
@@ -310,7 +310,11 @@ class Fleet:
         if self.bus is None:
             return
         for _ in range(frames_carried(dt)):
-            msg = self.bus.recv(timeout=0)
+            try:
+                msg = self.bus.recv(timeout=0)
+            except can.CanError:  # a datagram udp_multicast cannot unpack, a socket error
+                self.counters["ignored"] += 1
+                continue
             if msg is None:
                 return
             if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame or msg.is_fd:
