@@ -20,7 +20,7 @@ from web_controller import ROOT, TOKEN, WAIT_WALL_S, Controller, eventually
 
 from fleet.config import load_config, parse_config
 from fleet.web.feed import LiveFeed
-from fleet.web.guard import Guard
+from fleet.web.guard import Guard, client_key
 from fleet.web.options import web_options
 from plc_runtime.errors import ConfigError
 
@@ -573,13 +573,38 @@ def test_the_token_bucket_refills_at_the_rate():
     now = [0.0]
     guard.clock = lambda: now[0]
     scope = {"client": ("127.0.0.1", 1), "method": "GET", "path": "/"}
-    other = {"client": ("127.0.0.2", 1), "method": "GET", "path": "/"}
+    other = {"client": ("192.0.2.7", 1), "method": "GET", "path": "/"}
     assert [guard._admit(scope) for _ in range(3)] == [True, True, False]
     assert guard._admit(other)  # per client address
     now[0] = 0.5  # half a second: one token back
     assert [guard._admit(scope) for _ in range(2)] == [True, False]
     now[0] = 10.0  # never more than a second's worth
     assert [guard._admit(scope) for _ in range(3)] == [True, True, False]
+
+
+def test_every_loopback_address_is_one_client_and_an_ipv6_64_is_one():
+    """A local process may send from any address of 127.0.0.0/8: were each its own client,
+    it would get as many allowances of the rate (and of the log's warnings) as it likes."""
+    with Controller(max_rate=3) as ctl:
+        ctl.web.guard.clock = lambda: 1000.0
+        statuses = []
+        for k in range(4):
+            conn = http.client.HTTPConnection(
+                "127.0.0.1", ctl.port, timeout=30, source_address=(f"127.0.0.{k + 1}", 0)
+            )
+            try:
+                conn.request("GET", f"{API}/plant")
+                reply = conn.getresponse()
+                reply.read()
+                statuses.append(reply.status)
+            finally:
+                conn.close()
+        assert statuses == [200, 200, 200, 429]
+    one, two = ("2001:db8:1:2::1", 5), ("2001:db8:1:2:ffff::9", 6)
+    assert client_key({"client": one}) == client_key({"client": two}) == "2001:db8:1:2::/64"
+    assert client_key({"client": ("2001:db8:1:3::1", 5)}) != client_key({"client": one})
+    assert client_key({"client": ("::ffff:192.0.2.7", 1)}) == "192.0.2.7"
+    assert client_key({"client": ("::1", 1)}) == client_key({"client": ("127.9.9.9", 1)})
 
 
 # ----- the configuration key ---------------------------------------------------------------------

@@ -3,8 +3,9 @@
 In this order, each refusal one JSON error (``{"error": ..., "field": null}``) and nothing
 changed:
 
-1. **Rate**: at most ``max_rate`` requests per second from one client address (a token
-   bucket holding one second's worth), else 429 with ``Retry-After``. First, so every
+1. **Rate**: at most ``max_rate`` requests per second from one client (a token bucket
+   holding one second's worth; a client is an address, every loopback address together,
+   an IPv6 /64), else 429 with ``Retry-After``. First, so every
    refusal below costs a client its rate too, and guessing tokens is as slow as
    everything else.
 2. **Host** (only when the server listens on loopback): the ``Host`` header must name a
@@ -190,8 +191,7 @@ class Guard:
     def _admit(self, scope: Scope) -> bool:
         """Take a token from the client address's bucket; False (and a warning, once a
         second at most) when it is empty."""
-        client = scope.get("client")
-        address = client[0] if client else "?"
+        address = client_key(scope)
         now = self.clock()
         bucket = self._buckets.get(address)
         if bucket is None:
@@ -241,7 +241,7 @@ class Guard:
         ``close``: the connection is closed after the answer (its request is unfinished)."""
         self.refused += 1
         client = scope.get("client")
-        if not throttled or self._may_warn(client[0] if client else "?"):
+        if not throttled or self._may_warn(client_key(scope)):
             peer = f"{client[0]}:{client[1]}" if client else "?"
             log.warning(
                 "%s: refused %s %s from %s: %d, %s",
@@ -280,6 +280,27 @@ def _replay(body: bytes, receive: Receive) -> Receive:
         return {"type": "http.request", "body": body, "more_body": False}
 
     return replay
+
+
+def client_key(scope: Scope) -> str:
+    """Who a request's rate and warnings count against. Every loopback address is one
+    client (on Linux a local process may send from any of 127.0.0.0/8, so one bucket per
+    address would give it as many allowances as it likes), and so is an IPv6 /64 (what one
+    site is given: its hosts pick the rest of the address as they like)."""
+    client = scope.get("client")
+    if not client:
+        return "?"
+    try:
+        ip = ipaddress.ip_address(client[0])
+    except ValueError:
+        return client[0]  # not an IP address (a Unix socket's path): itself
+    if ip.is_loopback:
+        return "loopback"
+    if ip.version == 6:
+        if ip.ipv4_mapped is not None:
+            return str(ip.ipv4_mapped)
+        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
+    return str(ip)
 
 
 def _loopback_host(host: str | None) -> bool:
