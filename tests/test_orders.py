@@ -264,6 +264,18 @@ def test_a_huge_id_is_named_without_flooding_or_raising():
     )
 
 
+@pytest.mark.parametrize("oid", ["=HYPERLINK(\"http://x/\")", "+1", "-2+3", "@SUM(A1)"])
+def test_an_id_a_spreadsheet_would_take_for_a_formula_is_refused(oid):
+    """The id is the first cell of the run's orders.csv, which operators open in a
+    spreadsheet; one of these would run there as a formula."""
+    b = book()
+    with pytest.raises(OrderError) as err:
+        b.add(order(oid), 0.0)
+    assert err.value.field == "id" and "a spreadsheet takes for a formula" in str(err.value)
+    assert len(b) == 0
+    assert b.add(order("a=b+c"), 0.0).id == "a=b+c"  # inside an id they are plain text
+
+
 def test_an_order_for_a_vehicle_that_runs_recipes_is_refused_saying_so():
     b = OrderBook(STATIONS, vehicles={2, 3}, recipe_vehicles={1})
     with pytest.raises(OrderError) as err:

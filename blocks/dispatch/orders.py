@@ -37,6 +37,7 @@ from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
 MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
+FORMULA_STARTS = frozenset("=+-@")  # what a spreadsheet reads a cell beginning with as a formula
 # integers (stations, priority, vehicle) have at most the digits an order file reads, so
 # every order the book takes can be written to a file and read back
 MAX_INT = 10**MAX_DIGITS - 1
@@ -161,6 +162,12 @@ def check_order(order: object) -> None:
         raise OrderError(oid, "id", f"longer than {MAX_ID_CHARS} characters")
     if not oid.isprintable() or oid != oid.strip():
         raise OrderError(oid, "id", "has control characters or leading/trailing spaces")
+    if oid[0] in FORMULA_STARTS:
+        # the id is the first cell of the run's orders.csv, which operators open in a
+        # spreadsheet: there it would be a formula, run on their machine
+        raise OrderError(
+            oid, "id", f"begins with {oid[0]!r}, which a spreadsheet takes for a formula"
+        )
     for name in ("get", "put"):
         _check_int(
             oid, name, getattr(order, name), "must be a station node id (an integer >= 0)", 0
