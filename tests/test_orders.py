@@ -264,7 +264,7 @@ def test_a_huge_id_is_named_without_flooding_or_raising():
     )
 
 
-@pytest.mark.parametrize("oid", ["=HYPERLINK(\"http://x/\")", "+1", "-2+3", "@SUM(A1)"])
+@pytest.mark.parametrize("oid", ['=HYPERLINK("http://x/")', "+1", "-2+3", "@SUM(A1)"])
 def test_an_id_a_spreadsheet_would_take_for_a_formula_is_refused(oid):
     """The id is the first cell of the run's orders.csv, which operators open in a
     spreadsheet; one of these would run there as a formula."""
