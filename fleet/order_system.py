@@ -54,6 +54,11 @@ RELEASE_BUDGET = 500
 # requests from Python (submit, withdraw) that may wait for the scan at once: the most an
 # order file may hold
 MAX_WAITING = 100_000
+# open orders (waiting or running, configured ones not released yet included) beyond which
+# an order from outside is refused: as many as an order file may hold. A client may add
+# orders as fast as its rate allows, and each open order costs memory and the dispatcher's
+# indexes; the run's own orders (file, generator) are never refused for it
+MAX_OPEN_ORDERS = 100_000
 
 
 def order_stations(plant: Plant) -> dict[int, str]:
@@ -165,6 +170,13 @@ class OrderIntake(FunctionBlock):
         check_order(order)  # first: whatever came from outside, only OrderError from here on
         if order.id in self.pending:
             raise OrderError(order.id, "id", "used by a configured order not released yet")
+        if self.book.open_count() + len(self.pending) >= MAX_OPEN_ORDERS:
+            raise OrderError(
+                order.id,
+                "book",
+                f"{MAX_OPEN_ORDERS:,} orders are open already, the most the book takes from "
+                "outside: withdraw some, or add it once some have finished",
+            )
         return self.book.add(order, now_s)
 
     def _withdraw(self, order_id: str, now_s: float) -> TransportOrder:

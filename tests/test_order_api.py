@@ -17,6 +17,7 @@ import pytest
 from web_controller import CONFIG, TOKEN, Controller, assert_server_gone, call
 
 from blocks.dispatch.orders import OrderError, TransportOrder
+from fleet import order_system
 from fleet.config import load_config
 from fleet.program import FleetProgram
 from fleet.web.desk import ControllerStopped, OrderDesk, OrderView
@@ -233,6 +234,15 @@ def test_the_id_of_a_configured_order_not_released_yet_is_409():
         assert reply.body["error"] == (
             "order 'inspect-2': field 'id': used by a configured order not released yet"
         )
+
+
+def test_an_order_past_the_open_orders_the_book_takes_from_outside_is_409(monkeypatch):
+    monkeypatch.setattr(order_system, "MAX_OPEN_ORDERS", 0)
+    with Controller() as ctl:
+        reply = ctl.call("POST", ORDERS, {"id": "one-more", "get": 21, "put": 23}, token=TOKEN)
+        assert (reply.status, reply.body["field"]) == (409, "book"), reply.body
+        assert "0 orders are open already" in reply.body["error"]
+        assert absent(ctl, "one-more")
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,7 @@ from test_orders_program import config, run, start
 from blocks.dispatch import dispatcher
 from blocks.dispatch.order_file import OrderFileError, load_orders, write_orders
 from blocks.dispatch.orders import OrderError, OrderState, TransportOrder, check_order
+from fleet import order_system
 from fleet.order_report import order_summary
 from fleet.order_system import RELEASE_BUDGET
 from fleet.web.models import OrderIn
@@ -340,3 +341,30 @@ def test_a_request_cancelled_before_the_scan_took_it_is_never_applied(tmp_path, 
     run(p, 0.1)
     assert kept.result(0).id == "kept" and ids(p.orders.book) == ["kept"]
     assert not kept.cancel()  # decided: too late to cancel
+
+
+def test_orders_from_outside_are_refused_while_the_book_holds_its_most_open_ones(
+    tmp_path, made, monkeypatch
+):
+    """A client may add orders as fast as its rate lets it: past the open orders the book
+    takes from outside (configured ones not released yet counted), the next is refused
+    naming the book, and takes nothing; one finished or withdrawn makes room again. The
+    run's own configured order is released all the same."""
+    monkeypatch.setattr(order_system, "MAX_OPEN_ORDERS", 3)
+    p = start(config(LATER, tmp_path), made)  # "later": configured, not released yet
+    run(p, 0.1)
+    first = [p.orders.submit(TransportOrder(f"o{k}", 20, 25)) for k in range(3)]
+    run(p, 0.1)
+    assert [f.result(0).id for f in first[:2]] == ["o0", "o1"]
+    with pytest.raises(OrderError) as err:
+        first[2].result(0)
+    assert err.value.field == "book" and "3 orders are open already" in str(err.value)
+    assert ids(p.orders.book) == ["o0", "o1"]
+    withdrawn = p.orders.withdraw("o0")
+    run(p, 0.1)
+    assert withdrawn.result(0).state is OrderState.WITHDRAWN
+    again = p.orders.submit(TransportOrder("o2", 20, 25))
+    run(p, 0.1)
+    assert again.result(0).id == "o2"
+    run(p, 10)  # the configured order's release is never refused for it
+    assert "later" in p.orders.book and p.orders.book.open_count() == 3

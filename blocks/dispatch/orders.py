@@ -385,6 +385,10 @@ class OrderBook:
         became dispatchable. Costs the open orders, not the whole book."""
         return [o for o in self._dispatchable.values() if o.assigned is None]
 
+    def open_count(self) -> int:
+        """The orders not in a final state (waiting or being processed)."""
+        return sum(n for state, n in self._counts.items() if not OrderState(state).final)
+
     def counts(self) -> dict[str, int]:
         """Orders per state, every state named (zeros included), for reports."""
         return dict(self._counts)

@@ -32,7 +32,8 @@ it had taken is decided within that scan, so the handler waits once more for it.
 Errors are JSON, ``{"error": "one line", "field": "get"}`` (``field`` null when the error
 is about no field): 400 unreadable JSON, 422 a field is wrong, 404 no such order, vehicle,
 node, segment or tag (or path), 403 a tag that is read-only, 409 the id is in use, the
-order cannot be withdrawn in its state, or no vehicle takes orders, 503 the controller is
+order cannot be withdrawn in its state, no vehicle takes orders, or the book holds as many
+open orders as it takes from outside, 503 the controller is
 not scanning, the run has ended or every stream place is taken, 500 a bug (its traceback
 is logged); 400/401/403/408/413/429/503 from the guard (:mod:`fleet.web.guard`). On every
 error nothing has changed.
@@ -554,8 +555,9 @@ def _error(exc: OrderError | ControllerStopped, action: str) -> ApiError:
     field = exc.field
     if action == "show" or (action == "withdraw" and field == "id"):
         status = 404  # the book's only id error for these: no such order
-    elif action == "withdraw" or (action == "add" and field == "id"):
-        # a final order, or an id in use: the request is well-formed, the book's state says no
+    elif action == "withdraw" or (action == "add" and field in ("id", "book")):
+        # a final order, an id in use, a full book: the request is well-formed, the book's
+        # state says no
         status = 409
     else:
         status = 422  # "check" (the order on its own) or a station or vehicle the plant lacks
