@@ -253,6 +253,16 @@ def test_an_order_past_the_open_orders_the_book_takes_from_outside_is_409(monkey
         (b'{"id": "j", "get": 21, "put": 23, "end_s": 1e999}', 422, "finite number"),
         (b"[1, 2]", 422, "request body: expected a JSON object with the fields id, get, put"),
         (b"", 422, "request body: expected a JSON object"),
+        (
+            b'{"id": "j", "get": ' + b"9" * 4301 + b', "put": 23}',
+            400,
+            "request body is not JSON this server reads: an integer of more than 4300 digits",
+        ),
+        (
+            b'{"id": ' + b"[" * 1000 + b"]" * 1000 + b', "get": 21, "put": 23}',
+            400,
+            "request body is not JSON this server reads: nested too deeply",
+        ),
     ],
 )
 def test_an_unreadable_body_is_refused(ctl, raw, status, error):

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import sys
 from concurrent.futures import Future
 from pathlib import Path as FilePath
 from typing import Annotated, Any
@@ -418,9 +419,22 @@ def build_app(
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+        unreadable = _unparsable(exc.__cause__)
+        if unreadable is not None:
+            return _json(400, f"request body is not JSON this server reads: {unreadable}")
         return _json(exc.status_code, f"{request.method} {request.url.path}: {exc.detail}")
 
     return app
+
+
+def _unparsable(cause: BaseException | None) -> str | None:
+    """Why valid JSON could not be read, where the parser met one of Python's limits
+    (FastAPI answers those with a bare "error parsing the body"); None for other causes."""
+    if isinstance(cause, RecursionError):
+        return "nested too deeply"
+    if isinstance(cause, ValueError) and "integer string conversion" in str(cause):
+        return f"an integer of more than {sys.get_int_max_str_digits()} digits"
+    return None
 
 
 def openapi_schema() -> dict[str, Any]:
@@ -482,6 +496,8 @@ async def _given_once(request: Request) -> None:
         if (taken or request.method not in ("GET", "HEAD")) and name not in taken:
             known = ", ".join(sorted(taken)) or "none"
             raise ApiError(422, f"field '{name}': not a parameter of this request ({known})", name)
+        if not taken or name not in taken:
+            continue  # a read's parameter for a cache: ignored, however often it is given
         if name in seen:
             raise ApiError(422, f"field '{name}': given more than once in the query", name)
         seen.add(name)

@@ -25,7 +25,9 @@ operator's page and the security rules: [operator-guide.md](operator-guide.md),
 Every error is a JSON object `{{"error": "one line", "field": "name" or null}}`; the status
 codes each endpoint may answer are listed with it; a method a path does not take is 405,
 for every path. Methods marked **token** need the header `Authorization: Bearer TOKEN`:
-401 without it, 403 with a wrong one.
+401 without it, 403 with a wrong one. The token is checked before anything else of a
+request that may change something (POST, PUT, DELETE, PATCH), so such a request on a path
+that does not take it is 405 only with the right token, 401 or 403 without it.
 """
 
 
