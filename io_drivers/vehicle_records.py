@@ -17,8 +17,9 @@ agree on (current node, clear). The vehicles send every event twice, so this cos
 step of latency (one status period when a frame is lost), and a single well-formed but
 false frame (a spoofing node, a corruption the CRC missed) can never take a node from
 another vehicle or free one a vehicle still stands on. A fault is taken at once (the safe
-direction); its end, like a position, only when two consecutive frames report it. State,
-speed and battery are taken at once.
+direction); its end, like a position, only when two consecutive frames report it. State
+and speed are taken at once, a battery level if it is near the one before (a jump of more
+than ``BATTERY_STEP`` % only when the next info frame repeats it).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from .e2e import COUNTER_MODULO
 from .protocol import BATTERY_UNKNOWN, MAX_VEHICLE_ID, NO_NODE, STATE_CODE, Info, Status
 
 RECORD = 8
+BATTERY_STEP = 2  # % a battery level may move from one info frame to the next unconfirmed
 ONLINE, STALE, FAULT, CLEAR = 0x01, 0x02, 0x04, 0x08
 # the link's count of the vehicle's counter jumps (restart, a second sender), mod 8: the
 # program sees a jump as a change of the count, so no jump can hide behind an earlier one
@@ -108,6 +110,8 @@ class VehicleRecords:
         self._last_seen: dict[int, int] = {}  # the last confirmed position's tick
         self._first_ns: int | None = None
         self._now_ns = 0
+        self._battery: dict[int, int] = {}  # the battery level taken, %
+        self._battery_seen: dict[int, int] = {}  # the last info frame's level, taken or not
         self.counters = {"unconfirmed": 0}
 
     @staticmethod
@@ -153,10 +157,27 @@ class VehicleRecords:
             self.counters["unconfirmed"] += 1  # a position nobody repeated: never applied
 
     def received_info(self, info: Info, resync: bool = False) -> None:
-        """An accepted info frame: the battery is taken at once."""
+        """An accepted info frame. Its battery level is taken if it is the vehicle's first,
+        within ``BATTERY_STEP`` of the level taken before, or confirmed: within that of the
+        frame before it. Else it waits for the next frame (``unconfirmed``), as a position
+        waits for a second status: one forged or garbled frame that passed the checks must
+        not set a level the charging policy learns from (a single 0 % at the end of an order
+        taught it that an order empties a battery, and no vehicle took another). A level
+        moves about 1 % between frames, and the vehicle sends one on every change."""
+        v = info.vehicle
         if resync:
-            self._jumped(info.vehicle)
-        self._in[info.vehicle].battery(info.battery)
+            self._jumped(v)
+        level, taken, before = info.battery, self._battery.get(v), self._battery_seen.get(v)
+        self._battery_seen[v] = level
+        if (
+            taken is None
+            or abs(level - taken) <= BATTERY_STEP
+            or (before is not None and abs(level - before) <= BATTERY_STEP)
+        ):
+            self._battery[v] = level
+            self._in[v].battery(level)
+        else:
+            self.counters["unconfirmed"] += 1
 
     def _jumped(self, vehicle: int) -> None:
         self._jumps[vehicle] = (self._jumps.get(vehicle, 0) + 1) % 8

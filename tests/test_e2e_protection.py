@@ -276,6 +276,31 @@ def test_the_battery_reads_unknown_until_the_first_info_frame_not_empty():
     assert image.read(f"%IB{base + 5}") == 0  # a real empty battery reads 0
 
 
+def test_a_battery_jump_applies_only_when_the_next_info_frame_repeats_it():
+    """One forged or garbled info frame (it passed the checks) must not set the level the
+    charging policy learns an order's consumption from."""
+    image, recs = records()
+    base = record(3)
+
+    def level():
+        image.copy_in()
+        return image.read(f"%IB{base + 5}")
+
+    recs.received_info(Info(3, 97, 1))
+    assert level() == 97  # the first is taken
+    recs.received_info(Info(3, 0, 2))  # one frame: not taken
+    assert level() == 97 and recs.counters["unconfirmed"] == 1
+    recs.received_info(Info(3, 96, 3))  # a step from the level taken: taken
+    assert level() == 96
+    for counter, battery in enumerate((95, 94, 96, 98), start=4):  # driving, then charging
+        recs.received_info(Info(3, battery, counter))
+        assert level() == battery
+    recs.received_info(Info(3, 10, 8))  # a real failure: the next frame repeats it
+    assert level() == 98
+    recs.received_info(Info(3, 9, 9))
+    assert level() == 9 and recs.counters["unconfirmed"] == 2
+
+
 # ----- the CAN driver ----------------------------------------------------------------------------
 def driver_runtime(vehicles):
     channel = f"e2e-{next(_channels)}"
