@@ -247,6 +247,7 @@ class OrderSystem:
                 park=d.park,
                 on_section=self.dispatcher.section_done,
                 out_of_service_s=d.out_of_service_s,
+                reaches=self.reach.reaches,
             )
 
     def distance(self, a: int, b: int) -> float:

@@ -798,3 +798,88 @@ def test_a_vehicle_waiting_for_a_charger_does_not_wait_on_the_station_it_served(
     assert r5.phase == "to_charger" and r5.current not in r5._area(71)
     assert all(p.orders.runners[v].phase == "charging" for v in (1, 2, 3, 4))
     assert p.monitor.head_on == 0 and p.monitor.node == 0 and p.monitor.area == 0
+
+
+def close_round(p: FleetProgram, nodes: set[int]) -> None:
+    """Close every segment into and out of ``nodes``: they are cut off."""
+    for a, b in sorted(p.cfg.plant.arc_index):
+        if nodes & {a, b}:
+            p.blockades.block(a, b)
+
+
+@pytest.mark.parametrize("traffic", ["reactive", "time_windows"])
+@pytest.mark.parametrize("when", ["to_get", "get"])
+def test_an_order_whose_put_station_is_cut_off_before_its_put_leg_does_not_hang(
+    when, traffic, tmp_path, made
+):
+    """The Put station is cut off while the vehicle drives to the Get station, or during
+    the Get dwell (its load on board from then on). Not picked up, the order goes back to
+    the pool to wait for the segments; picked up, it fails with its load left on board.
+    Either way the vehicle leaves the Get station, and the next order there is served: the
+    order hung in BEING_PROCESSED, the vehicle on the Get station, for ever."""
+    cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0), (2, 14)))
+    cfg.traffic = traffic
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24, vehicle=1))
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(lambda: runner.phase == when, max_cycles=4000)
+    close_round(p, {24})
+    run(p, 0.1)
+    a = p.orders.book.get("A")
+    if when == "get":
+        assert (a.state, a.reason) == (OrderState.FAILED, "Put station 24 cut off by a blockade")
+        assert runner.load_left
+    else:
+        assert a.state is OrderState.DISPATCHABLE and a.assigned is None
+    p.orders.submit(TransportOrder("B", 20, 29, vehicle=2))
+    run(p, 0.1)
+    b = p.orders.book.get("B")
+    assert p.rt.run_until(lambda: b.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
+    assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
+
+
+@pytest.mark.parametrize("closed", [{18}, {18, 19}])
+def test_a_vehicle_without_work_parks_where_it_can_get_and_frees_its_station(
+    closed, tmp_path, made
+):
+    """A blockade cuts off the nearest parking place (or both): the vehicle that served
+    station 20 parks at one it can reach, or, with none, waits aside; either way it leaves
+    the station for the next vehicle. It headed for the place cut off and stood on the
+    station for ever."""
+    p = start(config("id,get,put\n", tmp_path, vehicles=((1, 0), (2, 14))), made)
+    close_round(p, closed)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 22, 20, vehicle=1))
+    run(p, 0.1)
+    a, runner = p.orders.book.get("A"), p.orders.runners[1]
+    assert p.rt.run_until(lambda: a.state is OrderState.FINISHED, max_cycles=4000)
+    run(p, 20)
+    assert runner.place not in closed
+    p.orders.submit(TransportOrder("B", 20, 25, vehicle=2))
+    run(p, 0.1)
+    b = p.orders.book.get("B")
+    assert p.rt.run_until(lambda: b.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
+    if closed == {18}:
+        assert runner.place == 19 and runner.phase == "parked"
+    assert p.orders.claims.holder.get(20) != 1
+
+
+@pytest.mark.parametrize("when", ["before", "on_the_way"])
+def test_a_vehicle_that_must_charge_goes_to_a_charger_it_can_reach(when, tmp_path, made):
+    """The nearest charger is cut off (before the vehicle chose it, or on its way there);
+    three others are free. It charges at one it can reach: it drove towards the one cut
+    off for ever, until its battery was empty."""
+    p = dc_program(made, tmp_path, 1, [], start={1: 30.0})
+    runner, start_node = p.orders.runners[1], p.cfg.starts[1]
+    nearest = min(p.cfg.plant.with_role("charger"), key=lambda c: p.orders.distance(start_node, c))
+    if when == "before":
+        close_round(p, {nearest})
+    else:
+        assert p.rt.run_until(lambda: runner.place == nearest, max_cycles=200)
+        run(p, 2)
+        assert runner.phase == "to_charger" and runner.current != nearest
+        close_round(p, {nearest})
+    assert p.rt.run_until(lambda: runner.phase == "charging", max_cycles=round(600 / 0.05))
+    assert runner.place != nearest and runner.current == runner.place
+    assert p.orders.claims.holder.get(nearest) is None

@@ -228,15 +228,19 @@ class Dispatcher(FunctionBlock):
             self._check_next(ctx, runner)
 
     def _check_active(self, ctx: CycleContext, runner: OrderRunner) -> None:
-        """After a blockade: an active order whose next station the vehicle can no longer
-        reach fails (load on board) or goes back to the pool (not picked up yet). Reached
+        """After a blockade: an active order the vehicle can no longer drive to its end
+        fails (its load on board: from the start of the Get dwell) or goes back to the pool
+        (not picked up yet: it could not be delivered from the Get station either). Reached
         from where it will stand: the nodes released to it are driven whatever closes (a
         vehicle on the closed segment itself drives on to its end)."""
         order = runner.active
         if order is not None and runner.current is not None:
-            loaded = runner.phase in ("to_put", "put_queue", "put")
-            station = order.put if loaded else order.get
-            if self.reach.reaches(_standing(runner), station):
+            loaded, here, reaches = runner.load == order.id, _standing(runner), self.reach.reaches
+            if loaded:
+                drivable = reaches(here, order.put)
+            else:
+                drivable = reaches(here, order.get) and reaches(order.get, order.put)
+            if drivable:
                 return
             if loaded:
                 self.book.transition(

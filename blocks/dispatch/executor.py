@@ -231,6 +231,7 @@ class OrderRunner(FunctionBlock):
         near_m: float = 20.0,
         on_section: Callable[[TransportOrder, str, float, float], None] | None = None,
         out_of_service_s: float = 60.0,
+        reaches: Callable[[int, int], bool] | None = None,
     ) -> None:
         super().__init__()
         self.vehicle = vehicle
@@ -243,6 +244,10 @@ class OrderRunner(FunctionBlock):
         self.park = park
         self.near_m = near_m
         self.on_section = on_section  # a finished section: (order, name, start_s, end_s)
+        # can a vehicle at one node (id) drive to another over the segments open now? The
+        # distances above ignore blockades: a place it cannot reach is never chosen, and
+        # one cut off after it was chosen is given up for another
+        self.reaches = reaches or (lambda _a, _b: True)
         # out of service this long, the vehicle gives its orders up (it may never come back)
         self.out_of_service_ns = round(out_of_service_s * 1e9)
         self.queues = plant.queues
@@ -515,7 +520,11 @@ class OrderRunner(FunctionBlock):
                 return q
         if self.place in self.parking and self._holds(self.place):
             return self.place
-        free = [p for p in self.parking if self.claims.free(p, self.vehicle)]
+        free = [
+            p
+            for p in self.parking
+            if self.claims.free(p, self.vehicle) and self._reachable(p) and self.reaches(p, station)
+        ]
         if not free:
             return None
         self.place = min(free, key=lambda p: self.distance(p, station))
@@ -614,6 +623,12 @@ class OrderRunner(FunctionBlock):
             if aside is not None:
                 self.target = aside
 
+    def _reachable(self, place: int) -> bool:
+        """Whether the vehicle can drive to ``place`` over the segments open now, from
+        where the nodes released to it take it."""
+        start = self.frontier if self.frontier is not None else self.current
+        return start is None or self.reaches(start, place)
+
     def _holds(self, place: int) -> bool:
         """Whether the vehicle holds the claim of ``place``: the place it last chose may
         have been given up since (it waited there for a station, then drove on)."""
@@ -654,9 +669,20 @@ class OrderRunner(FunctionBlock):
         return sum(1 for c in self.chargers if self.claims.free(c, self.vehicle)) >= 2
 
     def _charge(self, ctx: CycleContext) -> None:
+        if (
+            self.place in self.chargers
+            and self._holds(self.place)
+            and not self._reachable(self.place)
+        ):
+            self._forget()  # cut off by a blockade on its way there: another one
+            self.place = None
         if self.place not in self.chargers or not self._holds(self.place):
             # (one it holds already counts: it may stand on it, back from an outage)
-            free = [c for c in self.chargers if self._holds(c) or self.claims.free(c, self.vehicle)]
+            free = [
+                c
+                for c in self.chargers
+                if (self._holds(c) or self.claims.free(c, self.vehicle)) and self._reachable(c)
+            ]
             if not free:
                 self._await_charger()
                 return
@@ -675,11 +701,15 @@ class OrderRunner(FunctionBlock):
         was served at (the next vehicle for that station would wait the hour a charger
         takes to come free)."""
         self.phase = "to_charger"
-        if self.place in self.parking and self._holds(self.place):
+        if self.place in self.parking and self._holds(self.place) and self._reachable(self.place):
             self.target = self.place
             return
+        if self.place is not None and self._holds(self.place):
+            self._forget()  # a parking place cut off by a blockade on its way there
         self.place, self.target = None, self.current
-        spots = [p for p in self.parking if self.claims.free(p, self.vehicle)]
+        spots = [
+            p for p in self.parking if self.claims.free(p, self.vehicle) and self._reachable(p)
+        ]
         if spots:
             self.place = min(spots, key=lambda p: self.distance(self.current, p))
             self.claims.claim(self.place, self.vehicle)
@@ -690,13 +720,24 @@ class OrderRunner(FunctionBlock):
                 self.target = aside
 
     def _go_parking(self, ctx: CycleContext) -> None:
+        if (
+            self.place in self.parking
+            and self._holds(self.place)
+            and not self._reachable(self.place)
+        ):
+            self._forget()  # cut off by a blockade on its way there: another one, or none
+            self.place, self.phase, self.target = None, "idle", self.current
         if self.place not in self.parking or not self._holds(self.place):
             if self.current in self.parking and self.claims.claim(self.current, self.vehicle):
                 self.place = self.current
             else:
-                free = [p for p in self.parking if self.claims.free(p, self.vehicle)]
+                free = [
+                    p
+                    for p in self.parking
+                    if self.claims.free(p, self.vehicle) and self._reachable(p)
+                ]
                 if not free:
-                    return  # every parking position is taken: it stays where it is
+                    return  # every parking position is taken or cut off: it stays idle
                 self.place = min(free, key=lambda p: self.distance(self.current, p))
                 self.claims.claim(self.place, self.vehicle)
         self.target = self.place
