@@ -73,7 +73,15 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from plc_runtime import Address, ConfigError, PlcError, ProcessImage, Runtime, parse_address
+from plc_runtime import (
+    Address,
+    ConfigError,
+    PlcError,
+    ProcessImage,
+    Runtime,
+    WritesBacklogged,
+    parse_address,
+)
 from plc_runtime.quiet import QuietSelector
 
 log = logging.getLogger(__name__)
@@ -103,6 +111,7 @@ _DEFAULT_REASONS = {
     ExcCodes.ILLEGAL_ADDRESS: "address outside the served map",
     ExcCodes.ILLEGAL_VALUE: "count or value out of range",
     ExcCodes.DEVICE_FAILURE: "server failure",
+    ExcCodes.DEVICE_BUSY: "the runtime takes no more writes now (not scanning)",
 }
 
 
@@ -1092,6 +1101,9 @@ class ModbusServer:
         refs = {f"%MW{a}": int(v) for a, v in enumerate(values, start=address)}
         try:
             self._image.write_many(refs)  # applied together at the next quiet point
+        except WritesBacklogged:
+            self.counters["failures"] += 1
+            return ExcCodes.DEVICE_BUSY  # the runtime takes no writes now: try again later
         except PlcError:
             self.counters["failures"] += 1
             return ExcCodes.ILLEGAL_VALUE

@@ -17,6 +17,7 @@ from .errors import (
     StartupError,
     StateError,
     ValueRangeError,
+    WritesBacklogged,
 )
 from .fb import FunctionBlock, Input, Output, Static
 from .image import ProcessImage, ProgramImage
@@ -48,6 +49,7 @@ __all__ = [
     "Tag",
     "TagTable",
     "ValueRangeError",
+    "WritesBacklogged",
     "PacedClock",
     "VirtualClock",
     "WallClock",

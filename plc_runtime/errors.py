@@ -26,6 +26,12 @@ class StateError(PlcError, RuntimeError):
     """An operation is not allowed in the runtime's current operating state."""
 
 
+class WritesBacklogged(PlcError, RuntimeError):
+    """As many external writes wait for the next quiet point as the image queues: the
+    runtime is not scanning (stopped, or between ``run`` calls), or a client writes faster
+    than it scans. Refused, so a client cannot fill the memory or stretch the next scan."""
+
+
 class StartupError(PlcError, RuntimeError):
     """A block's startup failed; the runtime went to FAULT."""
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .address import AREAS, Address, parse_address
 from .datatypes import RAW_TYPE_OF_SIZE, DataType
-from .errors import AddressError
+from .errors import AddressError, WritesBacklogged
 from .tags import TagTable
 
 DEFAULT_SIZES: dict[str, int] = {"I": 2048, "Q": 2048, "M": 8192}
@@ -94,6 +94,12 @@ class Location:
             view[element] = value
 
         return write
+
+
+# external writes and force changes that may wait for the quiet point at once: far more
+# than clients of a scanning runtime queue in a cycle, and few enough that applying them
+# all stays a small part of a scan (some 2 us each)
+MAX_PENDING = 10_000
 
 
 class ProcessImage:
@@ -211,7 +217,7 @@ class ProcessImage:
         a marker is set before the next cycle.
         """
         loc = self.resolve(ref)
-        self._pending.append(("write", loc, loc.type.check(value, ref)))
+        self._queue(("write", loc, loc.type.check(value, ref)))
 
     def write_many(self, values: Mapping[str, object]) -> None:
         """Queue several writes that take effect together, at the same quiet point
@@ -220,19 +226,19 @@ class ProcessImage:
         for ref, value in values.items():
             loc = self.resolve(ref)
             batch.append((loc, loc.type.check(value, ref)))
-        self._pending.append(("batch", None, batch))  # type: ignore[arg-type]
+        self._queue(("batch", None, batch))
 
     def force(self, ref: str, value: object) -> None:
         """Force a location to a value until unforced (applied at the next quiet point)."""
         loc = self.resolve(ref)
-        self._pending.append(("force", loc, loc.type.check(value, ref)))
+        self._queue(("force", loc, loc.type.check(value, ref)))
 
     def unforce(self, ref: str) -> None:
         loc = self.resolve(ref)
-        self._pending.append(("unforce", loc, None))
+        self._queue(("unforce", loc, None))
 
     def unforce_all(self) -> None:
-        self._pending.append(("unforce_all", None, None))  # type: ignore[arg-type]
+        self._queue(("unforce_all", None, None))
 
     @property
     def forces(self) -> dict[str, object]:
@@ -243,6 +249,16 @@ class ProcessImage:
     @property
     def pending_writes(self) -> int:
         return len(self._pending)
+
+    def _queue(self, item: tuple) -> None:
+        """Queue a write or force change for the quiet point, unless ``MAX_PENDING`` wait
+        already (WritesBacklogged: nothing is queued)."""
+        if len(self._pending) >= MAX_PENDING:
+            raise WritesBacklogged(
+                f"{MAX_PENDING:,} writes wait for the next scan already (is the runtime "
+                "scanning?): this one is refused"
+            )
+        self._pending.append(item)  # type: ignore[arg-type]
 
     # ----- runtime side -----------------------------------------------------------
     def apply_quiet_point(self) -> None:

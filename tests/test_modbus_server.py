@@ -20,7 +20,16 @@ from pymodbus.pdu import ExceptionResponse
 
 from fleet.cli import main
 from io_drivers.modbus_server import ModbusServer, _ModbusThread, is_loopback, map_entry
-from plc_runtime import ConfigError, Runtime, StartupError, TagTable, VirtualClock, parse_address
+from plc_runtime import (
+    ConfigError,
+    Runtime,
+    StartupError,
+    TagTable,
+    VirtualClock,
+    WritesBacklogged,
+    parse_address,
+)
+from plc_runtime import image as image_module
 
 LOGGER = "io_drivers.modbus_server"
 WAIT_S = 30.0  # upper bound for what a busy machine may delay; never reached when it works
@@ -96,6 +105,26 @@ def test_writes_are_applied_at_the_quiet_point(served):
     assert (rt.image.read("%MW0"), rt.image.read("%MW1")) == (7, 8)
     assert client.read_holding_registers(1029, count=1).registers == [123]
     assert server.stats()["writes"] == 2
+
+
+def test_writes_past_what_the_image_queues_are_busy_until_the_next_scan(served, monkeypatch):
+    """A runtime that is not scanning applies no writes: a client writing on would fill the
+    memory and make the next scan apply them all. Past the image's queue, exception 06
+    (server device busy), nothing queued; after a scan, writes go in again."""
+    rt, server, client = served
+    monkeypatch.setattr(image_module, "MAX_PENDING", 3)
+    for value in (1, 2, 3):
+        assert not client.write_register(1024 + 5, value).isError()
+    assert exception_code(client.write_registers(1024, [7, 8])) == 6
+    assert rt.image.pending_writes == 3 and server.stats()["failures"] == 1
+    rt.step()
+    assert (rt.image.read("setpoint"), rt.image.read("%MW0")) == (3, 0)
+    assert not client.write_registers(1024, [7, 8]).isError()
+    rt.step()
+    assert (rt.image.read("%MW0"), rt.image.read("%MW1")) == (7, 8)
+    with pytest.raises(WritesBacklogged):
+        for _ in range(4):
+            rt.image.write("%MW0", 1)  # the same rule for every writer of the image
 
 
 # function code, how to send it, what it aims at; FC22 and FC23 are not served at all
