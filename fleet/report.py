@@ -270,7 +270,7 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
     summary beside another's drawing would describe neither).
 
     Creates the folder and takes an exclusive lock on a file in it, ``.plc-runtime.lock``,
-    held until :func:`release_out_dir` (or, however the process ends, until it ends); an
+    held until :func:`release_lock` (or, however the process ends, until it ends); an
     existing output file that is not a writable file (a folder of that name, no
     permission) is refused too, and so is an output file that is one of the run's
     ``inputs`` (what it is -> path), or an ``orders.csv`` that no run wrote: the results
@@ -307,14 +307,14 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
                     "removes it): move it, or give another folder"
                 )
         if problem is not None:
-            release_out_dir(lock)  # ours: no other run holds it
+            release_lock(lock)  # ours: no other run holds it
             raise ConfigError(f"--out {out_dir}: {problem}")
     return lock
 
 
-def release_out_dir(lock: IO[bytes]) -> None:
-    """The results are written: the lock file goes (a run leaves only its results behind),
-    then the lock."""
+def release_lock(lock: IO[bytes]) -> None:
+    """The run is over: the lock file goes (a run leaves only its results behind), then
+    the lock."""
     Path(lock.name).unlink(missing_ok=True)
     lock.close()
 

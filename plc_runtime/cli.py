@@ -29,6 +29,7 @@ from rich.table import Table
 
 from .clock import PacedClock, VirtualClock, WallClock
 from .io import IoDriver
+from .retain import claim_retain_file, release_retain_file
 from .runtime import MAX_TIME, Runtime
 
 EXIT_FAULT = 1
@@ -237,6 +238,22 @@ def run_program(
     """Run a program built by ``build`` as the options in ``args`` say; the exit code."""
     if not args.realtime and (args.rt or args.spin):
         raise CliError("--rt and --spin only apply with --realtime")
+    lock = claim_retain_file(args.retain) if args.retain is not None else None
+    try:
+        return _run_program(args, name, build, drivers, cycle_time, watchdog_ms)
+    finally:
+        if lock is not None:
+            release_retain_file(lock)
+
+
+def _run_program(
+    args: argparse.Namespace,
+    name: str,
+    build: ProgramBuilder,
+    drivers: Iterable[IoDriver],
+    cycle_time: float,
+    watchdog_ms: float,
+) -> int:
     rt = build(
         clock=make_clock(args),
         cycle_time=args.cycle_time if args.cycle_time is not None else cycle_time,

@@ -10,6 +10,7 @@ silently wrong value.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -17,8 +18,9 @@ import warnings
 import zlib
 from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
-from .errors import RetainError
+from .errors import ConfigError, RetainError
 from .files import FileProblem, is_special, read_limited
 
 MAGIC = "PLCRETAIN"
@@ -171,6 +173,46 @@ class RetainFile:
             aside = self.path.with_name(f"{self.path.name}.rejected.{number}")
         os.rename(self.path, aside)
         return aside
+
+
+def check_retain_path(path: str | os.PathLike[str]) -> None:
+    """ConfigError if ``path`` can never be a retain file: a folder, a device or a pipe."""
+    if Path(path).is_dir():
+        raise ConfigError(f"retain file {path} is a directory; give a file path")
+    if (what := is_special(path)) is not None:
+        raise ConfigError(f"retain file {path} is {what}, not a file; give a file path")
+
+
+def claim_retain_file(path: str | os.PathLike[str]) -> IO[bytes]:
+    """An exclusive lock on ``PATH.lock`` beside the retain file ``path``, for a command
+    that runs a program with it: two runs saving into one retain file would each write its
+    values over the other's, and one run's retained data (a lifetime counter) would be lost
+    without a word. Held until :func:`release_retain_file`, or the process's end. (The
+    retain file itself is replaced on every save, so it cannot hold the lock.) ConfigError
+    if another process holds it."""
+    check_retain_path(path)
+    retain = Path(path)
+    lock_path = retain.with_name(retain.name + ".lock")
+    try:
+        lock_path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(lock_path, "ab")
+    except OSError as exc:
+        raise ConfigError(f"retain file {retain}: cannot lock it: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ConfigError(
+            f"retain file {retain}: another run is using it; give another file"
+        ) from None
+    return lock
+
+
+def release_retain_file(lock: IO[bytes]) -> None:
+    """The run is over: the lock file goes (a run leaves only its retain file behind), then
+    the lock."""
+    Path(lock.name).unlink(missing_ok=True)
+    lock.close()
 
 
 class RetainStore:

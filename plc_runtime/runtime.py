@@ -35,10 +35,9 @@ from .errors import (
     WatchdogTimeout,
 )
 from .fb import FunctionBlock
-from .files import is_special
 from .image import ProcessImage, ProgramImage
 from .io import IoDriver
-from .retain import RetainStore, layout_hash
+from .retain import RetainStore, check_retain_path, layout_hash
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
@@ -143,10 +142,8 @@ class Runtime:
         self.fault_traceback: str | None = None
         self.ticks = 0
         self.stats = RuntimeStats(self)
-        if retain_file is not None and Path(retain_file).is_dir():
-            raise ConfigError(f"retain file {retain_file} is a directory; give a file path")
-        if retain_file is not None and (what := is_special(retain_file)) is not None:
-            raise ConfigError(f"retain file {retain_file} is {what}, not a file; give a file path")
+        if retain_file is not None:
+            check_retain_path(retain_file)
         self._retain = RetainStore(retain_file)
         if self._retain.file is not None:
             try:

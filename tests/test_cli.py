@@ -44,6 +44,33 @@ def test_duration_and_retain_file(tmp_path, capsys):
     )  # retained across processes
 
 
+@pytest.mark.parametrize("program", [["--program", "demo"], ["--out", "o"]])
+def test_a_retain_file_another_run_uses_is_refused_and_left_alone(
+    program, tmp_path, capsys, monkeypatch
+):
+    """Two runs saving into one retain file would write their values over each other's: a
+    lifetime counter lost one run's time without a word. The second is refused in one line
+    and nothing of the first's file is touched; the lock goes with the run."""
+    import fcntl
+
+    retain = tmp_path / "cc.retain"
+    monkeypatch.chdir(tmp_path)
+    args = ["run", *program, "--cycles", "5", "--retain", str(retain)]
+    assert main(args) == 0
+    saved = retain.read_bytes()
+    capsys.readouterr()
+    with open(tmp_path / "cc.retain.lock", "ab") as other:  # another run, holding it
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert main(args) == 2
+        assert capsys.readouterr().err == (
+            f"plc-runtime: error: retain file {retain}: another run is using it; give another "
+            "file\n"
+        )
+        assert retain.read_bytes() == saved
+    assert main(args) == 0  # the lock was let go
+    assert not (tmp_path / "cc.retain.lock").exists()
+
+
 def test_a_test_runtime_keeps_its_limit_but_enforces_a_wide_one():
     """tests/conftest.py: a busy machine must not fault an unmarked test's scan; the limit
     given is still what the runtime reports."""

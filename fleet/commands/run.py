@@ -47,6 +47,7 @@ from plc_runtime.cli import (
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import same_path
+from plc_runtime.retain import claim_retain_file, release_retain_file
 
 from .. import liveness
 from ..config import (
@@ -67,7 +68,7 @@ from ..program import FleetProgram
 from ..report import (
     OUTPUT_FILES,
     claim_out_dir,
-    release_out_dir,
+    release_lock,
     summary,
     write_all,
 )
@@ -179,8 +180,10 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             if same_path(retain, path):
                 raise CliError(f"--retain {args.retain}: that is {what}; name a file of its own")
         inputs["the retain file"] = retain
-    out_lock = claim_out_dir(out, inputs)
-    try:  # the lock file goes however the run ends (a failed start too)
+    out_lock, retain_lock = claim_out_dir(out, inputs), None
+    try:  # the lock files go however the run ends (a failed start too)
+        if args.retain is not None:
+            retain_lock = claim_retain_file(args.retain)
         broken = liveness.violations(cfg)
         if broken:
             warnings.warn(
@@ -211,7 +214,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             write_all(program, out, result)
         interrupted = stopped.number is not None  # (a signal while writing counts too)
     finally:
-        release_out_dir(out_lock)
+        if retain_lock is not None:
+            release_retain_file(retain_lock)
+        release_lock(out_lock)
     if args.json:
         print(json.dumps(result))
     else:
