@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--modbus-writable",
         metavar="NAMES",
         help="with --modbus: let clients also write these, comma-separated: tag names, "
-        "%%M addresses, %%MW ranges (e.g. %%MX900.0,%%MW900..%%MW909; tag names as "
+        "%%M addresses, %%MW ranges (e.g. %%MW450,%%MW900..%%MW909; tag names as "
         "plc-runtime tags lists them); docs/security.md",
     )
     fleet_run.add_options(run)

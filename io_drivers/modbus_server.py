@@ -1019,11 +1019,22 @@ class ModbusServer:
                 _check_area(f"{self.name}: writable tag {tag.name!r} ({a.text})", a)
                 first = a.byte_offset * 8 + max(a.bit, 0)
                 allowed[first : first + _nbits(a)] = True  # beyond the map: unreachable
+        named = []
         for ref in [*(self.writable or ()), *self.writable_extra]:
             first, nbits = self._resolve(ref, image, owned)
             allowed[first : first + nbits] = True
+            named.append((ref, first, nbits))
         self._allowed = allowed
         self._writable_regs = allowed.reshape(-1, 16).all(axis=1)
+        for ref, first, nbits in named:
+            registers = range(first // 16, (first + nbits - 1) // 16 + 1)
+            if not any(self._writable_regs[r] for r in registers):
+                n = registers[0]
+                raise ConfigError(
+                    f"{self.name}: writable {ref!r}: only part of holding register "
+                    f"{MW_BASE + n} (%MW{n}); clients write whole registers, so it could never "
+                    f"be written: open %MW{n} (or the tags that make it up) instead"
+                )
         self._owners = {}
         for bit, name in owned.items():
             self._owners.setdefault(bit // 16, name)

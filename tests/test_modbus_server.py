@@ -321,9 +321,19 @@ def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys, tmp_path):
     assert err.count("\n") == 1 and "writable '%QW5': the output image (%Q)" in err
     assert main([*argv, "--modbus-writable", "analog_filtered, %MW20..%MW21"]) == 0
     # the example README and --help give works for either program
-    assert main([*argv, "--modbus-writable", "%MX900.0,%MW900..%MW909"]) == 0
+    assert main([*argv, "--modbus-writable", "%MW450,%MW900..%MW909"]) == 0
     fleet = ["run", "--modbus", "127.0.0.1:0", "--cycles", "2", "--out", str(tmp_path)]
-    assert main([*fleet, "--modbus-writable", "%MX900.0,%MW900..%MW909"]) == 0
+    assert main([*fleet, "--modbus-writable", "%MW450,%MW900..%MW909"]) == 0
+    capsys.readouterr()
+    # a bit alone could never be written (clients write whole registers): refused at start
+    assert main([*argv, "--modbus-writable", "%MX900.0,%MW900..%MW909"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "writable '%MX900.0': only part of holding register 1474 (%MW450)" in err
+    assert main([*argv, "--modbus-writable", ",".join(f"%MX900.{b}" for b in range(8))]) == 2
+    capsys.readouterr()
+    eight = ",".join(f"%MX{byte}.{b}" for byte in (900, 901) for b in range(8))
+    assert main([*argv, "--modbus-writable", eight]) == 0  # together they make %MW450 whole
 
 
 def test_map_entries_name_where_a_location_is_served():
