@@ -257,3 +257,31 @@ def test_realtime_run_with_the_vehicles_in_their_own_process(tmp_path):
     assert summary["stations_visited"] >= 1
     assert summary["drivers"]["can"]["frames_in"] > 0
     assert Path(tmp_path / "out" / "routes.png").exists()
+
+
+def test_a_signal_while_a_finished_run_writes_its_results_lets_them_finish(
+    tmp_path, capsys, monkeypatch
+):
+    """Ctrl-C that comes only once the run has ended by itself, while its results are
+    written: the writing finishes, the summary says not interrupted, and the exit code and
+    the line on stderr say the same (they said interrupted, the summary did not)."""
+    import os
+    import signal
+
+    from fleet.commands import run as run_command
+
+    real_write_all = run_command.write_all
+
+    def interrupted_while_writing(program, out, result):
+        os.kill(os.getpid(), signal.SIGINT)  # the run's handler takes it: no exception
+        return real_write_all(program, out, result)
+
+    monkeypatch.setattr(run_command, "write_all", interrupted_while_writing)
+    out = tmp_path / "out"
+    assert main(["run", "--cycles", "20", "--json", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["interrupted"] is False
+    assert json.loads((out / "summary.json").read_text())["interrupted"] is False
+    assert captured.err.endswith(
+        "plc-runtime: interrupted after the run had ended; its results are written whole\n"
+    )

@@ -212,7 +212,6 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         with stop_on_signals(program.rt) as stopped:
             result, state = _run(args, setup, program, total, stopped)
             write_all(program, out, result)
-        interrupted = stopped.number is not None  # (a signal while writing counts too)
     finally:
         if retain_lock is not None:
             release_retain_file(retain_lock)
@@ -221,12 +220,17 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         print(json.dumps(result))
     else:
         Console().print(final_tables(result))
-    if interrupted:
+    if result["interrupted"]:
         print(
             f"plc-runtime: {stopped.what} at {result['sim_time_s']:.1f} s; results written",
             file=sys.stderr,
         )
         return stopped.exit_code
+    if stopped.number is not None:  # only the writing was asked to stop: it finished first
+        print(
+            f"plc-runtime: {stopped.what} after the run had ended; its results are written whole",
+            file=sys.stderr,
+        )
     return 1 if state == "FAULT" else 0
 
 
