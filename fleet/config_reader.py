@@ -3,6 +3,7 @@ the key (``fleet.toml: vehicles[2].start: ...``)."""
 
 from __future__ import annotations
 
+import difflib
 import math
 from typing import Any
 
@@ -23,7 +24,9 @@ class TableReader:
         self.used.add(key)
         if key not in self.table:
             if default is ...:
-                raise self.fail(key, "missing")
+                near = difflib.get_close_matches(key, [str(k) for k in self.table], n=1)
+                hint = f" (is {near[0]!r}, given, a misspelling of it?)" if near else ""
+                raise self.fail(key, f"missing{hint}")
             return default
         value = self.table[key]
         kinds = kind if isinstance(kind, tuple) else (kind,)

@@ -153,9 +153,20 @@ def _check_stations(r: TableReader, key: str, plant: Plant, function: int) -> No
         )
 
 
+RELATION_KEYS = ("source", "target", "rate_per_h")
+
+
 def _relation(r: TableReader, k: int, item: object) -> Relation:
-    if not isinstance(item, dict) or set(item) != {"source", "target", "rate_per_h"}:
+    if not isinstance(item, dict):
         raise r.fail(f"relations[{k}]", "expected a table with source, target and rate_per_h")
+    unknown = sorted(str(key) for key in set(item) - set(RELATION_KEYS))
+    if unknown:
+        raise r.fail(
+            f"relations[{k}].{unknown[0]}", "unknown key (keys: source, target, rate_per_h)"
+        )
+    for key in RELATION_KEYS:
+        if key not in item:
+            raise r.fail(f"relations[{k}].{key}", "missing")
     rate = item["rate_per_h"]
     if not isinstance(rate, int | float) or isinstance(rate, bool) or not 0 <= rate < 1e6:
         raise r.fail(f"relations[{k}].rate_per_h", f"expected a number >= 0, got {rate!r}")

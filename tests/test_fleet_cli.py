@@ -90,6 +90,10 @@ def test_config_file_on_the_command_line(tmp_path, capsys):
         (("until_s = 300", "until_s = 100"), "blockades[0].until_s: must be after at_s"),
         (("to = 8", "to = 9"), "blockades[0].to: no routable segment between nodes 7 and 9"),
         (("[plant]", "[plant\n"), "fleet.toml: "),
+        (  # a required key misspelled: the misspelling is named too
+            ("start = 10", "strat = 10"),
+            "vehicles[1].start: missing (is 'strat', given, a misspelling of it?)",
+        ),
     ],
 )
 def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):

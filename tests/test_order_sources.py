@@ -87,3 +87,18 @@ def test_the_limit_counts_the_scale_and_the_control_station():
     for extra, count in (("scale = 1.01", "101,000"), ("control = 4", "102,000")):
         with pytest.raises(ConfigError, match=f"orders.generator: {count} orders: more than"):
             parse_config(at_limit.replace("relations", f"{extra}\nrelations"), "test.toml")
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        (("rate_per_h = 10", "rate = 10"), "relations[0].rate: unknown key (keys: source, "),
+        (('source = "a", ', ""), "relations[0].source: missing"),
+        (("relations = [{", "relations = [7, {"), "relations[0]: expected a table with"),
+    ],
+)
+def test_a_relation_names_the_key_that_is_wrong(change, words):
+    """A misspelled key of a relation is named, not the whole relation."""
+    with pytest.raises(ConfigError) as err:
+        parse_config(CONFIG.replace(*change), "test.toml")
+    assert f"test.toml: orders.generator.{words}" in str(err.value)
