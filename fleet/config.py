@@ -209,14 +209,16 @@ def load_config(path: str | Path | None = None) -> FleetConfig:
     path = Path(path) if path is not None else DEFAULT_CONFIG
     source = path.name if path == DEFAULT_CONFIG else str(path)
     try:
+        raw = read_limited(path, MAX_CONFIG_BYTES)
         # utf-8-sig: an editor on Windows may start the file with a byte order mark
-        text = read_limited(path, MAX_CONFIG_BYTES).decode("utf-8-sig")
+        text = raw.decode("utf-8-sig")
     except FileProblem as exc:
         raise ConfigError(f"{source}: {exc}, not a fleet configuration") from None
     except OSError as exc:
         raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{source}: not UTF-8 text") from None
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{source}: line {line}: not UTF-8 text (byte {exc.start})") from None
     other = {  # files a configuration names, given in its place: say so, not a TOML error
         ".csv": ("an order file", "[orders] file"),
         ".json": ("an order or plant file", "[orders] file or [plant] file"),

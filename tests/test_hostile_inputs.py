@@ -1118,3 +1118,20 @@ def test_a_node_list_gives_positions_on_every_node_or_on_none(tmp_path, text, li
     plant.write_text(text)
     with pytest.raises(TopologyError, match=rf"p\.nodes: line {line}: x and y are given on some"):
         load(plant)
+
+
+def test_a_byte_that_is_not_utf8_is_named_by_its_line(tmp_path):
+    """Plant files and configurations name the line of a byte that is no UTF-8, as order
+    files do, not only its offset in the file."""
+    from fleet.config import load_config
+    from plc_runtime.errors import ConfigError
+    from topology import TopologyError, load
+
+    plant = tmp_path / "p.toml"
+    plant.write_bytes(b'name = "p"\n\n# caf\xe9\n')
+    with pytest.raises(TopologyError, match=r"line 3: not UTF-8 text \(byte 17\)"):
+        load(plant)
+    config = tmp_path / "c.toml"
+    config.write_bytes(b"[plant]\n# \xff\n")
+    with pytest.raises(ConfigError, match=r"c.toml: line 2: not UTF-8 text \(byte 10\)"):
+        load_config(config)

@@ -324,7 +324,9 @@ def test_unreadable_files_are_one_line_errors(tmp_path):
     (tmp_path / "zero.csv").symlink_to("/dev/zero")  # (it never ends)
     assert "not a regular file (a device)" in error_of(tmp_path / "zero.csv")
     assert "binary data" in error_of(write(tmp_path, "b.csv", b"id,get,put\n\0\n"))
-    assert "not UTF-8 text (byte 11)" in error_of(write(tmp_path, "u.csv", b"id,get,put\n\xff\n"))
+    assert "u.csv:2: not UTF-8 text (byte 11)" in error_of(
+        write(tmp_path, "u.csv", b"id,get,put\n\xff\n")
+    )
     assert "unknown order file format '.xlsx'" in error_of(write(tmp_path, "o.xlsx", "id"))
     assert "unknown order file format '(none)'" in error_of(write(tmp_path, "orders", "id"))
 

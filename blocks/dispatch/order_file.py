@@ -93,7 +93,8 @@ def _read_text(path: Path) -> str:
     try:
         return raw.decode("utf-8-sig")  # a spreadsheet's CSV export starts with a BOM
     except UnicodeDecodeError as exc:
-        raise OrderFileError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise OrderFileError(f"{path}:{line}: not UTF-8 text (byte {exc.start})") from None
 
 
 def _parse_csv(text: str, source: str) -> list[tuple[str, TransportOrder]]:

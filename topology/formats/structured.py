@@ -67,7 +67,8 @@ def read_text(path: Path) -> str:
     try:
         return raw.decode("utf-8-sig")  # an editor on Windows may start it with a BOM
     except UnicodeDecodeError as exc:
-        raise TopologyError(f"not UTF-8 text (byte {exc.start})", str(path)) from None
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise TopologyError(f"line {line}: not UTF-8 text (byte {exc.start})", str(path)) from None
 
 
 def text_lines(text: str) -> list[str]:
