@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import http.server
+import io
 import json
 import math
 import os
@@ -669,3 +670,28 @@ def test_a_generated_token_never_starts_with_a_dash(monkeypatch):
     draws = iter(["-" + "a" * 31, "-" + "b" * 31, "c" * 32])
     monkeypatch.setattr(web_options_module.secrets, "token_urlsafe", lambda n: next(draws))
     assert web_options_module.new_token() == "c" * 32
+
+
+def test_the_order_list_keeps_ids_and_states_whole_on_a_narrow_terminal():
+    """At 80 columns "paint-1" and "paint-2" both read "paint…" and every state four
+    letters, while the reason, mostly empty, kept its width."""
+    from rich.console import Console
+
+    from fleet.commands.orders import orders_table
+    from fleet.web.models import OrderOut
+
+    def order(oid, state, reason=""):
+        return OrderOut(
+            id=oid, get=25, put=26, start_s=15.0, end_s=400.0, priority=0, vehicle=None,
+            state=state, assigned=1, reason=reason, history=[], sections={},
+        )  # fmt: skip
+
+    orders = [
+        order("paint-1", "BEING_PROCESSED"),
+        order("paint-2", "FINISHED", "a reason long enough to need folding, twice over at that"),
+    ]
+    console = Console(width=80, record=True, file=io.StringIO())
+    console.print(orders_table(orders, "http://127.0.0.1:8080"))
+    text = console.export_text()
+    for whole in ("paint-1", "paint-2", "BEING_PROCESSED", "FINISHED"):
+        assert whole in text

@@ -25,6 +25,7 @@ import http.client
 import json
 import os
 import socket
+import sys
 import threading
 import urllib.error
 import urllib.request
@@ -120,7 +121,10 @@ def order_command(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps([o.model_dump(mode="json") for o in orders]))
         else:
-            Console().print(orders_table(orders, args.url))
+            # a file or a pipe gets whole rows, as a wide terminal does
+            Console(width=None if sys.stdout.isatty() else 200).print(
+                orders_table(orders, args.url)
+            )
         return 0
     if kind in ("show", "withdraw"):
         try:
@@ -406,10 +410,19 @@ def _row(table: Table, *cells: object) -> None:
 
 
 def orders_table(orders: list[OrderOut], url: str) -> Table:
+    """Every order, a row each. The id and the state are what a reader looks for: they
+    keep their width on a narrow terminal (the reason folds instead)."""
     table = Table(title=Text(terminal_text(f"{len(orders)} orders at {url}")))
+    longest = max((len(terminal_text(o.id)) for o in orders), default=2)
     for name in ("id", "get", "put", "start s", "end s", "prio", "vehicle", "state", "assigned"):
-        table.add_column(name, justify="left" if name in ("id", "state") else "right")
-    table.add_column("reason")
+        whole = {"id": longest, "state": len("BEING_PROCESSED")}.get(name)
+        table.add_column(
+            name,
+            justify="left" if whole else "right",
+            no_wrap=whole is not None,
+            min_width=whole,
+        )
+    table.add_column("reason", overflow="fold")
     for o in orders:
         _row(
             table,
