@@ -558,3 +558,23 @@ def test_a_plant_named_after_its_file_escapes_what_a_name_may_not_hold(tmp_path)
     path.write_text(text)
     assert load(path).name == "lager\\udce4\\tost"
     assert load(tmp_path / "lager\udce4\tost.map").name.isprintable()
+
+
+@pytest.mark.parametrize(
+    ("options", "error"),
+    [
+        ("functions=5", "line 4 (id 1): a transit node cannot provide functions"),
+        ("role=entyr", "line 4 (id 1): unknown role 'entyr'"),
+    ],
+)
+def test_a_nodes_file_names_the_line_of_a_node_the_plant_checks_refuse(tmp_path, options, error):
+    """The checks of the plant as a whole name a node by its place in the list; a .nodes
+    file is lines, so its line is named."""
+    path = tmp_path / "n.nodes"
+    path.write_text(
+        "# id N dN E dE S dS W dW\n0 -1 0 1 1.0 -1 0 -1 0 role=entry\n\n"
+        f"1 -1 0 -1 0 -1 0 0 1.0 {options}\n"
+    )
+    with pytest.raises(TopologyError) as err:
+        load(path)
+    assert str(err.value).startswith(f"{path}: {error}")

@@ -13,6 +13,7 @@ Numbers are ASCII decimal (see numbers.py): ``٣`` is not node 3, ``nan`` is not
 
 from __future__ import annotations
 
+import re
 from collections import deque
 from pathlib import Path
 from typing import TypeVar
@@ -102,7 +103,19 @@ def load_nodes(path: str | Path) -> Plant:
             source,
             f"line {line}",
         )
-    return Plant.build(nodes, edges, name=escaped_name(path.stem), source=source)
+    try:
+        return Plant.build(nodes, edges, name=escaped_name(path.stem), source=source)
+    except TopologyError as exc:
+        raise _on_its_line(exc, [line for _o, _p, line in records.values()]) from None
+
+
+def _on_its_line(exc: TopologyError, lines: list[int]) -> TopologyError:
+    """A check of the plant names a node by its place in the list ("nodes[3] (id 7)"); in
+    a file of lines, its line says where to look."""
+    found = re.match(r"nodes\[(\d+)\](.*)", exc.where or "")
+    if found is None or int(found[1]) >= len(lines):
+        return exc
+    return TopologyError(exc.message, exc.source, f"line {lines[int(found[1])]}{found[2]}")
 
 
 def _integer(text: str, field: str, source: str, where: str) -> int:
