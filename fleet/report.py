@@ -11,7 +11,6 @@ removed.
 from __future__ import annotations
 
 import csv
-import fcntl
 import json
 import os
 import warnings
@@ -21,7 +20,7 @@ from typing import IO, Any
 from blocks.dispatch.order_file import HISTORY_COLUMNS
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
-from plc_runtime.files import same_path
+from plc_runtime.files import lock_file, release_lock, same_path
 
 from .order_report import order_summary, station_use, write_orders_csv
 from .program import FleetProgram
@@ -277,20 +276,11 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
     replace or remove their files, and a user's own file must never be one of them."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"--out {out_dir}: a file, not a folder")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        lock = open(out_dir / LOCK_FILE, "ab")  # held for the whole run
-    except OSError as exc:
-        raise ConfigError(
-            f"--out {out_dir}: cannot write results there: {exc.strerror or exc}"
-        ) from None
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        lock.close()
-        raise ConfigError(
-            f"--out {out_dir}: another run is writing its results there; give another folder"
-        ) from None
+    lock = lock_file(  # held for the whole run
+        out_dir / LOCK_FILE,
+        f"--out {out_dir}: cannot write results there",
+        f"--out {out_dir}: another run is writing its results there; give another folder",
+    )
     for name in OUTPUT_FILES:
         path = out_dir / name
         problem = None
@@ -310,13 +300,6 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
             release_lock(lock)  # ours: no other run holds it
             raise ConfigError(f"--out {out_dir}: {problem}")
     return lock
-
-
-def release_lock(lock: IO[bytes]) -> None:
-    """The run is over: the lock file goes (a run leaves only its results behind), then
-    the lock."""
-    Path(lock.name).unlink(missing_ok=True)
-    lock.close()
 
 
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:

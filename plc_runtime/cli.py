@@ -28,8 +28,9 @@ from rich.live import Live
 from rich.table import Table
 
 from .clock import PacedClock, VirtualClock, WallClock
+from .files import release_lock
 from .io import IoDriver
-from .retain import claim_retain_file, release_retain_file
+from .retain import claim_retain_file
 from .runtime import MAX_TIME, Runtime
 
 EXIT_FAULT = 1
@@ -243,7 +244,7 @@ def run_program(
         return _run_program(args, name, build, drivers, cycle_time, watchdog_ms)
     finally:
         if lock is not None:
-            release_retain_file(lock)
+            release_lock(lock)
 
 
 def _run_program(

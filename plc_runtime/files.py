@@ -9,9 +9,13 @@ of a hang or a process that eats the machine's memory.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import stat
 from pathlib import Path
+from typing import IO
+
+from .errors import ConfigError
 
 
 class FileProblem(ValueError):
@@ -65,3 +69,28 @@ def same_path(a: Path, b: Path) -> bool:
         return a.samefile(b)
     except OSError:
         return a.resolve() == b.resolve()
+
+
+def lock_file(path: Path, cannot: str, taken: str) -> IO[bytes]:
+    """An exclusive lock on the file ``path`` (made, with its folder, if missing), for as
+    long as a run uses what it guards: held until :func:`release_lock`, or the process's
+    end however it ends. ConfigError ``cannot: why`` if the file cannot be made, ``taken``
+    if another process holds the lock."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path, "ab")
+    except OSError as exc:
+        raise ConfigError(f"{cannot}: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ConfigError(taken) from None
+    return lock
+
+
+def release_lock(lock: IO[bytes]) -> None:
+    """The run is over: the lock file goes (a run leaves only its results behind), then
+    the lock."""
+    Path(lock.name).unlink(missing_ok=True)
+    lock.close()

@@ -10,7 +10,6 @@ silently wrong value.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import json
 import os
@@ -21,7 +20,7 @@ from pathlib import Path
 from typing import IO
 
 from .errors import ConfigError, RetainError
-from .files import FileProblem, is_special, read_limited
+from .files import FileProblem, is_special, lock_file, read_limited
 
 MAGIC = "PLCRETAIN"
 VERSION = 1
@@ -187,32 +186,16 @@ def claim_retain_file(path: str | os.PathLike[str]) -> IO[bytes]:
     """An exclusive lock on ``PATH.lock`` beside the retain file ``path``, for a command
     that runs a program with it: two runs saving into one retain file would each write its
     values over the other's, and one run's retained data (a lifetime counter) would be lost
-    without a word. Held until :func:`release_retain_file`, or the process's end. (The
-    retain file itself is replaced on every save, so it cannot hold the lock.) ConfigError
-    if another process holds it."""
+    without a word. Held until :func:`plc_runtime.files.release_lock`, or the process's end.
+    (The retain file itself is replaced on every save, so it cannot hold the lock.)
+    ConfigError if another process holds it."""
     check_retain_path(path)
     retain = Path(path)
-    lock_path = retain.with_name(retain.name + ".lock")
-    try:
-        lock_path.parent.mkdir(parents=True, exist_ok=True)
-        lock = open(lock_path, "ab")
-    except OSError as exc:
-        raise ConfigError(f"retain file {retain}: cannot lock it: {exc.strerror or exc}") from None
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        lock.close()
-        raise ConfigError(
-            f"retain file {retain}: another run is using it; give another file"
-        ) from None
-    return lock
-
-
-def release_retain_file(lock: IO[bytes]) -> None:
-    """The run is over: the lock file goes (a run leaves only its retain file behind), then
-    the lock."""
-    Path(lock.name).unlink(missing_ok=True)
-    lock.close()
+    return lock_file(
+        retain.with_name(retain.name + ".lock"),
+        f"retain file {retain}: cannot lock it",
+        f"retain file {retain}: another run is using it; give another file",
+    )
 
 
 class RetainStore:

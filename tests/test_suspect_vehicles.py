@@ -227,12 +227,10 @@ def test_acknowledging_a_vehicle_suspect_on_a_segment_keeps_the_node_it_drives_t
     assert not any(c.suspect for c in p.controls.values())
 
 
-def test_acknowledging_a_vehicle_pushed_past_a_node_holds_it_for_the_node_ahead(program):
-    """Pushed by hand onto a segment it was never released, past the crossing of the node
-    behind it (its report: that node, clear of it, the next one ahead), a vehicle is
-    suspect. The operator confirms it: it is held for the node ahead, not for the node it
-    has left, and sent on to it."""
-    p = program
+def pushed_onto_a_free_segment(p: FleetProgram):
+    """Vehicle 3, once it stands, pushed by hand onto the start of a segment between two
+    nodes nobody holds or stands on, towards the second: (the simulated vehicle, its control,
+    the two node ids); the caller sets how far along it is."""
     plant = p.cfg.plant
     p.rt.run(duration=10)
     standing(p, 3)
@@ -244,10 +242,21 @@ def test_acknowledging_a_vehicle_pushed_past_a_node_holds_it_for_the_node_ahead(
     t = next(b for (a, b) in plant.arc_index if a == x and b not in used)
     agv.node, agv.target, agv.speed, agv.turn_left = x, t, 0.0, 0.0
     agv.length = float(agv._lengths[(x, t)].length)
-    agv.progress = 2 * agv.params.length + 0.1  # its rear off the crossing of x
-    assert agv.clear and agv.progress < agv.length
     agv.route.clear()
     agv.driven.append(x)
+    return agv, c, x, t
+
+
+def test_acknowledging_a_vehicle_pushed_past_a_node_holds_it_for_the_node_ahead(program):
+    """Pushed by hand onto a segment it was never released, past the crossing of the node
+    behind it (its report: that node, clear of it, the next one ahead), a vehicle is
+    suspect. The operator confirms it: it is held for the node ahead, not for the node it
+    has left, and sent on to it."""
+    p = program
+    plant = p.cfg.plant
+    agv, c, x, t = pushed_onto_a_free_segment(p)
+    agv.progress = 2 * agv.params.length + 0.1  # its rear off the crossing of x
+    assert agv.clear and agv.progress < agv.length
     p.rt.run(duration=1)
     assert c.suspect
     p.rt.image.write("agv3.ack", 1)
@@ -339,17 +348,8 @@ def test_a_vehicle_braked_on_a_segment_it_was_not_released_finishes_it_once_held
     hold."""
     p = program
     plant = p.cfg.plant
-    p.rt.run(duration=10)
-    standing(p, 3)
-    agv, c = p.fleet.vehicles[3], p.controls[3]
-    x = free_node(p)
-    used = {a.node for a in p.fleet.vehicles.values()} | {
-        int(plant.ids[n]) for h in p.reservation.holds.values() for n in h
-    }
-    t = next(b for (a, b) in plant.arc_index if a == x and b not in used)
-    agv.node, agv.target, agv.progress, agv.speed, agv.turn_left = x, t, 0.1, 0.0, 0.0
-    agv.route.clear()
-    agv.driven.append(x)
+    agv, c, x, t = pushed_onto_a_free_segment(p)
+    agv.progress = 0.1
     p.rt.run(duration=1)
     assert c.suspect
     p.rt.image.write("agv3.ack", 1)

@@ -46,8 +46,8 @@ from plc_runtime.cli import (
 )
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
 from plc_runtime.errors import ConfigError
-from plc_runtime.files import same_path
-from plc_runtime.retain import claim_retain_file, release_retain_file
+from plc_runtime.files import release_lock, same_path
+from plc_runtime.retain import claim_retain_file
 
 from .. import liveness
 from ..config import (
@@ -68,7 +68,6 @@ from ..program import FleetProgram
 from ..report import (
     OUTPUT_FILES,
     claim_out_dir,
-    release_lock,
     summary,
     write_all,
 )
@@ -214,7 +213,7 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             write_all(program, out, result)
     finally:
         if retain_lock is not None:
-            release_retain_file(retain_lock)
+            release_lock(retain_lock)
         release_lock(out_lock)
     if args.json:
         print(json.dumps(result))
