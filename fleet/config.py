@@ -13,6 +13,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from blocks.dispatch.strategies import strategy_names
 from blocks.jobs.recipe import STRATEGIES, Recipe
 from blocks.traffic.tw_traffic import PLAN_ORDERS
 from io_drivers.can_bus import bus_channels, bus_of, interface_problem
@@ -373,6 +374,11 @@ def check_config(cfg: FleetConfig) -> None:
             raise ConfigError(f"{where}{name}: must be a number >= {least}, got {value!r}")
     if not cfg.starts:
         raise ConfigError(f"{where}starts: at least one vehicle is needed")
+    if cfg.dispatch.strategy not in strategy_names():
+        raise ConfigError(
+            f"{where}dispatch.strategy: must be one of {', '.join(strategy_names())}, got "
+            f"{cfg.dispatch.strategy!r} (a strategy of one's own: register_strategy)"
+        )
     top = VEHICLES_PER_BUS * MAX_BUSES
     seen: dict[int, int] = {}
     for v, start in cfg.starts.items():

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from blocks.dispatch.charging import ChargePolicy
 from blocks.dispatch.generator import SEED_RELATIONS, WINDOW_S, Relation, order_counts
-from blocks.dispatch.strategies import STRATEGIES
+from blocks.dispatch.strategies import strategy_names
 from plc_runtime.errors import ConfigError
 from topology import Plant
 
@@ -189,8 +189,10 @@ def parse_dispatch(r: TableReader) -> DispatchConfig:
         capacity_per_h=r.number("capacity_per_h", 60.0, 0.001, 1e6),
         out_of_service_s=r.number("out_of_service_s", 60.0, 0.0, 86400.0),
     )
-    if cfg.strategy not in STRATEGIES:
-        raise r.fail("strategy", f"must be one of {', '.join(STRATEGIES)}, got {cfg.strategy!r}")
+    if cfg.strategy not in strategy_names():
+        raise r.fail(
+            "strategy", f"must be one of {', '.join(strategy_names())}, got {cfg.strategy!r}"
+        )
     if cfg.estimate not in ESTIMATE_METHODS:
         raise r.fail(
             "estimate", f"must be one of {', '.join(ESTIMATE_METHODS)}, got {cfg.estimate!r}"

@@ -46,6 +46,7 @@ from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
+from vehicles.agv import AGV
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
@@ -306,6 +307,7 @@ class FleetProgram:
             priority=0,
         )
         self.fleet: Fleet | None = None
+        self.fleets: list[Fleet] = []  # one per bus (126 vehicles each)
         self.monitor: ConflictMonitor | None = None
         self._sim_buses: list[can.BusABC] = []
         if cosimulate:
@@ -446,6 +448,19 @@ class FleetProgram:
 
     def _priority(self, vehicle: int) -> tuple[int, int]:
         return (self.jobs[vehicle].priority_ns, vehicle)
+
+    def simulated_vehicles(self) -> dict[int, AGV]:
+        """Every vehicle simulated in this process, by its fleet-wide id: where each really
+        is (``node``, ``target``, ``progress`` along the segment), which the controller's
+        view (``controls``) trails by its reports. A vehicle above 126 runs on a further
+        bus, whose fleet knows it by its id there (126 less per bus). Empty when the
+        vehicles run elsewhere (their own process, a real bus)."""
+        offsets = self.monitor.offsets if self.monitor is not None else []
+        return {
+            offset + v: agv
+            for fleet, offset in zip(self.fleets, offsets, strict=True)
+            for v, agv in fleet.vehicles.items()
+        }
 
     def close(self) -> None:
         """Stop the runtime (outputs to their safe state), then close the simulated buses,

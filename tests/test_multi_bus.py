@@ -72,6 +72,9 @@ def test_a_fleet_of_140_runs_on_two_in_process_buses(tmp_path):
     try:
         assert [len(f.vehicles) for f in p.fleets] == [126, 14]
         assert round(p.fleets[1].vehicles[9].battery.percent) == 55  # vehicle 135
+        every = p.simulated_vehicles()  # by fleet-wide id, the second bus's included
+        assert sorted(every) == list(range(1, 141)) and every[135] is p.fleets[1].vehicles[9]
+        assert all(every[v].node == cfg.starts[v] for v in every)
         starts = {v: f.vehicles[v].node for f in p.fleets[1:] for v in f.vehicles}
         p.rt.start()
         p.rt.run(cycles=round(30 / cfg.cycle_time))

@@ -883,3 +883,43 @@ def test_a_vehicle_that_must_charge_goes_to_a_charger_it_can_reach(when, tmp_pat
     assert p.rt.run_until(lambda: runner.phase == "charging", max_cycles=round(600 / 0.05))
     assert runner.place != nearest and runner.current == runner.place
     assert p.orders.claims.holder.get(nearest) is None
+
+
+def test_a_strategy_of_ones_own_is_registered_and_dispatches(tmp_path, made, monkeypatch):
+    """A researcher's allocation on the whole program: registered under a name, chosen as
+    the built-in ones are; an unknown name is a configuration error naming the key."""
+    from blocks.dispatch import strategies
+    from blocks.dispatch.strategies import Assignment, register_strategy
+
+    monkeypatch.setattr(strategies, "PLUGGED", {})
+    seen = []
+
+    def farthest_idle(vehicles, orders, distance):
+        free, out = list(vehicles), []
+        for order in orders:
+            if not free:
+                break
+            best = max(free, key=lambda c: distance(c.node, order.get))
+            seen.append((order.id, [c.vehicle for c in free]))
+            yield
+            free.remove(best)
+            out.append(Assignment(best.vehicle, order))
+        return out
+
+    cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0), (2, 14)))
+    cfg.dispatch.strategy = "farthest_idle"
+    with pytest.raises(ConfigError, match="dispatch.strategy: must be one of .*register_strategy"):
+        FleetProgram(cfg)
+    register_strategy("farthest_idle", farthest_idle)
+    with pytest.raises(ValueError, match="needs a new name"):
+        register_strategy("two_stage", farthest_idle)
+    p = start(cfg, made)
+    run(p, 1)
+    distances = {v: p.orders.distance(p.cfg.starts[v], 20) for v in (1, 2)}
+    farther = max(distances, key=distances.get)
+    assert distances[farther] > distances[3 - farther]
+    p.orders.submit(TransportOrder("A", 20, 24))
+    run(p, 2)
+    order = p.orders.book.get("A")
+    assert seen and order.assigned == farther
+    assert p.rt.run_until(lambda: order.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))

@@ -389,3 +389,13 @@ def test_a_segment_named_by_something_else_than_integers_says_so(a):
         RoutingConstraints(model_plant()).block(a, 8)
     with pytest.raises(TypeError, match="penalty must be a number, got '3'"):
         RoutingConstraints(model_plant()).penalize(7, 8, "3")
+
+
+def test_a_table_asked_before_its_startup_says_how_to_get_one():
+    """Outside a runtime the table is not built yet: the error says so and names the
+    function that gives exact distances without one (it was an AttributeError on None)."""
+    plant = model_plant()
+    table = HeuristicTable(plant)
+    with pytest.raises(RuntimeError, match=r"built at startup.*distances_to\(plant, targets\)"):
+        table.distance(0, 24)
+    assert distances_to(plant, [24])[0][plant.idx(0)] > 0

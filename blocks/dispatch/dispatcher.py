@@ -47,12 +47,13 @@ from .orders import OrderBook, OrderState, TransportOrder
 from .reachability import Reachability
 from .station_schedule import StationSchedule, live_schedule
 from .strategies import (
-    STRATEGIES,
     Assignment,
     Candidate,
     StationStats,
     dhht,
     nearest_idle,
+    plugged_strategy,
+    strategy_names,
     two_stage,
 )
 from .urgent_orders import UrgentOrders
@@ -99,9 +100,9 @@ class Dispatcher(FunctionBlock):
         pool_limit: int = 100,
     ) -> None:
         super().__init__()
-        if strategy not in STRATEGIES:
+        if strategy not in strategy_names():
             raise ValueError(
-                f"dispatch strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}"
+                f"dispatch strategy must be one of {', '.join(strategy_names())}, got {strategy!r}"
             )
         if budget < 1:
             raise ValueError(f"dispatch budget must be >= 1 evaluation per scan, got {budget}")
@@ -389,7 +390,10 @@ class Dispatcher(FunctionBlock):
         if not vehicles or not orders:
             self._working = None
             return
-        if self.strategy == "nearest_idle":
+        plugged = plugged_strategy(self.strategy)
+        if plugged is not None:
+            self._round = plugged(vehicles, orders, self.distance)
+        elif self.strategy == "nearest_idle":
             self._round = nearest_idle(vehicles, orders, self.distance)
         elif self.strategy == "dhht":
             self._round = dhht(

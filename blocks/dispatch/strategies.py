@@ -56,6 +56,38 @@ class Assignment:
 
 
 Round = Generator[None, None, list[Assignment]]
+# a strategy of one's own: (idle vehicles, orders startable now, exact distance a -> b)
+PluggedStrategy = Callable[
+    [Sequence[Candidate], Sequence[TransportOrder], Callable[[int, int], float]], Round
+]
+PLUGGED: dict[str, PluggedStrategy] = {}
+
+
+def register_strategy(name: str, strategy: PluggedStrategy) -> None:
+    """Make ``strategy`` a dispatch strategy under ``name`` (``[dispatch] strategy``, or
+    ``cfg.dispatch.strategy``, in this process), for trying an allocation of one's own on
+    the whole fleet program. It is called as ``nearest_idle`` is: with the idle vehicles
+    that may take an order (``Candidate``, slot "active"), the waiting orders whose start
+    time has come (the most urgent, at most the dispatcher's pool), and the exact distance
+    a -> b in metres; it is a generator that yields after each evaluation (the dispatcher
+    runs a bounded number of them per scan) and returns its ``Assignment`` list. Orders
+    for another vehicle (``order.vehicle``) must not be given to this one, and at most one
+    order to a vehicle; the dispatcher checks each assignment again before it applies it."""
+    if not name.isidentifier() or name in STRATEGIES:
+        raise ValueError(f"a plugged strategy needs a new name (an identifier), got {name!r}")
+    if not callable(strategy):
+        raise TypeError(f"strategy {name!r}: not callable")
+    PLUGGED[name] = strategy
+
+
+def plugged_strategy(name: str) -> PluggedStrategy | None:
+    """The strategy registered under ``name``, None for a built-in one."""
+    return PLUGGED.get(name)
+
+
+def strategy_names() -> tuple[str, ...]:
+    """The built-in strategies, then those registered in this process."""
+    return (*STRATEGIES, *PLUGGED)
 
 
 def _by_urgency(orders: Sequence[TransportOrder]) -> list[TransportOrder]:

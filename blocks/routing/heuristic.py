@@ -120,6 +120,13 @@ class HeuristicTable(FunctionBlock):
         late = self._late.get(target)
         if late is not None:
             return late
+        if self._built_for is None:
+            # outside a runtime: its startup builds the table (for a single row of exact
+            # distances without one, distances_to(plant, [target]))
+            raise RuntimeError(
+                "the heuristic table is built at startup: add it to a runtime's task and "
+                "start the runtime first (or use distances_to(plant, targets))"
+            )
         self._built_for.idx(target)
         if target not in self._queued:
             self._queued.append(target)
