@@ -63,6 +63,23 @@ def test_a_report_off_the_vehicles_holds_changes_nothing():
     assert res.holder_of(idx[9]) is None
 
 
+def test_a_relocation_onto_a_segment_another_vehicle_drives_is_refused():
+    """An operator confirms a vehicle on a segment, clear of one end: it is held for the
+    other end. Not while another vehicle is on that segment, either way: the two would
+    face each other, each holding the node behind the other."""
+    plant = model_plant()
+    idx = plant.index
+    res = ReservationMatrix(plant, [1, 2])
+    assert res.report(1, idx[6]) and res.report(2, idx[13])
+    res.claim(1, idx[7])
+    res.report(1, idx[6], clear=True)  # vehicle 1 on 6 -> 7, clear of 6: holds 7 only
+    assert res.held_by(1) == [idx[7]] and res.holder_of(idx[6]) is None
+    assert res.relocate(2, idx[6], cleared=idx[7]) == "vehicle 1 is on the segment 7-6"
+    assert res.held_by(2) == [idx[13]]  # nothing changed
+    assert res.relocate(2, idx[8], cleared=idx[7]) is None  # nobody between 7 and 8
+    assert res.held_by(2) == [idx[8]] and res.cleared[2] == idx[7]
+
+
 def test_oncoming_segment_gets_the_very_high_penalty():
     plant = model_plant()
     idx = plant.index

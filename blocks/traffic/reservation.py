@@ -189,12 +189,29 @@ class ReservationMatrix(FunctionBlock):
         other = int(self.holder[node])
         if other != FREE and other != vehicle:
             return f"node {self.plant.ids[node]} is held by vehicle {other}"
+        if cleared is not None and (other := self._on_segment(cleared, node, vehicle)):
+            ids = self.plant.ids
+            return f"vehicle {other} is on the segment {ids[cleared]}-{ids[node]}"
         for n in self.holds[vehicle]:
             self.holder[n] = FREE
         self.holds[vehicle][:] = [node]
         self.holder[node] = vehicle
         self.cleared[vehicle] = cleared
         self._sync_areas(vehicle)
+        return None
+
+    def _on_segment(self, a: int, b: int, vehicle: int) -> int | None:
+        """Another vehicle than ``vehicle`` between node indices ``a`` and ``b`` (either
+        way): released from one into the other, or clear of one on its way to the other;
+        None if there is none. (A relocation onto that segment would put the two on it
+        together, head-on or nose to tail.)"""
+        pair = {a, b}
+        for other, held in self.holds.items():
+            if other == vehicle or not held:
+                continue
+            steps = zip([self.cleared[other], *held], held, strict=False)  # (one less)
+            if any({x, y} == pair for x, y in steps):
+                return other
         return None
 
     def holder_of(self, node: int) -> int | None:
