@@ -204,12 +204,27 @@ def clear_on_a_segment(p: FleetProgram) -> int:
     raise AssertionError("no vehicle drove a segment")
 
 
-def test_acknowledging_a_vehicle_suspect_on_a_segment_keeps_the_node_it_drives_to(program):
+@pytest.fixture(params=["reactive", "time_windows"])
+def either_traffic(request):
+    cfg = load_config()
+    cfg.watchdog = 5.0
+    cfg.traffic = request.param
+    p = FleetProgram(cfg)
+    p.rt.start()
+    yield p
+    p.close()
+
+
+def test_acknowledging_a_vehicle_suspect_on_a_segment_keeps_the_node_it_drives_to(
+    either_traffic,
+):
     """A vehicle whose link restarted while it drove a segment (clear of the node behind
     it) is suspect, stopped on the segment. An operator's acknowledge confirms what its
     holds already say: the node ahead stays its own (given to it, the node behind would
-    free the one it stands in front of for the next vehicle), and it drives on."""
-    p = program
+    free the one it stands in front of for the next vehicle), and it drives on, also with
+    time-window traffic (where it stood "planning" for good: its old plan was kept whole,
+    though it had dropped it)."""
+    p = either_traffic
     v = clear_on_a_segment(p)
     agv, c = p.fleet.vehicles[v], p.controls[v]
     ahead = agv.target
@@ -222,7 +237,9 @@ def test_acknowledging_a_vehicle_suspect_on_a_segment_keeps_the_node_it_drives_t
     assert p.rt.image.read(f"agv{v}.ack_result") == ACK_DONE
     assert not c.suspect and held in p.reservation.held_by(v)
     assert p.rt.run_until(lambda: agv.node == ahead, max_cycles=round(10 / p.cfg.cycle_time))
+    arrived = len(agv.driven)
     p.rt.run(duration=60)
+    assert len(agv.driven) >= arrived + 5  # on with its recipes
     assert (p.monitor.head_on, p.monitor.node, p.monitor.area) == (0, 0, 0)
     assert not any(c.suspect for c in p.controls.values())
 

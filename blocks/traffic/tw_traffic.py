@@ -652,7 +652,9 @@ class TimeWindowTraffic(FunctionBlock):
             # a vehicle on its way (its next step free to take) drives on meanwhile, and
             # one that waits is planned afresh from where it is
             old = self._labels[v]
-            if v not in self._late and self._goal.get(v) == goal:
+            # (a control that dropped the route, back in service after a suspicion, or
+            # that could not take the plan, follows none: it is searched again)
+            if v not in self._late and self._goal.get(v) == goal and control.route:
                 booked_ahead = old[-1] - self._t0
                 kept = steps[-1] == goal or booked_ahead >= self.keep_s
             waits_long = v in self._late and control.wait_blocker is not None
