@@ -923,3 +923,26 @@ def test_a_strategy_of_ones_own_is_registered_and_dispatches(tmp_path, made, mon
     order = p.orders.book.get("A")
     assert seen and order.assigned == farther
     assert p.rt.run_until(lambda: order.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
+
+
+def test_a_queue_place_cut_off_on_the_way_is_given_up_for_another(tmp_path, made):
+    """A vehicle heads for its station's queue place while another is served there; a
+    blockade cuts the queue place off. It gives the place up and waits elsewhere off the
+    lanes: it kept heading for it and waited on the one-way ring, blocking it."""
+    p = dc_program(made, tmp_path, 3, [])
+    p.orders.submit(TransportOrder("A", 21, 31, vehicle=1))
+    p.orders.submit(TransportOrder("B", 21, 32, vehicle=2))
+    runners = p.orders.runners.values()
+    queue = p.cfg.plant.queues[21][0]
+    assert p.rt.run_until(
+        lambda: any(r.target == queue and r.current != queue for r in runners), max_cycles=20000
+    )
+    waiting = next(r for r in runners if r.target == queue)
+    close_round(p, {queue})
+    run(p, 1)
+    assert waiting.target != queue and p.orders.claims.holder.get(queue) is None
+    assert waiting.target in p.cfg.plant.with_role("parking", "queue")
+    order = waiting.active
+    assert p.rt.run_until(lambda: order.state.final, max_cycles=20000)
+    assert order.state is OrderState.FINISHED
+    assert (p.monitor.head_on, p.monitor.node, p.monitor.area) == (0, 0, 0)

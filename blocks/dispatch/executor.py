@@ -512,11 +512,20 @@ class OrderRunner(FunctionBlock):
         position nearest to the station (a vehicle stopped on a lane would block every
         vehicle behind it). None if there is none."""
         places = self.queues.get(station, ())
+        for q in [*places, *self.parking]:
+            if self._holds(q) and not self._reachable(q) and q != self.current:
+                self.claims.leave(q, self.vehicle)  # cut off on its way there: another
+                if self.place == q:
+                    self.place = None
         for q in places:
             if self._holds(q):
                 return q
         for q in places:
-            if q not in self.claims.holder and self.claims.claim(q, self.vehicle):
+            if (
+                q not in self.claims.holder
+                and self._reachable(q)
+                and self.claims.claim(q, self.vehicle)
+            ):
                 return q
         if self.place in self.parking and self._holds(self.place):
             return self.place
