@@ -325,3 +325,21 @@ def test_a_key_given_twice_in_a_json_body_is_refused_and_changes_nothing(ctl):
     assert (added.status, added.body["field"]) == (422, "id")
     for order_id in ("twice-1", "twice-2"):
         assert ctl.call("GET", f"{API}/orders/{order_id}").status == 404
+
+
+def test_connections_are_accepted_with_nagles_algorithm_off():
+    """An answer goes out as headers, then body: with Nagle's algorithm on, the body of
+    each answer on a kept-alive connection waited for the client's delayed ACK (some 40
+    ms a request, measured at 60 against 20 ms). Accepted connections take the option
+    from the listening socket."""
+    from fleet.web.server import _bind
+
+    listener = _bind("127.0.0.1", 0)
+    client = socket.create_connection(listener.getsockname()[:2], timeout=30)
+    accepted, _ = listener.accept()
+    try:
+        assert listener.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+        assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+    finally:
+        for sock in (accepted, client, listener):
+            sock.close()
