@@ -176,7 +176,9 @@ def test_a_blockade_over_a_large_backlog_is_checked_a_budget_a_scan_and_gives_ou
     run(p, p.cfg.cycle_time * (n // RELEASE_BUDGET + 2))
     assert len(book) == n
     taken = [o.id for o in book if o.assigned is not None]
-    p.orders.withdraw(taken)  # the vehicles are free again
+    withdrawn = [p.orders.withdraw(oid) for oid in taken]  # the vehicles are free again
+    run(p, p.cfg.cycle_time)
+    assert all(w.result(0).state is OrderState.WITHDRAWN for w in withdrawn)
     for a, b in sorted(p.cfg.plant.arc_index):
         if b == 20:
             p.blockades.block(a, b, both_ways=False)
