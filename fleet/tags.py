@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from blocks.dispatch.executor import PHASES
 from blocks.routing.constraints import RoutingConstraints
 from blocks.traffic.records import COUNT_MASK, FAULT, NO_NODE, ONLINE, RECORD, STALE, STATES
 from plc_runtime import CycleContext, FunctionBlock, Static, TagTable
@@ -60,8 +61,9 @@ STATE_CODES = {
     )
 }
 UNKNOWN_STATE = 255
+# a recipe vehicle's sequencer phases, then an order vehicle's (docs/hmi-map.md)
 PHASE_CODES = {
-    p: i for i, p in enumerate(("start", "to_station", "processing", "returning", "done"))
+    p: i for i, p in enumerate(("start", "to_station", "processing", "returning", "done", *PHASES))
 }
 
 # a vehicle's acknowledge: the results the program answers with

@@ -946,3 +946,22 @@ def test_a_queue_place_cut_off_on_the_way_is_given_up_for_another(tmp_path, made
     assert p.rt.run_until(lambda: order.state.final, max_cycles=20000)
     assert order.state is OrderState.FINISHED
     assert (p.monitor.head_on, p.monitor.node, p.monitor.area) == (0, 0, 0)
+
+
+def test_the_hmi_phase_word_of_an_order_vehicle_shows_its_phase(tmp_path, made):
+    """An HMI reads an order vehicle's phase in ``agvN.phase`` (it read 0, "start", in
+    every phase), and its finished orders in ``agvN.rounds``."""
+    from fleet.tags import PHASE_CODES
+
+    p = start(config("id,get,put\no1,20,24\no2,22,27\n", tmp_path, vehicles=((1, 0),)), made)
+    runner, seen, before = p.orders.runners[1], set(), "idle"
+    for _ in range(round(300 / p.cfg.cycle_time)):
+        run(p, p.cfg.cycle_time)
+        word = p.rt.image.read("agv1.phase")
+        seen.add(word)
+        # the phase of this scan, or of the one before if it changed after the word's copy
+        assert word in (PHASE_CODES[runner.phase], PHASE_CODES[before])
+        before = runner.phase
+    assert {PHASE_CODES[f] for f in ("to_get", "get", "to_put", "put")} <= seen
+    assert min(seen) >= PHASE_CODES["idle"]  # an order vehicle's codes only
+    assert p.rt.image.read("agv1.rounds") == runner.orders_done == 2
