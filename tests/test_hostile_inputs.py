@@ -1087,21 +1087,26 @@ def test_a_plant_function_id_is_one_spelling_of_ascii_digits(tmp_path, functions
 
 
 @pytest.mark.parametrize(
-    ("name", "text"),
+    ("name", "text", "where"),
     [
         (
             "p.toml",
             '[[nodes]]\nid = 0\nrole = "station"\nfunctions = [2, 2]\n[[nodes]]\nid = 1\n'
             "x = 1.0\n[[edges]]\nfrom = 0\nto = 1\nlength = 1.0\n",
+            r"nodes\[0\] \(id 0\)",
         ),
-        ("p.nodes", "0 1 0 -1 0 -1 0 -1 0 role=station functions=2+2\n1 -1 0 -1 0 -1 0 0 1.0\n"),
+        (
+            "p.nodes",
+            "0 1 0 -1 0 -1 0 -1 0 role=station functions=2+2\n1 -1 0 -1 0 -1 0 0 1.0\n",
+            r"line 1 \(id 0\)",  # a file of lines names the line
+        ),
     ],
 )
-def test_a_node_listing_a_function_twice_is_refused(tmp_path, name, text):
+def test_a_node_listing_a_function_twice_is_refused(tmp_path, name, text, where):
     """A function given twice on one node is a slip (a copy-paste), taken silently before."""
     plant = tmp_path / name
     plant.write_text(text)
-    with pytest.raises(TopologyError, match=r"nodes\[0\] \(id 0\): function 2 is listed twice"):
+    with pytest.raises(TopologyError, match=rf"{where}: function 2 is listed twice"):
         load(plant)
 
 
