@@ -232,7 +232,7 @@ def report(results: list[Result]) -> None:
             f"{len(r.pool_ms)}",
             f"{statistics.mean(r.pool_ms):.3f} / {max(r.pool_ms):.3f}" if r.pool_ms else "-",
             f"{statistics.mean(r.sort_ms):.3f} / {max(r.sort_ms):.3f}" if r.sort_ms else "-",
-            f"{ratio:.0f}" if ratio is not None else "-",
+            "-" if ratio is None else f"{ratio:.0f}" if ratio >= 10 else f"{ratio:.2f}",
             f"{r.cycle_ms:.0f}",
             f"{len(r.full_gc_ms)} / {max(r.full_gc_ms, default=0.0):.1f}",
             f"{r.faults}",

@@ -124,7 +124,9 @@ def test_order_backlog_runs_its_rounds_without_a_fault():
     assert header in DOCS, "order_backlog.py prints other columns than docs/benchmarks.md"
     (row,) = body
     assert row[columns.index("faults")] == "0" and int(row[columns.index("rounds")]) > 0, row
-    assert float(row[columns.index("sort / ours")]) > 0, row
+    # a wall-clock ratio: measured, printed, never asserted beyond being one
+    ratio = float(row[columns.index("sort / ours")])
+    assert math.isfinite(ratio) and ratio >= 0, row
 
 
 def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():
