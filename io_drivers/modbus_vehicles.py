@@ -126,13 +126,9 @@ class ModbusVehicleLink:
 
     def stats(self) -> dict[str, object]:
         # as of the last tick, so a summary taken after the link closed shows how it ended
-        records = self.records
-        return {
-            **self.counters,
-            **(records.counters if records else {"unconfirmed": 0}),
-            "online": len(records.online()) if records else 0,
-            "stale": records.stale() if records else [],
-        }
+        if self.records is None:  # not started
+            return {**self.counters, "unconfirmed": 0, "online": 0, "stale": []}
+        return self.records.link_stats(self.counters)
 
     # ----- the scan ---------------------------------------------------------------------
     def read_inputs(self, image: ProcessImage, now_ns: int) -> None:

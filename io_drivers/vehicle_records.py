@@ -24,7 +24,7 @@ than ``BATTERY_STEP`` % only when the next info frame repeats it).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,6 +215,15 @@ class VehicleRecords:
             vehicle, self._first_ns if self._first_ns is not None else self._now_ns
         )
         return self._now_ns - last > self.stale_after_ns
+
+    def link_stats(self, link_counters: Mapping[str, int]) -> dict[str, object]:
+        """A link's ``stats()``: its own counters, the records' and who is online or stale."""
+        return {
+            **link_counters,
+            **self.counters,
+            "online": len(self.online()),
+            "stale": self.stale(),
+        }
 
     def stale(self) -> list[int]:
         return [v for v in self.vehicles if self.is_stale(v)]
