@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from blocks.dispatch.executor import PHASES
+from blocks.dispatch.orders import OrderState
 from blocks.routing.constraints import RoutingConstraints
 from blocks.traffic.records import COUNT_MASK, FAULT, NO_NODE, ONLINE, RECORD, STALE, STATES
 from plc_runtime import CycleContext, FunctionBlock, Static, TagTable
@@ -141,7 +142,31 @@ COMMAND = (
         word=53,
     ),
 )
-FLEET_FIELDS = COUNTERS + GAUGES + TOTALS + COMMAND
+# The transport orders in the book by state (all 0 for a fleet of recipe vehicles), in this
+# order: FleetStatus writes them as one slice whenever an order changed state.
+ORDERS = (
+    Field(
+        "fleet.orders.waiting",
+        "UDINT",
+        "transport orders waiting for a vehicle (DISPATCHABLE)",
+        word=54,
+    ),
+    Field(
+        "fleet.orders.active",
+        "UDINT",
+        "transport orders a vehicle has taken, as its active or next order (BEING_PROCESSED)",
+        word=56,
+    ),
+    Field("fleet.orders.finished", "UDINT", "transport orders FINISHED in this run", word=58),
+    Field(
+        "fleet.orders.failed",
+        "UDINT",
+        "transport orders FAILED or UNROUTABLE in this run",
+        word=60,
+    ),
+    Field("fleet.orders.withdrawn", "UDINT", "transport orders WITHDRAWN in this run", word=62),
+)
+FLEET_FIELDS = COUNTERS + GAUGES + TOTALS + COMMAND + ORDERS
 F = {f.name: f.word for f in FLEET_FIELDS}
 
 # A vehicle's words, at their position from its first word. FleetStatus writes the words
@@ -219,6 +244,7 @@ _IN_RECORD = struct.Struct("<HHBBBB")  # current, next, state, battery %, speed 
 _ROW = struct.Struct(f"<{MIRRORED}H")
 _COUNTERS = struct.Struct(f"<{len(COUNTERS)}I")
 _GAUGES = struct.Struct(f"<{len(GAUGES)}H")
+_ORDERS = struct.Struct(f"<{len(ORDERS)}I")
 
 
 def vehicle_word(vehicle: int, field: str = "node") -> int:
@@ -371,6 +397,7 @@ class FleetStatus(FunctionBlock):
         self._slots: list[tuple] = []
         self._epoch = -1
         self._blocked = 0
+        self._orders_revision = -1  # the order book's revision the order words show
 
     @property
     def blocked_segments(self) -> int:
@@ -398,7 +425,7 @@ class FleetStatus(FunctionBlock):
         sums = self._mirror_vehicles()
         self.seen_recipes, self.seen_visits = len(p.completed), sums[-1]
         self.seen_busy_s = sum(p.chooser.busy_s.values())
-        self._epoch = -1
+        self._epoch = self._orders_revision = -1
         self._add_total("fleet.total.starts", 1)
         self._mirror_fleet(0, sums)
 
@@ -481,6 +508,18 @@ class FleetStatus(FunctionBlock):
             self._blocked,
             heartbeat % 0x10000,
         )
+        book = p.orders.book if p.orders is not None else None
+        if book is not None and book.revision != self._orders_revision:
+            self._orders_revision = book.revision
+            n = book.counts()
+            counts = (
+                n[OrderState.DISPATCHABLE] + n[OrderState.RAW],
+                n[OrderState.BEING_PROCESSED],
+                n[OrderState.FINISHED],
+                n[OrderState.FAILED] + n[OrderState.UNROUTABLE],
+                n[OrderState.WITHDRAWN],
+            )
+            _ORDERS.pack_into(fleet, 2 * ORDERS[0].word, *[min(k, MAX_UDINT) for k in counts])
 
     def _add_total(self, tag: str, n: int) -> None:
         if n:

@@ -6,6 +6,7 @@ but cannot write anything else. Virtual clock, stepped; loopback only."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from fleet_scenarios import run
@@ -30,6 +31,7 @@ from fleet.tags import (
     VEHICLE_BASE,
     fleet_tags,
     marker_bytes,
+    vehicle_word,
 )
 from io_drivers.modbus_server import ModbusServer, map_entry
 
@@ -173,6 +175,7 @@ def test_words_mirror_the_program_state():
             assert image.read("fleet.deadlocks_detected") == program.resolver.detected
             assert image.read("fleet.vehicles") == 4 and image.read("fleet.online") == 4
             assert image.read("fleet.heartbeat") == program.rt.stats["fleet"].cycles % 65536
+            assert image.read("fleet.orders.finished") == 0  # recipe vehicles only
         assert len(program.completed) > 0 and {"driving", "waiting"} <= seen_states
     finally:
         program.close()
@@ -401,3 +404,34 @@ def test_tags_command_prints_the_table_and_json(capsys, tmp_path):
     assert main(["tags", str(tmp_path / "missing.toml")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "missing.toml" in err
+
+
+def _doc_rows(heading: str) -> list[list[str]]:
+    """The rows of the table under ``heading`` in docs/hmi-map.md, cells stripped of `."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "hmi-map.md").read_text()
+    section = text.split(f"## {heading}\n", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| ")]
+    return [[c.strip().strip("`") for c in row.strip("|").split(" | ")] for row in rows[1:]]
+
+
+def test_the_hmi_map_document_lists_every_tag_as_the_program_has_it():
+    """docs/hmi-map.md is what an HMI builder wires registers from: every tag of the code is
+    in its tables with the same address, register, type and access, and nothing else."""
+    tags = {t.name: t for t in fleet_tags([1])}
+
+    def expected(name: str) -> tuple[str, str, str, str]:
+        tag = tags[name]
+        entry = map_entry(tag.address)
+        span = f"{entry.first}..{entry.first + 1}" if entry.count == 2 else f"{entry.first}"
+        access = "write" if tag.writable else "read"
+        return span, tag.address.text, tag.type.name, access + (", retained" if tag.retain else "")
+
+    documented = {}
+    for register, name, address, type_, access, _meaning in _doc_rows("The fleet's words"):
+        documented[name] = (register, address, type_, access)
+    for offset, register, field, type_, access, _meaning in _doc_rows("A vehicle's words"):
+        name = f"agv1.{field}"
+        address = tags[name].address.text if name in tags else "?"
+        documented[name] = (register, address, type_, access)
+        assert offset == f"+{vehicle_word(1, field) - VEHICLE_BASE}", name
+    assert documented == {name: expected(name) for name in tags}

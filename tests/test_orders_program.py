@@ -248,6 +248,8 @@ def test_an_order_no_vehicle_could_ever_drive_is_unroutable_and_reported(tmp_pat
     assert x.state is OrderState.UNROUTABLE and x.assigned is None
     assert x.reason == "no route from Get station 6 to Put station 2"
     assert p.orders.book.get("ok").state is OrderState.FINISHED
+    assert p.rt.image.read("fleet.orders.failed") == 1  # what an HMI shows
+    assert p.rt.image.read("fleet.orders.finished") == 1
 
 
 def carrying_a_with_b_next(tmp_path: Path, made):
@@ -965,3 +967,33 @@ def test_the_hmi_phase_word_of_an_order_vehicle_shows_its_phase(tmp_path, made):
     assert {PHASE_CODES[f] for f in ("to_get", "get", "to_put", "put")} <= seen
     assert min(seen) >= PHASE_CODES["idle"]  # an order vehicle's codes only
     assert p.rt.image.read("agv1.rounds") == runner.orders_done == 2
+
+
+def test_the_hmi_order_words_count_the_book_by_state(tmp_path, made):
+    """An HMI reads the orders waiting, under way, finished, failed and withdrawn in the
+    fleet's words; they follow the book within a scan."""
+    csv = "id,get,put\no1,20,24\no2,22,27\no3,24,21\no4,26,23\n"
+    p = start(config(csv, tmp_path, vehicles=((1, 0), (2, 11))), made)
+    words = ("waiting", "active", "finished", "failed", "withdrawn")
+
+    def from_book() -> tuple[int, ...]:
+        n = p.orders.book.counts()
+        return (
+            n["DISPATCHABLE"] + n["RAW"],
+            n["BEING_PROCESSED"],
+            n["FINISHED"],
+            n["FAILED"] + n["UNROUTABLE"],
+            n["WITHDRAWN"],
+        )
+
+    seen, before = set(), from_book()
+    for k in range(round(400 / p.cfg.cycle_time)):
+        if k == 20:
+            p.orders.withdraw("o4")
+        run(p, p.cfg.cycle_time)
+        shown = tuple(p.rt.image.read(f"fleet.orders.{w}") for w in words)
+        assert shown in (from_book(), before)  # this scan's, or the last if it changed after
+        seen.add(shown)
+        before = from_book()
+    assert shown == from_book() == (0, 0, 3, 0, 1)
+    assert any(s[0] > 0 for s in seen) and any(s[1] > 0 for s in seen)
