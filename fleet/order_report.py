@@ -66,6 +66,8 @@ def order_summary(system: OrderSystem) -> dict[str, Any]:
             "reassigned": d.reassigned,
             "deviations": d.deviations,
             "cut_off": d.cut_off,
+            "refused": d.refused,
+            **({"refused_reason": d.refused_reason} if d.refused_reason else {}),
         },
         "charging": {
             "visits": sum(r.charges for r in runners),

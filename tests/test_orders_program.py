@@ -927,6 +927,62 @@ def test_a_strategy_of_ones_own_is_registered_and_dispatches(tmp_path, made, mon
     assert p.rt.run_until(lambda: order.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
 
 
+def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
+    tmp_path, made, monkeypatch
+):
+    """A researcher's strategy that is no generator is refused when registered; one that
+    hands out what no vehicle can take (a vehicle that does not exist, a tuple, an order
+    not in the book, an order intended for another vehicle) loses those assignments,
+    counted and named in the summary, while its good ones are applied and the fleet runs
+    on (one bad id faulted the whole runtime)."""
+    from blocks.dispatch import strategies
+    from blocks.dispatch.strategies import Assignment, register_strategy
+
+    monkeypatch.setattr(strategies, "PLUGGED", {})
+
+    def listing(vehicles, orders, distance):
+        return [Assignment(vehicles[0].vehicle, orders[0])]
+
+    with pytest.raises(TypeError, match="'listing': must be a generator function"):
+        register_strategy("listing", listing)
+
+    def careless(vehicles, orders, distance):
+        yield
+        first = orders[0]
+        mine = next(c.vehicle for c in vehicles)
+        return [
+            *[Assignment(mine, o) for o in orders if o.vehicle not in (None, mine)],
+            Assignment(99, first),
+            (mine, first),
+            Assignment(mine, TransportOrder("stranger", 20, 24)),
+            Assignment(mine, first),
+        ]
+
+    register_strategy("careless", careless)
+    with pytest.raises(ValueError, match="registered already.*replace=True"):
+        register_strategy("careless", lambda *a: (yield))
+    cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0), (2, 14)))
+    cfg.dispatch.strategy = "careless"
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    p.orders.submit(TransportOrder("B", 22, 27, vehicle=2))
+    run(p, 3)
+    d = p.orders.dispatcher
+    assert p.orders.book.get("A").assigned in (1, 2)  # the good assignment was applied
+    assert d.refused >= 3
+    assert d.refused_reason == (
+        "dispatch strategy 'careless': vehicle 99 is not a vehicle that takes orders"
+    )
+    # B is intended for vehicle 2: the strategy gives it to vehicle 1 whenever 1 is free
+    for _ in range(round(300 / p.cfg.cycle_time)):
+        run(p, p.cfg.cycle_time)
+        assert p.orders.book.get("B").assigned in (None, 2)
+    assert p.orders.book.get("A").state is OrderState.FINISHED
+    dispatch = summary(p, 0.0)["dispatch"]
+    assert dispatch["refused"] == d.refused and "vehicle 99" in dispatch["refused_reason"]
+
+
 def test_a_queue_place_cut_off_on_the_way_is_given_up_for_another(tmp_path, made):
     """A vehicle heads for its station's queue place while another is served there; a
     blockade cuts the queue place off. It gives the place up and waits elsewhere off the

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +80,7 @@ class Dispatcher(FunctionBlock):
     deviations = Output(0, doc="sections that ran over their estimate (two_stage recomputes)")
     waiting = Output(0, doc="orders waiting for a vehicle")
     cut_off = Output(0, doc="waiting orders that closed segments keep from their stations")
+    refused = Output(0, doc="assignments a strategy made that no vehicle could take (malformed)")
 
     def __init__(
         self,
@@ -128,6 +129,7 @@ class Dispatcher(FunctionBlock):
         self._supply_counted = 0  # of the book's orders, in the order added
         self._round = None
         self._working: StationSchedule | None = None
+        self.refused_reason: str | None = None  # why the first refused assignment was refused
         self._last_round_ns: int | None = None
         # orders whose routes were checked since the blockades changed, and the waiting
         # orders still to check again after a change
@@ -393,6 +395,12 @@ class Dispatcher(FunctionBlock):
         plugged = plugged_strategy(self.strategy)
         if plugged is not None:
             self._round = plugged(vehicles, orders, self.distance)
+            if not isinstance(self._round, Iterator):
+                self._refuse(
+                    f"it returned {type(self._round).__name__}, not a generator (it yields "
+                    "after each evaluation and returns its Assignment list)"
+                )
+                self._round = self._working = None
         elif self.strategy == "nearest_idle":
             self._round = nearest_idle(vehicles, orders, self.distance)
         elif self.strategy == "dhht":
@@ -421,8 +429,14 @@ class Dispatcher(FunctionBlock):
     def _apply(self, ctx: CycleContext, assignments: list[Assignment]) -> None:
         if self._working is not None:
             self.schedule, self._working = self._working, None
+        if not isinstance(assignments, list | tuple):
+            self._refuse(f"the round returned {type(assignments).__name__}, not a list")
+            return
         for a in assignments:
-            runner, order = self.runners[a.vehicle], a.order
+            if (why := self._malformed(a)) is not None:
+                self._refuse(why)
+                continue
+            runner, order = self.runners[a.vehicle], self.book.get(a.order.id)
             free = runner.active is None or (runner.next is None and runner.frozen)
             free = free and not runner.load_left
             # a next order is driven from where the active one ends
@@ -430,6 +444,7 @@ class Dispatcher(FunctionBlock):
             if (
                 order.state is not OrderState.DISPATCHABLE
                 or order.assigned is not None
+                or order.vehicle not in (None, a.vehicle)
                 or not free
                 or not self.reach.reaches(start, order.get)
                 or not self.reach.reaches(order.get, order.put)  # closed since the round began
@@ -443,6 +458,24 @@ class Dispatcher(FunctionBlock):
                 self._origin[order.id] = runner.active.put
             runner.take(ctx, order)
             self.assignments += 1
+
+    def _malformed(self, a: object) -> str | None:
+        """Why ``a`` is no assignment this dispatcher could apply at all, or None. A plugged
+        strategy's mistake costs its own assignment, not the fleet: the round's other
+        assignments are applied, and the scan goes on."""
+        if not isinstance(a, Assignment):
+            return f"{type(a).__name__} {a!r:.60} is not an Assignment"
+        if isinstance(a.vehicle, bool) or a.vehicle not in self.runners:
+            return f"vehicle {a.vehicle!r:.30} is not a vehicle that takes orders"
+        if not isinstance(a.order, TransportOrder) or a.order.id not in self.book:
+            return f"{a.order!r:.60} is not an order of the book"
+        return None
+
+    def _refuse(self, why: str) -> None:
+        """Count a malformed assignment and keep the first reason (the summary says it)."""
+        self.refused += 1
+        if self.refused_reason is None:
+            self.refused_reason = f"dispatch strategy {self.strategy!r}: {why}"
 
     # ----- bookkeeping -------------------------------------------------------------------------
     def _give_back(self, ctx: CycleContext, runner: OrderRunner) -> None:

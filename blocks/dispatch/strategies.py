@@ -24,6 +24,7 @@ the A* block, and applies the result only when the round is complete.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
@@ -63,7 +64,7 @@ PluggedStrategy = Callable[
 PLUGGED: dict[str, PluggedStrategy] = {}
 
 
-def register_strategy(name: str, strategy: PluggedStrategy) -> None:
+def register_strategy(name: str, strategy: PluggedStrategy, replace: bool = False) -> None:
     """Make ``strategy`` a dispatch strategy under ``name`` (``[dispatch] strategy``, or
     ``cfg.dispatch.strategy``, in this process), for trying an allocation of one's own on
     the whole fleet program. It is called as ``nearest_idle`` is: with the idle vehicles
@@ -72,11 +73,27 @@ def register_strategy(name: str, strategy: PluggedStrategy) -> None:
     a -> b in metres; it is a generator that yields after each evaluation (the dispatcher
     runs a bounded number of them per scan) and returns its ``Assignment`` list. Orders
     for another vehicle (``order.vehicle``) must not be given to this one, and at most one
-    order to a vehicle; the dispatcher checks each assignment again before it applies it."""
+    order to a vehicle; the dispatcher checks each assignment again before it applies it,
+    and one it cannot apply at all (not an ``Assignment``, a vehicle that takes no orders,
+    an order not in the book) is counted in the summary's ``dispatch.refused``, with the
+    first reason, instead of stopping the fleet. A name already registered is taken again
+    only with ``replace=True`` (a second experiment must not change the first one's
+    strategy unnoticed)."""
     if not name.isidentifier() or name in STRATEGIES:
         raise ValueError(f"a plugged strategy needs a new name (an identifier), got {name!r}")
     if not callable(strategy):
         raise TypeError(f"strategy {name!r}: not callable")
+    method = getattr(strategy, "__call__", None)  # noqa: B004 - an object with a generator __call__
+    if not (inspect.isgeneratorfunction(strategy) or inspect.isgeneratorfunction(method)):
+        raise TypeError(
+            f"strategy {name!r}: must be a generator function (it yields after each "
+            "evaluation and returns its Assignment list), so a round spreads over scans"
+        )
+    if name in PLUGGED and not replace and PLUGGED[name] is not strategy:
+        raise ValueError(
+            f"strategy {name!r} is registered already; register_strategy(..., replace=True) "
+            "replaces it"
+        )
     PLUGGED[name] = strategy
 
 
