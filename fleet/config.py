@@ -372,6 +372,19 @@ def check_config(cfg: FleetConfig) -> None:
     ):
         if isinstance(value, bool) or not isinstance(value, int | float) or not value >= least:
             raise ConfigError(f"{where}{name}: must be a number >= {least}, got {value!r}")
+    for name, kind in (
+        ("starts", dict),
+        ("recipes", dict),
+        ("vehicle_recipes", dict),
+        ("clusters", dict),
+        ("order_vehicles", list | tuple | set | frozenset),
+    ):
+        value = getattr(cfg, name)
+        if not isinstance(value, kind):
+            raise ConfigError(
+                f"{where}{name}: must be a {'dict' if kind is dict else 'list'}, got "
+                f"{type(value).__name__}"
+            )
     if not cfg.starts:
         raise ConfigError(f"{where}starts: at least one vehicle is needed")
     if cfg.dispatch.strategy not in strategy_names():
@@ -391,6 +404,26 @@ def check_config(cfg: FleetConfig) -> None:
                 f"{where}starts: vehicle {v}: node {start} is already vehicle {seen[start]}'s start"
             )
         seen[start] = v
+    for v in cfg.order_vehicles:
+        if v not in cfg.starts:
+            raise ConfigError(f"{where}order_vehicles: vehicle {v!r} has no start")
+    if cfg.orders is not None and not cfg.order_vehicles:
+        raise ConfigError(
+            f"{where}orders: given, but no vehicle takes orders (order_vehicles is empty)"
+        )
+    for v in cfg.starts:
+        if v not in cfg.order_vehicles and v not in cfg.vehicle_recipes:
+            raise ConfigError(
+                f"{where}vehicle_recipes: vehicle {v} has no recipes and takes no orders "
+                "(order_vehicles)"
+            )
+    for function, stations in cfg.clusters.items():
+        for node in stations:
+            if node not in cfg.plant.index:
+                raise ConfigError(
+                    f"{where}clusters: function {function!r}: station {node!r} is not a node "
+                    "of the plant"
+                )
     for v, names in cfg.vehicle_recipes.items():
         if v not in cfg.starts:
             raise ConfigError(f"{where}vehicle_recipes: vehicle {v} has no start")

@@ -15,6 +15,7 @@ from fleet import liveness
 from fleet.cli import main
 from fleet.config import DEFAULT_CONFIG, Blockade, load_config, parse_config
 from fleet.dashboard import dashboard
+from fleet.orders_config import OrdersConfig
 from fleet.program import FleetProgram
 from fleet.report import summary
 from plc_runtime.errors import ConfigError, StartupError
@@ -436,8 +437,39 @@ def test_a_fleet_program_starts_once(programs):
             lambda c: c.blockades.append(Blockade(3, 999, 5.0, None)),
             "test: blockades[0]: model-plant: no routable segment between nodes 3 and 999",
         ),
+        (lambda c: setattr(c, "starts", [0, 10]), "test: starts: must be a dict, got list"),
+        (
+            lambda c: c.vehicle_recipes.pop(2),
+            "test: vehicle_recipes: vehicle 2 has no recipes and takes no orders",
+        ),
+        (
+            lambda c: c.clusters.update({3: [17, 999]}),
+            "test: clusters: function 3: station 999 is not a node of the plant",
+        ),
+        (
+            lambda c: setattr(c, "orders", OrdersConfig()),
+            "test: orders: given, but no vehicle takes orders (order_vehicles is empty)",
+        ),
+        (
+            lambda c: c.order_vehicles.append(7),
+            "test: order_vehicles: vehicle 7 has no start",
+        ),
     ],
-    ids=["traffic", "budget", "same-start", "no-node", "id-0", "recipe", "function", "blockade"],
+    ids=[
+        "traffic",
+        "budget",
+        "same-start",
+        "no-node",
+        "id-0",
+        "recipe",
+        "function",
+        "blockade",
+        "starts-list",
+        "no-job",
+        "station-not-in-plant",
+        "orders-nobody",
+        "order-vehicle-no-start",
+    ],
 )
 def test_a_configuration_built_in_code_is_checked_as_a_file_is(change, says):
     """A FleetConfig made or changed in code gets the file's checks when the program is
