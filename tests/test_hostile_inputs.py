@@ -350,7 +350,13 @@ def test_plants_built_in_code_have_the_same_limits():
 
 def test_grid_order_positions_and_roles_are_those_of_the_cells():
     passable = np.array([[1, 1, 0], [1, 1, 1]], dtype=bool)
-    plant = grid_plant(passable, 2.0, roles={4: ("station", (5,)), 2: ("charger", ())})
+    plant = grid_plant(passable, 2.0, roles={4: ("station", (5,)), 5: ("charger", ())})
+    for cell, says in (
+        (2, "cell 2 (row 0, column 2) is blocked"),
+        (6, "cell 6 is outside the 2 x 3 grid"),
+    ):
+        with pytest.raises(TopologyError, match=rf"roles: {re.escape(says)}.* a charger"):
+            grid_plant(passable, 2.0, roles={cell: ("charger", ())})
     assert [n.id for n in plant.nodes] == [0, 1, 3, 4, 5]
     assert [(n.x, n.y) for n in plant.nodes] == [(0, 0), (2, 0), (0, 2), (2, 2), (4, 2)]
     assert plant.node(4).role == "station" and plant.node(4).functions == (5,)

@@ -28,7 +28,8 @@ def grid_plant(
     functions: Mapping[int, str] | None = None,
     source: str | None = None,
 ) -> Plant:
-    """``roles``: node id -> (role, functions) for the cells that are not plain transit.
+    """``roles``: node id -> (role, functions) for the cells that are not plain transit
+    (each a passable cell: a role on a blocked one is a TopologyError naming the cell).
 
     Edges come in a fixed order, every east segment row by row and then every south one,
     because arc indices (and so the plant's fingerprint) follow the edge order."""
@@ -51,8 +52,15 @@ def grid_plant(
     provides: list[tuple[int, ...]] = [()] * len(ids)
     for node_id, (role, provided) in (roles or {}).items():
         at = int(np.searchsorted(ids, node_id))
-        if at < len(ids) and ids[at] == node_id:  # a blocked cell has no node to give a role
-            role_of[at], provides[at] = role, provided
+        if not (at < len(ids) and ids[at] == node_id):  # a role would be lost without a word
+            row, column = divmod(node_id, width)
+            where = (
+                f"cell {node_id} (row {row}, column {column}) is blocked"
+                if 0 <= node_id < passable.size
+                else f"cell {node_id} is outside the {passable.shape[0]} x {width} grid"
+            )
+            raise TopologyError(f"roles: {where}: it has no node to be a {role}", source)
+        role_of[at], provides[at] = role, provided
     nodes = map(
         Node,
         ids.tolist(),
