@@ -17,7 +17,7 @@ import warnings
 from pathlib import Path
 from typing import IO, Any
 
-from blocks.dispatch.order_file import HISTORY_COLUMNS
+from blocks.dispatch.order_file import HISTORY_COLUMNS, OrderFileError
 from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import lock_file, release_lock, same_path
@@ -302,24 +302,53 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
     return lock
 
 
+class ResultsNotWritten(OSError):
+    """The data files of a run could not be written (a full disk, a folder gone): the folder
+    keeps the files it held, and the message says which file failed and why."""
+
+
+STAGED = ".partial"  # the suffix a data file is written under before it takes its name
+
+
 def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> dict[str, str]:
     """Write summary.json, recipes.csv, routes.png and, with transport orders, orders.csv
     (every order's history) into ``out_dir`` (created).
 
-    The data comes first and the drawing last: drawing a plant can fail where writing data
-    does not (matplotlib refusing a text, memory, a Ctrl-C during a drawing of seconds), and
-    a run's numbers must not be lost with its picture. summary.json is written before the
-    drawing and again after it, then naming routes.png under ``files`` or, if the drawing
-    failed, the reason under ``routes_error``; the failure is also a warning (one line,
-    naming routes.png and the reason)."""
+    The data files are written whole under staged names first and then renamed into place,
+    so a write that fails half-way (a full disk) raises :class:`ResultsNotWritten` and
+    leaves the folder as it was: an earlier run's files are neither cut short nor mixed
+    with this run's. The data comes first and the drawing last: drawing a plant can fail
+    where writing data does not (matplotlib refusing a text, memory), and a run's numbers
+    must not be lost with its picture. summary.json is written with the data and again
+    after the drawing, then naming routes.png under ``files`` or, if the drawing failed,
+    the reason under ``routes_error``; the failure is also a warning (one line, naming
+    routes.png and the reason)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"summary": out_dir / "summary.json", "recipes": out_dir / "recipes.csv"}
-    write_csv(program, files["recipes"])
     if program.orders is not None:
-        files["orders"] = write_orders_csv(program.orders, out_dir / "orders.csv")
-    else:  # an earlier run's orders beside this run's data would seem to be this run's
-        (out_dir / "orders.csv").unlink(missing_ok=True)
-    _write_summary(result, files)
+        files["orders"] = out_dir / "orders.csv"
+    staged = {key: path.with_name(path.name + STAGED) for key, path in files.items()}
+    writing = files["recipes"]
+    try:
+        write_csv(program, staged["recipes"])
+        if program.orders is not None:
+            writing = files["orders"]
+            write_orders_csv(program.orders, staged["orders"])
+        writing = files["summary"]
+        _write_summary(result, files, staged["summary"])
+        for key, path in files.items():
+            writing = path
+            os.replace(staged[key], path)
+    except (OSError, OrderFileError) as exc:
+        for path in staged.values():
+            path.unlink(missing_ok=True)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ResultsNotWritten(
+            f"--out {out_dir}: the results were not written ({writing.name}: "
+            f"{why.rsplit(': ', 1)[-1]}); the folder keeps the files it held"
+        ) from None
+    if program.orders is None:  # an earlier run's orders beside this run's data would seem
+        (out_dir / "orders.csv").unlink(missing_ok=True)  # to be this run's
     routes = out_dir / "routes.png"
     try:
         files["routes"] = write_drawing(program, routes)
@@ -338,10 +367,11 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
     return result["files"]
 
 
-def _write_summary(result: dict[str, Any], files: dict[str, Path]) -> None:
-    """summary.json, its ``files`` naming the files written so far."""
+def _write_summary(result: dict[str, Any], files: dict[str, Path], to: Path | None = None) -> None:
+    """summary.json (or ``to``), its ``files`` naming the files written so far."""
     result["files"] = {k: str(p) for k, p in files.items()}
-    files["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    text = json.dumps(result, indent=2) + "\n"
+    (to or files["summary"]).write_text(text, encoding="utf-8")
 
 
 def _reason(exc: Exception) -> str:

@@ -362,6 +362,25 @@ def stop_on_signals(rt: Runtime) -> Iterator[StopSignal]:
             signal.signal(sig, handler)
 
 
+@contextmanager
+def signals_noted(got: StopSignal) -> Iterator[StopSignal]:
+    """While a run's results are written, Ctrl-C and SIGTERM are noted in ``got`` and do
+    nothing else: a second Ctrl-C would cut the writing short and leave the results half
+    written. The writing is bounded (the data, then one drawing); SIGKILL still ends the
+    process."""
+
+    def note(number: int, _frame: object) -> None:
+        if got.number is None:
+            got.number = number
+
+    previous = {sig: signal.signal(sig, note) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield got
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def drive(
     rt: Runtime,
     total: int | None,

@@ -289,3 +289,58 @@ def test_a_signal_while_a_finished_run_writes_its_results_lets_them_finish(
     assert captured.err.endswith(
         "plc-runtime: interrupted after the run had ended; its results are written whole\n"
     )
+
+
+
+def test_ctrl_c_again_and_again_while_results_are_written_does_not_cut_them_short(
+    tmp_path, capsys, monkeypatch
+):
+    """An impatient operator presses Ctrl-C twice, then SIGTERM comes, while a finished
+    run's results are written: the writing finishes all the same (the second Ctrl-C raised
+    in the middle of it and left the run's files half written beside an earlier run's)."""
+    import os
+    import signal
+
+    from fleet import report
+    from fleet.commands import run as run_command
+
+    real_write_csv = report.write_csv
+
+    def interrupted_while_writing(program, path):
+        for number in (signal.SIGINT, signal.SIGINT, signal.SIGTERM):
+            os.kill(os.getpid(), number)
+        return real_write_csv(program, path)
+
+    monkeypatch.setattr(report, "write_csv", interrupted_while_writing)
+    out = tmp_path / "out"
+    assert main(["run", "--cycles", "20", "--json", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    written = json.loads((out / "summary.json").read_text())
+    assert written["interrupted"] is False and set(written["files"]) >= {"recipes", "routes"}
+    assert (out / "recipes.csv").read_text().startswith("vehicle,")
+    assert captured.err.endswith("its results are written whole\n")
+    assert run_command.write_all is report.write_all
+
+
+def test_results_that_cannot_be_written_are_shown_and_the_exit_code_says_so(
+    tmp_path, capsys, monkeypatch
+):
+    """A full disk when the results are written: the summary still reaches stdout, one
+    line on stderr says what was not written, exit code 2, no traceback."""
+    from fleet import report
+
+    def disk_full(program, path):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, "write_csv", disk_full)
+    out = tmp_path / "out"
+    assert main(["run", "--cycles", "20", "--json", "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    shown = json.loads(captured.out)
+    assert shown["cycles"] > 0 and "files" not in shown
+    assert captured.err.endswith(  # after the model plant's liveness warning
+        f"\nplc-runtime: error: --out {out}: the results were not written (recipes.csv: No "
+        "space left on device); the folder keeps the files it held\n"
+    )
+    assert "Traceback" not in captured.err
+    assert not out.exists() or not any(out.iterdir())

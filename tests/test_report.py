@@ -71,6 +71,33 @@ def test_the_data_is_written_before_the_drawing(program, tmp_path, monkeypatch):
     assert (tmp_path / "recipes.csv").exists()
 
 
+@pytest.mark.parametrize("failing", ["write_csv", "_write_summary"])
+def test_results_that_cannot_be_written_whole_leave_the_folder_as_it_was(
+    program, tmp_path, monkeypatch, failing
+):
+    """A full disk half-way through the results: the earlier run's files stay whole (they
+    were cut short in place), none of this run's is left beside them, and the error says
+    which file failed and why."""
+    earlier = {"summary.json": '{"earlier": true}\n', "recipes.csv": "vehicle,recipe\n1,r\n"}
+    for name, text in earlier.items():
+        (tmp_path / name).write_text(text)
+    real = getattr(report, failing)
+
+    def disk_full(*args, **kwargs):
+        real(*args, **kwargs)  # part of it reached the disk
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, failing, disk_full)
+    with pytest.raises(report.ResultsNotWritten) as caught:
+        report.write_all(program, tmp_path, report.summary(program, wall_s=1.0))
+    name = "recipes.csv" if failing == "write_csv" else "summary.json"
+    assert str(caught.value) == (
+        f"--out {tmp_path}: the results were not written ({name}: No space left on device); "
+        "the folder keeps the files it held"
+    )
+    assert {p.name: p.read_text() for p in tmp_path.iterdir()} == earlier
+
+
 def test_a_drawing_that_cannot_be_saved_names_the_os_reason(program, tmp_path, monkeypatch):
     monkeypatch.setattr(
         "topology.draw.draw", failing_draw(PermissionError(13, "Permission denied"))

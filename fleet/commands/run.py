@@ -37,11 +37,13 @@ from rich.console import Console
 
 from blocks.dispatch.strategies import STRATEGIES
 from plc_runtime.cli import (
+    EXIT_ERROR,
     CliError,
     StopSignal,
     drive,
     duration_cycles,
     path_name,
+    signals_noted,
     stop_on_signals,
 )
 from plc_runtime.clock import PacedClock, VirtualClock, WallClock
@@ -67,6 +69,7 @@ from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
 from ..report import (
     OUTPUT_FILES,
+    ResultsNotWritten,
     claim_out_dir,
     summary,
     write_all,
@@ -208,9 +211,15 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             raise
         # from here on Ctrl-C and SIGTERM end the run cleanly, a vehicle process starting
         # or running included, until the results are written
+        unwritten = None
         with stop_on_signals(program.rt) as stopped:
             result, state = _run(args, setup, program, total, stopped)
-            write_all(program, out, result)
+            with signals_noted(stopped):
+                try:
+                    write_all(program, out, result)
+                except ResultsNotWritten as exc:  # the summary still goes to the screen
+                    unwritten = exc
+                    result.pop("files", None)  # none of them is this run's
     finally:
         if retain_lock is not None:
             release_lock(retain_lock)
@@ -219,6 +228,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
         print(json.dumps(result))
     else:
         Console().print(final_tables(result))
+    if unwritten is not None:
+        print(f"plc-runtime: error: {unwritten}", file=sys.stderr)
+        return EXIT_ERROR
     if result["interrupted"]:
         print(
             f"plc-runtime: {stopped.what} at {result['sim_time_s']:.1f} s; results written",
