@@ -291,7 +291,6 @@ def test_a_signal_while_a_finished_run_writes_its_results_lets_them_finish(
     )
 
 
-
 def test_ctrl_c_again_and_again_while_results_are_written_does_not_cut_them_short(
     tmp_path, capsys, monkeypatch
 ):
