@@ -148,6 +148,10 @@ BAD_CSV = [
         ":3: 8 cells, the header has 7",
     ),  # line it starts
     (HEADER + 'o1,10,20,,,,\n"o1"x,10,20,,,,\n', ":3: unreadable CSV"),
+    # a quoted cell keeps what it holds: only the spaces around a cell are formatting
+    (HEADER + '"o1\n",10,20,,,,\n', ":2: field 'id': has control characters"),
+    (HEADER + '"o1\t",10,20,,,,\n', ":2: field 'id': has control characters"),
+    (HEADER + '"o1\x1f",10,20,,,,\n', ":2: field 'id': has control characters"),
     (
         HEADER + "o1," + "9" * 200 + ",20,,,,\n",
         ":2: field 'get': not an integer of at most 18 digits: '999999",

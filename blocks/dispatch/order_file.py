@@ -117,7 +117,7 @@ def _parse_csv(text: str, source: str) -> list[tuple[str, TransportOrder]]:
                 raise OrderFileError(
                     f"{where}: more than {MAX_ORDERS:,} orders, the limit of an order file ({LIMITS_DOC})"
                 )
-            order = _csv_order(dict(zip(header, (c.strip() for c in row), strict=True)), where)
+            order = _csv_order(dict(zip(header, (c.strip(" ") for c in row), strict=True)), where)
             if order.id in first_line:
                 raise OrderFileError(
                     f"{where}: field 'id': {shown(order.id)} is used again (first on line {first_line[order.id]})"
