@@ -673,7 +673,7 @@ def main() -> None:
         return
     if args.instance is not None:
         if len(args.traffic) > 1:
-            sys.exit("lorr.py: one --traffic mode with an INSTANCE")
+            ap.error("one --traffic mode with an INSTANCE")
         instance = load(args.instance)
         result = solve(args.traffic[0], instance, args.steps or 500, args)
         stats = result.pop("_stats")

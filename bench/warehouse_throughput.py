@@ -36,9 +36,10 @@ counted none in the same trial (205 tasks). 50 ms is kept (``--cycle-ms`` change
 Because a lifelong run can degrade (vehicles jammed for good), the table also gives the
 throughput over the first 500 timesteps and the timestep of the last completed task.
 
-``--quick`` runs 60 vehicles for 50 timesteps in both traffic modes (100 simulated s, 2000 scans each; about a minute):
-the same table and ratios, but over the start-up, where every vehicle begins at a random
-node, so its throughput is not the lifelong one.
+``--quick`` runs 60 vehicles for 50 timesteps in both traffic modes on both plants (100
+simulated s, 2000 scans each; a minute or two): the same table and ratios, but over the
+start-up, where every vehicle begins at a random node, so its throughput is not the
+lifelong one.
 
     .venv/bin/python bench/warehouse_throughput.py [--timesteps 5000] [--sizes 60 100 140] [--seeds 0 1 2] [--quick]
 """
@@ -321,7 +322,7 @@ def main() -> None:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="reduced run: --timesteps 50 --sizes 60, both traffic modes",
+        help="reduced run: --timesteps 50 --sizes 60, both traffic modes, both plants",
     )
     args = parser.parse_args()
     if args.quick:

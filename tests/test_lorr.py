@@ -316,5 +316,5 @@ def test_a_tasks_steps_are_counted_by_action():
 
 def test_several_planners_with_one_instance_is_a_clear_error():
     proc = bench(str(INSTANCE), "--traffic", "time_windows", "one_step", timeout=60)
-    assert proc.returncode != 0 and "one --traffic" in proc.stderr
+    assert proc.returncode == 2 and "one --traffic" in proc.stderr  # a usage error
     assert "Traceback" not in proc.stderr
