@@ -1338,3 +1338,75 @@ def test_a_vehicle_whose_goal_another_stands_on_for_good_is_reported_and_the_pla
     assert p.controls[1].current == 4
     assert p.traffic.stranded_at == {1: 4}
     assert p.traffic.rounds > 20
+
+
+def kiva_crowd(vehicles: int, seed: int = 0) -> FleetProgram:
+    """``vehicles`` on kiva from seeded random cells, each sent from endpoint to endpoint."""
+    plant = kiva()
+    starts = np.random.default_rng(seed).choice(plant.ids, size=vehicles, replace=False)
+    cfg = make_config(
+        plant,
+        {v + 1: int(s) for v, s in enumerate(starts)},
+        {"t": [2]},
+        {2: [n.id for n in plant.nodes if 2 in n.functions]},
+        strategy="random",
+        processing_s=0.0,
+        cycle_time=0.05,
+        seed=seed,
+        traffic="time_windows",
+    )
+    cfg.watchdog = 5.0  # behaviour, not wall time
+    return FleetProgram(cfg)
+
+
+def test_a_segment_closed_ahead_on_a_kept_plan_is_driven_round(made):
+    """An operator closes a segment on a vehicle's plan, past what it was released; the
+    plan still leads to the goal. The vehicle is planned round the segment (its plan was
+    kept whole, round after round, and it stood at the closed segment for as long as the
+    blockade lasted)."""
+    p = kiva_crowd(20)
+    made.append(p)
+    p.rt.start()
+    tw = p.traffic
+    p.rt.run(duration=30)
+    pick = None
+    while pick is None:
+        p.rt.step()
+        if tw.planning:
+            continue
+        for v, steps in sorted(tw._steps.items()):
+            front, control = tw._front[v], p.controls[v]
+            if steps[-1] == control.goal and len(steps) - front >= 7 and not control.suspect:
+                pick = v, steps[front + 4], steps[front + 5], control.goal
+                break
+    v, a, b, goal = pick
+    p.blockades.block(a, b, both_ways=True)
+    done = len([r for r in p.completed if r.vehicle == v])
+    assert p.rt.run_until(
+        lambda: len([r for r in p.completed if r.vehicle == v]) > done,
+        max_cycles=round(90 / p.cfg.cycle_time),
+    ), f"vehicle {v} did not reach {goal} round the closed segment {a}-{b}"
+    assert p.monitor.head_on == 0 and p.monitor.node == 0
+
+
+def test_a_vehicle_an_operator_holds_is_planned_round_for_as_long_as_the_hold_lasts(made):
+    """30 vehicles on kiva; the operator holds one on an aisle crossing for 200 s. The
+    others are planned round it (the plans past the cut-off took it for gone: every plan
+    through its node failed, round after round, and up to 18 vehicles stood without one)."""
+    p = kiva_crowd(30)
+    made.append(p)
+    p.rt.start()
+    p.rt.run(duration=30)
+    p.rt.image.write("agv3.hold", 1)
+    moved = {v: (p.fleet.time, None) for v in p.controls}
+    stranded = 0
+    for _ in range(round(200 / p.cfg.cycle_time)):
+        p.rt.step()
+        stranded = max(stranded, p.traffic.stranded)
+        for v, agv in p.fleet.vehicles.items():
+            if moved[v][1] != (agv.node, agv.target):
+                moved[v] = (p.fleet.time, (agv.node, agv.target))
+    standing = {v: round(p.fleet.time - t) for v, (t, _) in moved.items() if v != 3}
+    assert max(standing.values()) < 60, standing
+    assert stranded <= 3
+    assert p.monitor.head_on == 0 and p.monitor.node == 0

@@ -8,9 +8,9 @@ the vehicles that have somewhere to go one after another through the free window
 
 1. **Committed** (booked first, for every vehicle): the nodes it holds in the
    ReservationMatrix (where it is and what it was released), and the next few steps of its
-   current plan, which it may still be released while this round is planned. A plan that
-   still leads to the same goal and is booked at least ``3/4 horizon_s`` ahead is kept
-   whole instead and not searched again, so a round costs what the plans running out
+   current plan, which it may still be released while this round is planned (up to a
+   segment closed since). A plan that still leads to the same goal over open segments and
+   is booked at least ``3/4 horizon_s`` ahead is kept whole instead and not searched again, so a round costs what the plans running out
    cost, not the fleet's size. No committed step may depend on a plan not made yet: one
    that follows a vehicle's frontier at its node is dropped, with the steps after it. Each node's
    committed visits keep their order, and their windows are laid one after the other from
@@ -664,6 +664,9 @@ class TimeWindowTraffic(FunctionBlock):
                     if steps[k] in committed:
                         kept = False  # coming back: not released before the frontier
                         break
+                    if not self._open(committed[-1], steps[k]):
+                        kept = False  # a segment closed since it was planned: round it
+                        break
                     committed.append(steps[k])
                     labels.append(old[k])
         entry = _Entry(v, committed, labels, [], offset, len(held), goal=goal, kept=kept)
@@ -671,7 +674,10 @@ class TimeWindowTraffic(FunctionBlock):
         # way past the cut-off too. Any other vehicle goes on when it is given a plan or its
         # next goal: treated as a wall past the cut-off, the plans of a busy plant went the
         # long way round vehicles that were gone long before they got there.
-        entry.lasting = control.state in OUT_OF_SERVICE or control.suspect
+        # A vehicle an operator holds stays as long as the hold does: past the cut-off too,
+        # or every plan through its node waits there for the cut-off, fails, and is tried
+        # again round after round while the way round it stays unused.
+        entry.lasting = control.state in OUT_OF_SERVICE or control.suspect or bool(control.hold)
         entry.booked_ahead = booked_ahead
         self._time_committed(entry)
         if goal is not None and control.fixed_route is not None:
@@ -682,6 +688,11 @@ class TimeWindowTraffic(FunctionBlock):
                 entry.goal = None
                 entry.ends = [math.inf] * len(committed)
         return entry
+
+    def _open(self, a: int, b: int) -> bool:
+        """May a vehicle drive from node ``a`` to node ``b`` (ids) in this round's plans?"""
+        arcs = self.plant.arc_index.get((a, b))
+        return bool(arcs) and any(self._allowed[arc] for arc in arcs)
 
     def _time_committed(self, entry: _Entry) -> None:
         """When the vehicle is estimated to reach its frontier, its heading there, and when
@@ -706,6 +717,9 @@ class TimeWindowTraffic(FunctionBlock):
         rest = self._steps[v][first:]
         if len(set(entry.committed).union(rest)) < len(entry.committed) + len(rest):
             return False
+        path = [entry.committed[-1], *rest]
+        if not all(self._open(a, b) for a, b in zip(path, path[1:], strict=False)):
+            return False  # a segment closed since it was planned
         entry.committed += rest
         entry.labels += self._labels[v][first:]
         entry.kept = True
