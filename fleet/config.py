@@ -171,6 +171,8 @@ class FleetConfig:
     # transport orders (docs/orders.md): where they come from, who takes them, how
     orders: OrdersConfig | None = None
     order_vehicles: list[int] = field(default_factory=list)  # the others run recipes
+    # vehicles driven to the goals a script sends them (program.goals[v].send(node))
+    goal_vehicles: list[int] = field(default_factory=list)
     # the vehicles --vehicles-count dropped (an order may still name one: the error says why)
     vehicles_left_out: set[int] = field(default_factory=set)
     dispatch: DispatchConfig = field(default_factory=DispatchConfig)
@@ -378,6 +380,7 @@ def check_config(cfg: FleetConfig) -> None:
         ("vehicle_recipes", dict),
         ("clusters", dict),
         ("order_vehicles", list | tuple | set | frozenset),
+        ("goal_vehicles", list | tuple | set | frozenset),
     ):
         value = getattr(cfg, name)
         if not isinstance(value, kind):
@@ -404,19 +407,26 @@ def check_config(cfg: FleetConfig) -> None:
                 f"{where}starts: vehicle {v}: node {start} is already vehicle {seen[start]}'s start"
             )
         seen[start] = v
-    for v in cfg.order_vehicles:
-        if v not in cfg.starts:
-            raise ConfigError(f"{where}order_vehicles: vehicle {v!r} has no start")
+    for name in ("order_vehicles", "goal_vehicles"):
+        for v in getattr(cfg, name):
+            if v not in cfg.starts:
+                raise ConfigError(f"{where}{name}: vehicle {v!r} has no start")
+    if both := set(cfg.order_vehicles) & set(cfg.goal_vehicles):
+        raise ConfigError(
+            f"{where}goal_vehicles: vehicle {min(both)} takes orders (order_vehicles): one job "
+            "a vehicle"
+        )
     if cfg.orders is not None and not cfg.order_vehicles:
         raise ConfigError(
             f"{where}orders: given, but no vehicle takes orders (order_vehicles is empty)"
         )
     for v in cfg.starts:
-        if v not in cfg.order_vehicles and v not in cfg.vehicle_recipes:
-            raise ConfigError(
-                f"{where}vehicle_recipes: vehicle {v} has no recipes and takes no orders "
-                "(order_vehicles)"
-            )
+        if v not in cfg.order_vehicles and v not in cfg.goal_vehicles:
+            if v not in cfg.vehicle_recipes:
+                raise ConfigError(
+                    f"{where}vehicle_recipes: vehicle {v} has no recipes, takes no orders "
+                    "(order_vehicles) and no goals (goal_vehicles)"
+                )
     for function, stations in cfg.clusters.items():
         for node in stations:
             if node not in cfg.plant.index:

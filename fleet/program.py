@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterable
 import can
 
 from blocks.dispatch.executor import OrderRunner
+from blocks.jobs.goals import GoalQueue
 from blocks.jobs.recipe import RecipeRun, RecipeSequencer, StationChooser
 from blocks.routing.constraints import RoutingConstraints
 from blocks.routing.heuristic import HeuristicTable
@@ -203,6 +204,8 @@ class FleetProgram:
         self.completed: list[RecipeRun] = []
         self.controls: dict[int, VehicleControl] = {}
         self.sequencers: dict[int, RecipeSequencer] = {}
+        # the vehicles a script sends to goals of its own: program.goals[v].send(node, ...)
+        self.goals: dict[int, GoalQueue] = {}
         self.orders: OrderSystem | None = None
         if cfg.order_vehicles:
             self.orders = OrderSystem(
@@ -231,7 +234,7 @@ class FleetProgram:
                 plan_order=tw.plan_order,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
-        self.jobs: dict[int, RecipeSequencer | OrderRunner] = {}
+        self.jobs: dict[int, RecipeSequencer | OrderRunner | GoalQueue] = {}
         for v in vehicles:
             self.controls[v] = VehicleControl(
                 v,
@@ -246,6 +249,9 @@ class FleetProgram:
                 traffic=self.traffic,
             )
             self.controls[v].budget = cfg.astar_budget
+            if v in cfg.goal_vehicles:
+                self.goals[v] = self.jobs[v] = GoalQueue(v, plant)
+                continue
             if v in cfg.order_vehicles:
                 self.jobs[v] = self.orders.runners[v]
                 continue

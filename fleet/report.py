@@ -125,6 +125,11 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
             "bytes": program.table.nbytes,
         },
         **(order_summary(program.orders) if program.orders else {}),
+        **(
+            {"goals_reached": sum(g.rounds_done for g in program.goals.values())}
+            if program.goals
+            else {}
+        ),
         "tags": {tag.name: rt.image.read(tag.name) for tag in rt.image.tags},
         "drivers": stats.get("drivers", {}),
         "scan": stats["scan"],
@@ -230,6 +235,8 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
     done = [f"{len(program.completed)} recipes"] if program.sequencers else []
     if program.orders is not None:
         done.append(f"{program.orders.book.counts()['FINISHED']} orders")
+    if program.goals:
+        done.append(f"{sum(g.rounds_done for g in program.goals.values())} goals")
     title = (
         f"{program.cfg.plant.name}: {len(program.vehicles)} AGVs, "
         f"{' and '.join(done)} in {stats['clock_time_s']:.0f} s"

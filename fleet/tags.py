@@ -64,7 +64,10 @@ STATE_CODES = {
 UNKNOWN_STATE = 255
 # a recipe vehicle's sequencer phases, then an order vehicle's (docs/hmi-map.md)
 PHASE_CODES = {
-    p: i for i, p in enumerate(("start", "to_station", "processing", "returning", "done", *PHASES))
+    p: i
+    for i, p in enumerate(
+        ("start", "to_station", "processing", "returning", "done", *PHASES, "to_goal")
+    )
 }
 
 # a vehicle's acknowledge: the results the program answers with

@@ -440,7 +440,7 @@ def test_a_fleet_program_starts_once(programs):
         (lambda c: setattr(c, "starts", [0, 10]), "test: starts: must be a dict, got list"),
         (
             lambda c: c.vehicle_recipes.pop(2),
-            "test: vehicle_recipes: vehicle 2 has no recipes and takes no orders",
+            "test: vehicle_recipes: vehicle 2 has no recipes, takes no orders (order_vehicles) and no",
         ),
         (
             lambda c: c.clusters.update({3: [17, 999]}),
