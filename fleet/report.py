@@ -14,6 +14,7 @@ import csv
 import json
 import os
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
 from typing import IO, Any
 
@@ -296,8 +297,11 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
                 problem = f"{name} there is {what} of this run ({given}); give another folder"
                 break
         else:
+            staged = _staged(path)
             if path.exists() and (not path.is_file() or not os.access(path, os.W_OK)):
                 problem = f"{name} exists and cannot be overwritten"
+            elif staged.exists() and not staged.is_file():
+                problem = f"{staged.name}, where {name} is written first, is not a file: move it"
             elif name == "orders.csv" and path.exists() and not is_order_history(path):
                 problem = (
                     "orders.csv there is no order history a run wrote (a run replaces or "
@@ -334,8 +338,8 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
     files = {"summary": out_dir / "summary.json", "recipes": out_dir / "recipes.csv"}
     if program.orders is not None:
         files["orders"] = out_dir / "orders.csv"
-    staged = {key: path.with_name(path.name + STAGED) for key, path in files.items()}
-    writing = files["recipes"]
+    staged = {key: _staged(path) for key, path in files.items()}
+    writing, replaced = files["recipes"], []
     try:
         write_csv(program, staged["recipes"])
         if program.orders is not None:
@@ -343,16 +347,21 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
             write_orders_csv(program.orders, staged["orders"])
         writing = files["summary"]
         _write_summary(result, files, staged["summary"])
-        for key, path in files.items():
-            writing = path
-            os.replace(staged[key], path)
+        for key in sorted(files, key=lambda k: k == "summary"):  # the summary last
+            writing = files[key]
+            os.replace(staged[key], writing)
+            replaced.append(writing.name)
     except (OSError, OrderFileError) as exc:
-        for path in staged.values():
-            path.unlink(missing_ok=True)
+        _discard(staged.values())
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        kept = (
+            f"only {' and '.join(replaced)} {'is' if len(replaced) == 1 else 'are'} this run's"
+            if replaced
+            else "the folder keeps the files it held"
+        )
         raise ResultsNotWritten(
             f"--out {out_dir}: the results were not written ({writing.name}: "
-            f"{why.rsplit(': ', 1)[-1]}); the folder keeps the files it held"
+            f"{why.rsplit(': ', 1)[-1]}); {kept}"
         ) from None
     if program.orders is None:  # an earlier run's orders beside this run's data would seem
         (out_dir / "orders.csv").unlink(missing_ok=True)  # to be this run's
@@ -370,15 +379,39 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
             RuntimeWarning,
             stacklevel=2,
         )
-    _write_summary(result, files)
+    staged_summary = staged["summary"]
+    try:
+        _write_summary(result, files, staged_summary)
+        os.replace(staged_summary, files["summary"])
+    except OSError as exc:  # the summary written with the data stays
+        _discard([staged_summary])
+        warnings.warn(
+            f"{files['summary']}: not written again after the drawing ({_reason(exc)}): it "
+            "names the data files only",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return result["files"]
 
 
-def _write_summary(result: dict[str, Any], files: dict[str, Path], to: Path | None = None) -> None:
-    """summary.json (or ``to``), its ``files`` naming the files written so far."""
+def _staged(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed into place."""
+    return path.with_name(path.name + STAGED)
+
+
+def _discard(paths: Iterable[Path]) -> None:
+    """Remove staged files that are not to be renamed into place, as far as that goes."""
+    for path in paths:
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:
+            pass  # not a file (something else took the name): left as it is
+
+
+def _write_summary(result: dict[str, Any], files: dict[str, Path], to: Path) -> None:
+    """summary.json's text into ``to``, its ``files`` naming the files written so far."""
     result["files"] = {k: str(p) for k, p in files.items()}
-    text = json.dumps(result, indent=2) + "\n"
-    (to or files["summary"]).write_text(text, encoding="utf-8")
+    to.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
 
 
 def _reason(exc: Exception) -> str:

@@ -940,12 +940,6 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
 
     monkeypatch.setattr(strategies, "PLUGGED", {})
 
-    def listing(vehicles, orders, distance):
-        return [Assignment(vehicles[0].vehicle, orders[0])]
-
-    with pytest.raises(TypeError, match="'listing': must be a generator function"):
-        register_strategy("listing", listing)
-
     def careless(vehicles, orders, distance):
         yield
         first = orders[0]
@@ -954,6 +948,7 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
             *[Assignment(mine, o) for o in orders if o.vehicle not in (None, mine)],
             Assignment(99, first),
             (mine, first),
+            Assignment([mine], first),
             Assignment(mine, TransportOrder("stranger", 20, 24)),
             Assignment(mine, first),
         ]
@@ -970,7 +965,7 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
     run(p, 3)
     d = p.orders.dispatcher
     assert p.orders.book.get("A").assigned in (1, 2)  # the good assignment was applied
-    assert d.refused >= 3
+    assert d.refused >= 4
     assert d.refused_reason == (
         "dispatch strategy 'careless': vehicle 99 is not a vehicle that takes orders"
     )
@@ -981,6 +976,35 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
     assert p.orders.book.get("A").state is OrderState.FINISHED
     dispatch = summary(p, 0.0)["dispatch"]
     assert dispatch["refused"] == d.refused and "vehicle 99" in dispatch["refused_reason"]
+
+
+def test_a_plugged_strategy_that_is_no_generator_is_refused_round_by_round(
+    tmp_path, made, monkeypatch
+):
+    """A function returning its list at once is no round the dispatcher can spread over
+    scans: each round is refused with the reason, and the fleet runs on; a wrapper that
+    returns a built-in strategy's generator is a strategy like any other."""
+    from blocks.dispatch import strategies
+    from blocks.dispatch.strategies import Assignment, nearest_idle, register_strategy
+
+    monkeypatch.setattr(strategies, "PLUGGED", {})
+    register_strategy("listing", lambda v, o, d: [Assignment(v[0].vehicle, o[0])])
+    register_strategy("wrapped", lambda v, o, d: nearest_idle(v, o, d))
+    for name, finished in (("listing", False), ("wrapped", True)):
+        cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0),))
+        cfg.dispatch.strategy = name
+        p = start(cfg, made)
+        run(p, 1)
+        p.orders.submit(TransportOrder("A", 20, 24))
+        run(p, 120)
+        d = p.orders.dispatcher
+        assert (p.orders.book.get("A").state is OrderState.FINISHED) is finished, name
+        if not finished:
+            assert d.refused > 1 and d.refused_reason == (
+                "dispatch strategy 'listing': it returned list, not a generator (it yields "
+                "after each evaluation and returns its Assignment list)"
+            )
+        p.close()  # one runtime at a time: the next one's watchdog needs SIGALRM
 
 
 def test_a_queue_place_cut_off_on_the_way_is_given_up_for_another(tmp_path, made):

@@ -4,6 +4,7 @@ when the drawing of the routes fails."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from fleet_scenarios import ONE_DRILL
@@ -12,6 +13,7 @@ from fleet import report
 from fleet.config import parse_config
 from fleet.program import FleetProgram
 from plc_runtime.clock import VirtualClock
+from plc_runtime.errors import ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -121,3 +123,57 @@ def test_names_are_drawn_as_written_not_as_math(tmp_path):
     )
     out = draw(plant, tmp_path / "plant.png", title="hall $\\frac{1$")
     assert out.stat().st_size > 0
+
+
+def test_a_folder_in_the_way_of_a_staged_name_is_refused_before_the_run(tmp_path):
+    """Something that is no file under a staged name (recipes.csv.partial/) would fail the
+    writing at the end of the run: the output folder is refused before it starts."""
+    (tmp_path / "recipes.csv.partial" / "x").mkdir(parents=True)
+    with pytest.raises(ConfigError, match="recipes.csv.partial, where recipes.csv is written"):
+        report.claim_out_dir(tmp_path)
+
+
+def test_a_rename_that_fails_half_way_says_which_files_are_this_runs(
+    program, tmp_path, monkeypatch
+):
+    """The renames into place go data first, the summary last; one that fails after others
+    did (something took a name during the run) says which files are this run's."""
+    (tmp_path / "summary.json").write_text('{"earlier": true}\n')
+    real_replace = report.os.replace
+
+    def replace(src, dst):
+        if Path(dst).name == "summary.json":
+            raise OSError(21, "Is a directory")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(report.os, "replace", replace)
+    with pytest.raises(report.ResultsNotWritten) as caught:
+        report.write_all(program, tmp_path, report.summary(program, wall_s=1.0))
+    assert str(caught.value).endswith(
+        "(summary.json: Is a directory); only recipes.csv is this run's"
+    )
+    assert (tmp_path / "summary.json").read_text() == '{"earlier": true}\n'
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_a_summary_that_cannot_be_written_again_after_the_drawing_stays_whole(
+    program, tmp_path, monkeypatch
+):
+    """The disk fills with the drawing: the summary written with the data stays, whole,
+    and a warning says it was not written again."""
+    real_write = report._write_summary
+    calls = []
+
+    def second_fails(result, files, to):
+        calls.append(to)
+        if len(calls) == 2:
+            to.write_text('{"cut')
+            raise OSError(28, "No space left on device")
+        return real_write(result, files, to)
+
+    monkeypatch.setattr(report, "_write_summary", second_fails)
+    with pytest.warns(RuntimeWarning, match="summary.json: not written again after the drawing"):
+        report.write_all(program, tmp_path, report.summary(program, wall_s=1.0))
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert set(written["files"]) == {"summary", "recipes"}
+    assert not list(tmp_path.glob("*.partial"))

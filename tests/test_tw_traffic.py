@@ -20,7 +20,7 @@ from test_fleet_properties import grid_plants, one_per_area, ring_plants, with_a
 from blocks.traffic.time_windows import TimeWindowTable
 from blocks.traffic.tw_traffic import HELD, VISITS_PER_UNIT, TimeWindowTraffic, _Entry
 from fleet.cli import main
-from fleet.config import DEFAULT_CONFIG, Blockade, load_config
+from fleet.config import DEFAULT_CONFIG, Blockade, FleetConfig, load_config
 from fleet.program import FleetProgram
 from plc_runtime.context import CycleContext
 from plc_runtime.errors import ConfigError
@@ -1022,6 +1022,28 @@ def test_every_order_can_be_executed_to_the_end_planned_nearest_goal_first(cfg):
     assert seen["swaps"] > 0
 
 
+def kiva_config(vehicles: int, seed: int = 0) -> FleetConfig:
+    """``vehicles`` on kiva from seeded random cells, each sent from endpoint to endpoint."""
+    plant = kiva()
+    starts = np.random.default_rng(seed).choice(plant.ids, size=vehicles, replace=False)
+    return make_config(  # its watchdog 5 s: behaviour, not wall time
+        plant,
+        {v + 1: int(s) for v, s in enumerate(starts)},
+        {"t": [2]},
+        {2: [n.id for n in plant.nodes if 2 in n.functions]},
+        strategy="random",
+        processing_s=0.0,
+        cycle_time=0.05,
+        seed=seed,
+        traffic="time_windows",
+    )
+
+
+def kiva_crowd(vehicles: int, seed: int = 0) -> FleetProgram:
+    """:func:`kiva_config`'s program."""
+    return FleetProgram(kiva_config(vehicles, seed))
+
+
 def test_a_plan_put_before_a_vehicle_that_drove_onto_its_node_meanwhile_is_cut_short():
     """140 vehicles on kiva, the vehicle nearest its goal planned first. While a round is
     planned, vehicles drive on along their committed steps (kept plans whole) and may
@@ -1031,19 +1053,7 @@ def test_a_plan_put_before_a_vehicle_that_drove_onto_its_node_meanwhile_is_cut_s
     the node, which may wait for it at its next node (at 1000 vehicles two did so,
     head-on). Such plans are cut short before that node: after every swap no visit is
     ordered before a vehicle already on its node (:func:`check_every_swap`)."""
-    plant = kiva()
-    starts = np.random.default_rng(0).choice(plant.ids, size=140, replace=False)
-    cfg = make_config(
-        plant,
-        {v + 1: int(s) for v, s in enumerate(starts)},
-        {"t": [2]},
-        {2: [n.id for n in plant.nodes if 2 in n.functions]},
-        strategy="random",
-        processing_s=0.0,
-        cycle_time=0.05,
-        seed=0,
-        traffic="time_windows",
-    )
+    cfg = kiva_config(140)
     cfg.time_windows.plan_order = "nearest_goal"
     p, seen = run_checked(cfg, 20)
     assert seen["swaps"] > 5 and p.traffic.cut_short > 0
@@ -1338,25 +1348,6 @@ def test_a_vehicle_whose_goal_another_stands_on_for_good_is_reported_and_the_pla
     assert p.controls[1].current == 4
     assert p.traffic.stranded_at == {1: 4}
     assert p.traffic.rounds > 20
-
-
-def kiva_crowd(vehicles: int, seed: int = 0) -> FleetProgram:
-    """``vehicles`` on kiva from seeded random cells, each sent from endpoint to endpoint."""
-    plant = kiva()
-    starts = np.random.default_rng(seed).choice(plant.ids, size=vehicles, replace=False)
-    cfg = make_config(
-        plant,
-        {v + 1: int(s) for v, s in enumerate(starts)},
-        {"t": [2]},
-        {2: [n.id for n in plant.nodes if 2 in n.functions]},
-        strategy="random",
-        processing_s=0.0,
-        cycle_time=0.05,
-        seed=seed,
-        traffic="time_windows",
-    )
-    cfg.watchdog = 5.0  # behaviour, not wall time
-    return FleetProgram(cfg)
 
 
 def test_a_segment_closed_ahead_on_a_kept_plan_is_driven_round(made):

@@ -465,7 +465,11 @@ class Dispatcher(FunctionBlock):
         assignments are applied, and the scan goes on."""
         if not isinstance(a, Assignment):
             return f"{type(a).__name__} {a!r:.60} is not an Assignment"
-        if isinstance(a.vehicle, bool) or a.vehicle not in self.runners:
+        if (
+            isinstance(a.vehicle, bool)
+            or not isinstance(a.vehicle, int)
+            or a.vehicle not in self.runners
+        ):
             return f"vehicle {a.vehicle!r:.30} is not a vehicle that takes orders"
         if not isinstance(a.order, TransportOrder) or a.order.id not in self.book:
             return f"{a.order!r:.60} is not an order of the book"

@@ -24,7 +24,6 @@ the A* block, and applies the result only when the round is complete.
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
@@ -75,20 +74,15 @@ def register_strategy(name: str, strategy: PluggedStrategy, replace: bool = Fals
     for another vehicle (``order.vehicle``) must not be given to this one, and at most one
     order to a vehicle; the dispatcher checks each assignment again before it applies it,
     and one it cannot apply at all (not an ``Assignment``, a vehicle that takes no orders,
-    an order not in the book) is counted in the summary's ``dispatch.refused``, with the
-    first reason, instead of stopping the fleet. A name already registered is taken again
+    an order not in the book), like a round that is no generator (a list returned at
+    once), is counted in the summary's ``dispatch.refused``, with the first reason,
+    instead of stopping the fleet. A name already registered is taken again
     only with ``replace=True`` (a second experiment must not change the first one's
     strategy unnoticed)."""
     if not name.isidentifier() or name in STRATEGIES:
         raise ValueError(f"a plugged strategy needs a new name (an identifier), got {name!r}")
     if not callable(strategy):
         raise TypeError(f"strategy {name!r}: not callable")
-    method = getattr(strategy, "__call__", None)  # noqa: B004 - an object with a generator __call__
-    if not (inspect.isgeneratorfunction(strategy) or inspect.isgeneratorfunction(method)):
-        raise TypeError(
-            f"strategy {name!r}: must be a generator function (it yields after each "
-            "evaluation and returns its Assignment list), so a round spreads over scans"
-        )
     if name in PLUGGED and not replace and PLUGGED[name] is not strategy:
         raise ValueError(
             f"strategy {name!r} is registered already; register_strategy(..., replace=True) "
