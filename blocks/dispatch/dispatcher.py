@@ -80,7 +80,7 @@ class Dispatcher(FunctionBlock):
     deviations = Output(0, doc="sections that ran over their estimate (two_stage recomputes)")
     waiting = Output(0, doc="orders waiting for a vehicle")
     cut_off = Output(0, doc="waiting orders that closed segments keep from their stations")
-    refused = Output(0, doc="assignments a strategy made that no vehicle could take (malformed)")
+    refused = Output(0, doc="malformed assignments and rounds of a plugged strategy, not applied")
 
     def __init__(
         self,

@@ -10,8 +10,8 @@ the vehicles that have somewhere to go one after another through the free window
    ReservationMatrix (where it is and what it was released), and the next few steps of its
    current plan, which it may still be released while this round is planned (up to a
    segment closed since). A plan that still leads to the same goal over open segments and
-   is booked at least ``3/4 horizon_s`` ahead is kept whole instead and not searched again, so a round costs what the plans running out
-   cost, not the fleet's size. No committed step may depend on a plan not made yet: one
+   is booked at least ``3/4 horizon_s`` ahead is kept whole instead and not searched
+   again, so a round costs what the plans running out cost, not the fleet's size. No committed step may depend on a plan not made yet: one
    that follows a vehicle's frontier at its node is dropped, with the steps after it. Each node's
    committed visits keep their order, and their windows are laid one after the other from
    now (the holder first), so they never conflict. A vehicle with nowhere to go (no goal,
