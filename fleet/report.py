@@ -314,8 +314,8 @@ def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[by
 
 
 class ResultsNotWritten(OSError):
-    """The data files of a run could not be written (a full disk, a folder gone): the folder
-    keeps the files it held, and the message says which file failed and why."""
+    """The data files of a run could not be written (a full disk, a folder gone): the
+    message says which file failed, why, and which files the folder holds now."""
 
 
 STAGED = ".partial"  # the suffix a data file is written under before it takes its name
@@ -327,8 +327,9 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
 
     The data files are written whole under staged names first and then renamed into place,
     so a write that fails half-way (a full disk) raises :class:`ResultsNotWritten` and
-    leaves the folder as it was: an earlier run's files are neither cut short nor mixed
-    with this run's. The data comes first and the drawing last: drawing a plant can fail
+    leaves the folder as it was: an earlier run's files are not cut short. The renames go
+    data first, the summary last; one that fails after others did (something took a name
+    during the run) says which files are this run's. The data comes first and the drawing last: drawing a plant can fail
     where writing data does not (matplotlib refusing a text, memory), and a run's numbers
     must not be lost with its picture. summary.json is written with the data and again
     after the drawing, then naming routes.png under ``files`` or, if the drawing failed,

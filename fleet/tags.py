@@ -62,7 +62,8 @@ STATE_CODES = {
     )
 }
 UNKNOWN_STATE = 255
-# a recipe vehicle's sequencer phases, then an order vehicle's (docs/hmi-map.md)
+# a recipe vehicle's sequencer phases, then an order vehicle's, then a goal vehicle's own
+# (its idle is the order vehicle's; docs/hmi-map.md)
 PHASE_CODES = {
     p: i
     for i, p in enumerate(
