@@ -335,13 +335,14 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
     after the drawing, then naming routes.png under ``files`` or, if the drawing failed,
     the reason under ``routes_error``; the failure is also a warning (one line, naming
     routes.png and the reason)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     files = {"summary": out_dir / "summary.json", "recipes": out_dir / "recipes.csv"}
     if program.orders is not None:
         files["orders"] = out_dir / "orders.csv"
     staged = {key: _staged(path) for key, path in files.items()}
     writing, replaced = files["recipes"], []
     try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _discard(staged.values())  # a leftover, or a link: written anew, never through
         write_csv(program, staged["recipes"])
         if program.orders is not None:
             writing = files["orders"]
@@ -365,7 +366,7 @@ def write_all(program: FleetProgram, out_dir: Path, result: dict[str, Any]) -> d
             f"{why.rsplit(': ', 1)[-1]}); {kept}"
         ) from None
     if program.orders is None:  # an earlier run's orders beside this run's data would seem
-        (out_dir / "orders.csv").unlink(missing_ok=True)  # to be this run's
+        _discard([out_dir / "orders.csv"])  # to be this run's
     routes = out_dir / "routes.png"
     try:
         files["routes"] = write_drawing(program, routes)

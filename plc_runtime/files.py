@@ -92,5 +92,8 @@ def lock_file(path: Path, cannot: str, taken: str) -> IO[bytes]:
 def release_lock(lock: IO[bytes]) -> None:
     """The run is over: the lock file goes (a run leaves only its results behind), then
     the lock."""
-    Path(lock.name).unlink(missing_ok=True)
+    try:
+        Path(lock.name).unlink(missing_ok=True)
+    except OSError:
+        pass  # the folder went read-only or away during the run: the lock goes with close
     lock.close()

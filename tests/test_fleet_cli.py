@@ -321,6 +321,31 @@ def test_ctrl_c_again_and_again_while_results_are_written_does_not_cut_them_shor
     assert run_command.write_all is report.write_all
 
 
+def test_ctrl_c_while_a_run_is_summed_up_does_not_lose_its_results(tmp_path, capsys, monkeypatch):
+    """Ctrl-C, again and again, after the run has ended and before its results are written
+    (the summary is being made): noted, and the results are written whole (a third Ctrl-C
+    landed in the summary and nothing was written or printed)."""
+    import os
+    import signal
+
+    from fleet.commands import run as run_command
+
+    real_summary = run_command.summary
+
+    def interrupted_while_summing_up(*args, **kwargs):
+        for _ in range(3):
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_summary(*args, **kwargs)
+
+    monkeypatch.setattr(run_command, "summary", interrupted_while_summing_up)
+    out = tmp_path / "out"
+    assert main(["run", "--cycles", "20", "--json", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["interrupted"] is False
+    assert json.loads((out / "summary.json").read_text())["cycles"] == 20
+    assert captured.err.endswith("its results are written whole\n")
+
+
 def test_results_that_cannot_be_written_are_shown_and_the_exit_code_says_so(
     tmp_path, capsys, monkeypatch
 ):

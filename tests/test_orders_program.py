@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -945,12 +946,13 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
         first = orders[0]
         mine = next(c.vehicle for c in vehicles)
         return [
-            *[Assignment(mine, o) for o in orders if o.vehicle not in (None, mine)],
             Assignment(99, first),
             (mine, first),
             Assignment([mine], first),
             Assignment(mine, TransportOrder("stranger", 20, 24)),
-            Assignment(mine, first),
+            Assignment(np.int64(mine), first),  # a numpy id is an id
+            Assignment(mine, first),  # the same order again
+            *[Assignment(mine, o) for o in orders if o.vehicle not in (None, mine)],
         ]
 
     register_strategy("careless", careless)
@@ -965,11 +967,11 @@ def test_a_plugged_strategys_mistakes_are_refused_and_named_not_the_fleets_end(
     run(p, 3)
     d = p.orders.dispatcher
     assert p.orders.book.get("A").assigned in (1, 2)  # the good assignment was applied
-    assert d.refused >= 4
+    assert d.refused >= 5
     assert d.refused_reason == (
         "dispatch strategy 'careless': vehicle 99 is not a vehicle that takes orders"
     )
-    # B is intended for vehicle 2: the strategy gives it to vehicle 1 whenever 1 is free
+    # B is intended for vehicle 2: the strategy gives it to vehicle 1 whenever 1 is first
     for _ in range(round(300 / p.cfg.cycle_time)):
         run(p, p.cfg.cycle_time)
         assert p.orders.book.get("B").assigned in (None, 2)
@@ -982,15 +984,39 @@ def test_a_plugged_strategy_that_is_no_generator_is_refused_round_by_round(
     tmp_path, made, monkeypatch
 ):
     """A function returning its list at once is no round the dispatcher can spread over
-    scans: each round is refused with the reason, and the fleet runs on; a wrapper that
+    scans, one that raises or never ends no round at all: each round is refused with the
+    reason, and the fleet runs on (an exception faulted the runtime); a wrapper that
     returns a built-in strategy's generator is a strategy like any other."""
-    from blocks.dispatch import strategies
+    from blocks.dispatch import dispatcher, strategies
     from blocks.dispatch.strategies import Assignment, nearest_idle, register_strategy
 
     monkeypatch.setattr(strategies, "PLUGGED", {})
+
+    def raising(vehicles, orders, distance):
+        yield
+        raise ValueError("oops in the strategy\nsecond line")
+
+    def endless(vehicles, orders, distance):
+        while True:
+            yield
+
     register_strategy("listing", lambda v, o, d: [Assignment(v[0].vehicle, o[0])])
     register_strategy("wrapped", lambda v, o, d: nearest_idle(v, o, d))
-    for name, finished in (("listing", False), ("wrapped", True)):
+    register_strategy("raising", raising)
+    register_strategy("endless", endless)
+    reasons = {
+        "listing": "it returned list, not a generator (it yields after each evaluation and "
+        "returns its Assignment list)",
+        "raising": "it raised ValueError: oops in the strategy",
+        "endless": "its round did not end after 100,000 evaluations",
+    }
+    monkeypatch.setattr(dispatcher, "PLUGGED_ROUND_MIN", 100_000)
+    for name, finished in (
+        ("listing", False),
+        ("wrapped", True),
+        ("raising", False),
+        ("endless", False),
+    ):
         cfg = config("id,get,put\n", tmp_path, vehicles=((1, 0),))
         cfg.dispatch.strategy = name
         p = start(cfg, made)
@@ -998,11 +1024,11 @@ def test_a_plugged_strategy_that_is_no_generator_is_refused_round_by_round(
         p.orders.submit(TransportOrder("A", 20, 24))
         run(p, 120)
         d = p.orders.dispatcher
+        assert p.rt.state == "RUN", p.rt.fault_reason
         assert (p.orders.book.get("A").state is OrderState.FINISHED) is finished, name
         if not finished:
-            assert d.refused > 1 and d.refused_reason == (
-                "dispatch strategy 'listing': it returned list, not a generator (it yields "
-                "after each evaluation and returns its Assignment list)"
+            assert d.refused >= 1 and d.refused_reason == (
+                f"dispatch strategy {name!r}: {reasons[name]}"
             )
         p.close()  # one runtime at a time: the next one's watchdog needs SIGALRM
 

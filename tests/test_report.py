@@ -177,3 +177,48 @@ def test_a_summary_that_cannot_be_written_again_after_the_drawing_stays_whole(
     written = json.loads((tmp_path / "summary.json").read_text())
     assert set(written["files"]) == {"summary", "recipes"}
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_an_output_folder_replaced_by_a_file_is_a_results_error(program, tmp_path):
+    out = tmp_path / "out"
+    out.write_text("a user's file where the folder was\n")
+    with pytest.raises(report.ResultsNotWritten, match="the folder keeps the files it held"):
+        report.write_all(program, out, report.summary(program, wall_s=1.0))
+    assert out.read_text() == "a user's file where the folder was\n"
+
+
+def test_a_staged_name_that_is_a_link_is_replaced_not_written_through(program, tmp_path):
+    """A leftover recipes.csv.partial that links to another file (the run's own input, say)
+    is removed and written anew; the file it linked to is untouched."""
+    precious = tmp_path / "precious.csv"
+    precious.write_text("an input of the run\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "recipes.csv.partial").symlink_to(precious)
+    report.write_all(program, out, report.summary(program, wall_s=1.0))
+    assert precious.read_text() == "an input of the run\n"
+    assert not (out / "recipes.csv").is_symlink()
+    assert (out / "recipes.csv").read_text().startswith("vehicle,")
+
+
+def test_something_under_the_name_of_an_old_order_history_does_not_fail_the_results(
+    program, tmp_path
+):
+    """A run without orders removes an earlier run's orders.csv; a folder of that name
+    (no history) stays, and the results are written all the same."""
+    (tmp_path / "orders.csv" / "x").mkdir(parents=True)
+    files = report.write_all(program, tmp_path, report.summary(program, wall_s=1.0))
+    assert set(files) >= {"summary", "recipes"} and (tmp_path / "orders.csv").is_dir()
+
+
+def test_a_lock_whose_folder_went_away_is_released_without_an_error(tmp_path):
+    from plc_runtime.files import lock_file, release_lock
+
+    folder = tmp_path / "out"
+    folder.mkdir()
+    lock = lock_file(folder / ".lock", "cannot", "busy")
+    (folder / ".lock").unlink()
+    folder.rmdir()
+    folder.write_text("a file now")  # the lock's path is no path any more
+    release_lock(lock)
+    assert lock.closed

@@ -34,6 +34,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from numbers import Integral
 
 import numpy as np
 
@@ -66,6 +67,11 @@ ASIDE_RECHECK_S = 5.0
 # heap operations, so 1000 stay within a few milliseconds even on a pool of 100,000
 STARTABLE_BUDGET = 1000
 
+
+# a plugged strategy's round is given up after this many evaluations per (vehicle, order)
+# pair, or this many in all if more: one that never ends must not keep the orders waiting
+PLUGGED_ROUND_PAIRS = 100
+PLUGGED_ROUND_MIN = 100_000
 
 # orders a round's pool passes over (they cannot be given out now) before it stops looking:
 # a bound on a scan's work however many orders wait at a station out of service
@@ -130,6 +136,8 @@ class Dispatcher(FunctionBlock):
         self._round = None
         self._working: StationSchedule | None = None
         self.refused_reason: str | None = None  # why the first refused assignment was refused
+        self._round_limit = PLUGGED_ROUND_MIN  # a plugged strategy's evaluations in a round
+        self._round_evaluations = 0
         self._last_round_ns: int | None = None
         # orders whose routes were checked since the blockades changed, and the waiting
         # orders still to check again after a change
@@ -394,13 +402,20 @@ class Dispatcher(FunctionBlock):
             return
         plugged = plugged_strategy(self.strategy)
         if plugged is not None:
-            self._round = plugged(vehicles, orders, self.distance)
+            self._round_limit = max(
+                PLUGGED_ROUND_MIN, PLUGGED_ROUND_PAIRS * len(vehicles) * len(orders)
+            )
+            self._round_evaluations = 0
+            try:
+                self._round = plugged(vehicles, orders, self.distance)
+            except Exception as exc:  # the researcher's code: its round, not the fleet
+                self._drop_round(f"it raised {_raised(exc)}")
+                return
             if not isinstance(self._round, Iterator):
-                self._refuse(
+                self._drop_round(
                     f"it returned {type(self._round).__name__}, not a generator (it yields "
                     "after each evaluation and returns its Assignment list)"
                 )
-                self._round = self._working = None
         elif self.strategy == "nearest_idle":
             self._round = nearest_idle(vehicles, orders, self.distance)
         elif self.strategy == "dhht":
@@ -416,6 +431,7 @@ class Dispatcher(FunctionBlock):
             self._round = two_stage(vehicles, orders, self._working, self.estimates, ctx.time)
 
     def _advance(self, ctx: CycleContext) -> None:
+        plugged = plugged_strategy(self.strategy) is not None
         for _ in range(self.budget):
             try:
                 next(self._round)
@@ -424,7 +440,24 @@ class Dispatcher(FunctionBlock):
                 self.rounds += 1
                 self._apply(ctx, done.value)
                 return
+            except Exception as exc:
+                if not plugged:
+                    raise  # a built-in strategy's failure is the program's: it faults
+                self._drop_round(f"it raised {_raised(exc)}")
+                return
             self.evaluations += 1
+            if plugged:
+                self._round_evaluations += 1
+                if self._round_evaluations > self._round_limit:
+                    self._drop_round(
+                        f"its round did not end after {self._round_limit:,} evaluations"
+                    )
+                    return
+
+    def _drop_round(self, why: str) -> None:
+        """A plugged strategy's round that cannot be applied: refused, with the reason."""
+        self._refuse(why)
+        self._round = self._working = None
 
     def _apply(self, ctx: CycleContext, assignments: list[Assignment]) -> None:
         if self._working is not None:
@@ -432,11 +465,16 @@ class Dispatcher(FunctionBlock):
         if not isinstance(assignments, list | tuple):
             self._refuse(f"the round returned {type(assignments).__name__}, not a list")
             return
+        given: set[str] = set()
         for a in assignments:
             if (why := self._malformed(a)) is not None:
                 self._refuse(why)
                 continue
-            runner, order = self.runners[a.vehicle], self.book.get(a.order.id)
+            if a.order.id in given:
+                self._refuse(f"order {a.order.id!r} is given twice in one round")
+                continue
+            given.add(a.order.id)
+            runner, order = self.runners[int(a.vehicle)], self.book.get(a.order.id)
             free = runner.active is None or (runner.next is None and runner.frozen)
             free = free and not runner.load_left
             # a next order is driven from where the active one ends
@@ -444,7 +482,6 @@ class Dispatcher(FunctionBlock):
             if (
                 order.state is not OrderState.DISPATCHABLE
                 or order.assigned is not None
-                or order.vehicle not in (None, a.vehicle)
                 or not free
                 or not self.reach.reaches(start, order.get)
                 or not self.reach.reaches(order.get, order.put)  # closed since the round began
@@ -467,12 +504,15 @@ class Dispatcher(FunctionBlock):
             return f"{type(a).__name__} {a!r:.60} is not an Assignment"
         if (
             isinstance(a.vehicle, bool)
-            or not isinstance(a.vehicle, int)
-            or a.vehicle not in self.runners
+            or not isinstance(a.vehicle, Integral)
+            or int(a.vehicle) not in self.runners
         ):
             return f"vehicle {a.vehicle!r:.30} is not a vehicle that takes orders"
         if not isinstance(a.order, TransportOrder) or a.order.id not in self.book:
             return f"{a.order!r:.60} is not an order of the book"
+        intended = self.book.get(a.order.id).vehicle
+        if intended not in (None, int(a.vehicle)):
+            return f"order {a.order.id!r} is for vehicle {intended}, not vehicle {int(a.vehicle)}"
         return None
 
     def _refuse(self, why: str) -> None:
@@ -543,3 +583,9 @@ class _Positions:
 def _standing(runner: OrderRunner) -> int:
     """Where the vehicle will stand once it has driven what it was released."""
     return runner.frontier if runner.frontier is not None else runner.current
+
+
+def _raised(exc: Exception) -> str:
+    """An exception in one line: its type and the first line of its message."""
+    lines = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {lines[0][:120]}" if lines else type(exc).__name__

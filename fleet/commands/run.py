@@ -268,14 +268,31 @@ def _run(
     except KeyboardInterrupt:  # a second Ctrl-C: the scan aborted, the rest as the first
         stopped.number = signal.SIGINT
     finally:
-        wall = time.monotonic() - wall_start
-        state = program.rt.state
-        try:
-            program.close()
-        finally:  # the vehicle process goes whatever closing the program raised
-            monitor = stop_vehicles(vehicles_proc, monitor_file)
+        # from here on a signal is noted only: the run is over, what is left is summing
+        # it up (a third Ctrl-C landed in the summary and nothing was written)
+        interrupted = stopped.number is not None
+        with signals_noted(stopped):
+            wall = time.monotonic() - wall_start
+            state = program.rt.state
+            try:
+                program.close()
+            finally:  # the vehicle process goes whatever closing the program raised
+                monitor = stop_vehicles(vehicles_proc, monitor_file)
+    with signals_noted(stopped):
+        return _summed_up(program, wall, state, setup, monitor, interrupted)
+
+
+def _summed_up(
+    program: FleetProgram,
+    wall: float,
+    state: str,
+    setup: Setup,
+    monitor: dict[str, Any] | None,
+    interrupted: bool,
+) -> tuple[dict[str, Any], str]:
+    """The run's summary, with the vehicle process's monitor if it had one."""
     result = summary(program, wall, state)
-    result["interrupted"] = stopped.number is not None
+    result["interrupted"] = interrupted
     result["vehicles_mode"] = (
         "in this process" if setup.cosimulate else "child process" if setup.spawn else "external"
     )
