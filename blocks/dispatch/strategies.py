@@ -74,9 +74,10 @@ def register_strategy(name: str, strategy: PluggedStrategy, replace: bool = Fals
     for another vehicle (``order.vehicle``) must not be given to this one, and at most one
     order to a vehicle; the dispatcher checks each assignment again before it applies it,
     and one it cannot apply at all (not an ``Assignment``, a vehicle that takes no orders,
-    an order not in the book), like a round that is no generator (a list returned at
-    once), is counted in the summary's ``dispatch.refused``, with the first reason,
-    instead of stopping the fleet. A name already registered is taken again
+    an order not in the book, given twice or to a vehicle it is not intended for), like a
+    round that is no generator (a list returned at once), raises or never ends, is counted
+    in the summary's ``dispatch.refused``, with the first reason, instead of stopping the
+    fleet. A name already registered is taken again
     only with ``replace=True`` (a second experiment must not change the first one's
     strategy unnoticed)."""
     if not name.isidentifier() or name in STRATEGIES:
