@@ -15,6 +15,7 @@ from pathlib import Path
 
 from blocks.dispatch.strategies import strategy_names
 from blocks.jobs.recipe import STRATEGIES, Recipe
+from blocks.traffic.planners import planner_names
 from blocks.traffic.tw_traffic import PLAN_ORDERS
 from io_drivers.can_bus import bus_channels, bus_of, interface_problem
 from io_drivers.protocol import MAX_NODE_ID, MAX_VEHICLE_ID
@@ -131,6 +132,8 @@ class TimeWindowsConfig:
     wait_occupied_s: float = 30.0  # T_w2: a wait for a vehicle on the node, then replan
     path_heat: bool = False  # the seed's congestion-aware arc weights in the search
     plan_order: str = "release"  # who is planned first (PLAN_ORDERS)
+    # who finds a vehicle's plan: "sipp", or a planner registered in this process
+    planner: str = "sipp"
 
 
 @dataclass
@@ -390,6 +393,10 @@ def check_config(cfg: FleetConfig) -> None:
             )
     if not cfg.starts:
         raise ConfigError(f"{where}starts: at least one vehicle is needed")
+    if cfg.traffic == "time_windows" and cfg.time_windows.planner not in planner_names():
+        raise ConfigError(
+            f"{where}time_windows.planner: {_unknown_planner(cfg.time_windows.planner)}"
+        )
     if cfg.dispatch.strategy not in strategy_names():
         raise ConfigError(
             f"{where}dispatch.strategy: must be one of {', '.join(strategy_names())}, got "
@@ -495,6 +502,13 @@ def _out_of_order(
     return r.fail(key, f"{described(*low)} {relation} {described(*high)}: {why}")
 
 
+def _unknown_planner(name: object) -> str:
+    return (
+        f"must be one of {', '.join(planner_names())}, got {name!r} (a planner of one's "
+        "own: register_planner, before the configuration is read)"
+    )
+
+
 def _time_windows(r: TableReader) -> TimeWindowsConfig:
     horizon_s = r.number("horizon_s", 20.0, 0.1, 3600.0)
     cfg = TimeWindowsConfig(
@@ -507,7 +521,10 @@ def _time_windows(r: TableReader) -> TimeWindowsConfig:
         wait_occupied_s=r.number("wait_occupied_s", 30.0, 0.01, 3600.0),
         path_heat=r.get("path_heat", bool, False),
         plan_order=r.get("plan_order", str, "release"),
+        planner=r.get("planner", str, "sipp"),
     )
+    if cfg.planner not in planner_names():
+        raise r.fail("planner", _unknown_planner(cfg.planner))
     if cfg.plan_order not in PLAN_ORDERS:
         raise r.fail(
             "plan_order", f"must be one of {', '.join(PLAN_ORDERS)}, got {cfg.plan_order!r}"

@@ -232,6 +232,7 @@ class FleetProgram:
                 path_heat=tw.path_heat,
                 highway_factor=cfg.highway_factor,
                 plan_order=tw.plan_order,
+                planner=tw.planner,
             )
         # each vehicle's job block: its recipe sequencer or its order runner
         self.jobs: dict[int, RecipeSequencer | OrderRunner | GoalQueue] = {}

@@ -175,6 +175,8 @@ def _traffic(program) -> dict:
         "overtakes": tw.overtakes,
         "wait_replans": tw.wait_replans,
         "stranded": sorted(tw.stranded_at),
+        "refused_plans": tw.refused,
+        "refused_reason": tw.refused_reason,
     }
 
 

@@ -443,7 +443,10 @@ def test_the_summary_reports_the_mode_and_its_rounds(tmp_path, capsys):
         "wait_replans",
         "stranded",
         "kept_whole",
+        "refused_plans",
+        "refused_reason",
     } <= traffic.keys()
+    assert traffic["refused_plans"] == 0 and traffic["refused_reason"] is None
     assert summary["head_on_conflicts"] == 0 and summary["node_conflicts"] == 0
 
 

@@ -236,7 +236,28 @@ class TimeWindowTable:
         only until further notice (it is expected to go on soon, when is not known): past
         a cut-off they end as every other window does."""
         nodes, segments = list(nodes), list(segments)
-        for node, start, end in nodes if check else ():
+        if check:
+            self.check(vehicle, nodes, segments)
+        self.release(vehicle)
+        nodes = [(self.resources.get(n, n), start, end) for n, start, end in nodes]
+        for node, start, end in nodes:
+            bisect.insort(self._nodes.setdefault(node, []), (start, end, vehicle))
+            if end == math.inf and lasting:
+                self._lasting.setdefault(node, []).append((start, vehicle))
+        for a, b, start, end in segments:
+            bisect.insort(self._segments.setdefault((a, b), []), (start, end, vehicle))
+        self._booked[vehicle] = ([n for n, _, _ in nodes], [(a, b) for a, b, _, _ in segments])
+
+    def check(
+        self,
+        vehicle: int,
+        nodes: Iterable[tuple[int, float, float]],
+        segments: Iterable[tuple[int, int, float, float]],
+    ) -> None:
+        """WindowConflict naming the first of these windows, (node, start, end) and (a, b,
+        start, end), that breaks the rules against another vehicle's; the table is not
+        changed (a plan from elsewhere is checked so before it is booked)."""
+        for node, start, end in nodes:
             _check_interval(start, end, f"node {node}")
             key = self.resources.get(node, node)
             for w in map(Window._make, self._nodes.get(key, ())):
@@ -246,7 +267,7 @@ class TimeWindowTable:
                         f"vehicle {vehicle} on {where} during [{start:g}, {end:g}] meets "
                         f"vehicle {w.vehicle}'s window [{w.start:g}, {w.end:g}] (gap {self.gap:g} s)"
                     )
-        for a, b, start, end in segments if check else ():
+        for a, b, start, end in segments:
             _check_interval(start, end, f"segment {a}->{b}")
             for w in map(Window._make, self._segments.get((b, a), ())):
                 if w.vehicle != vehicle and _overlap(start, end, w, self.gap):
@@ -262,15 +283,6 @@ class TimeWindowTable:
                         f"vehicle {vehicle} on {a}->{b} during [{start:g}, {end:g}] would overtake "
                         f"or crowd vehicle {w.vehicle} ([{w.start:g}, {w.end:g}], gap {self.gap:g} s)"
                     )
-        self.release(vehicle)
-        nodes = [(self.resources.get(n, n), start, end) for n, start, end in nodes]
-        for node, start, end in nodes:
-            bisect.insort(self._nodes.setdefault(node, []), (start, end, vehicle))
-            if end == math.inf and lasting:
-                self._lasting.setdefault(node, []).append((start, vehicle))
-        for a, b, start, end in segments:
-            bisect.insort(self._segments.setdefault((a, b), []), (start, end, vehicle))
-        self._booked[vehicle] = ([n for n, _, _ in nodes], [(a, b) for a, b, _, _ in segments])
 
     def release(self, vehicle: int) -> None:
         """Drop every window of ``vehicle`` (its plan is void: replanned, withdrawn)."""

@@ -86,13 +86,23 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from blocks.routing.constraints import RoutingConstraints, highway_weights
-from blocks.routing.heuristic import HeuristicTable
+from blocks.routing.heuristic import HeuristicTable, distances_to
 from plc_runtime import CycleContext, FunctionBlock, Output
 from topology import Plant
 from topology.dead_ends import NO_POCKET, dead_end_pockets, pocket_entries
 
 from .pass_order import PassOrder
 from .path_heat import heat_weights, usage_along_distances
+from .planners import (
+    PlanRequest,
+    PluggedSearch,
+    WindowView,
+    as_departure_claims,
+    plan_fault,
+    planner_names,
+    plugged_planner,
+    work_limit,
+)
 from .reservation import OUT_OF_SERVICE, ReservationMatrix
 from .sipp import ArcGeometry, SafeIntervalSearch, TimedPlan, TurnTimes, time_route
 from .time_windows import TimeWindowTable
@@ -159,6 +169,7 @@ class TimeWindowTraffic(FunctionBlock):
     kept_whole = Output(
         0, doc="plans kept whole, not searched again: more wanted a search than fit"
     )
+    refused = Output(0, doc="plans of a plugged planner refused (the vehicle waits, as without)")
 
     def __init__(
         self,
@@ -180,10 +191,17 @@ class TimeWindowTraffic(FunctionBlock):
         path_heat: bool = False,
         highway_factor: float = 1.0,
         plan_order: str = "release",
+        planner: str = "sipp",
     ) -> None:
         super().__init__()
         if plan_order not in PLAN_ORDERS:
             raise ValueError(f"plan_order must be one of {PLAN_ORDERS}, got {plan_order!r}")
+        if planner not in planner_names():
+            raise ValueError(f"planner must be one of {planner_names()}, got {planner!r}")
+        # a planner of one's own (planners.py) instead of the safe-interval search
+        self._planner = plugged_planner(planner)
+        self._planner_limit = work_limit(plant)
+        self.refused_reason: str | None = None  # why the first refused plan was refused
         if not (math.isfinite(horizon_s) and horizon_s > 0):
             raise ValueError(f"horizon_s must be a positive number of seconds, got {horizon_s!r}")
         window_s = math.inf if window_s is None else window_s
@@ -287,7 +305,7 @@ class TimeWindowTraffic(FunctionBlock):
         self._committing: Iterator[int] | None = None
         self._staging: Iterator[int] | None = None
         self._staged: tuple[PassOrder, dict] | None = None
-        self._search: SafeIntervalSearch | None = None
+        self._search: SafeIntervalSearch | PluggedSearch | None = None
         self._made: dict[int, TimedPlan | None] = {}
         self._gave_way: set[int] = set()  # this round: planned again after a vehicle they blocked
         self._took_way: set[int] = set()  # this round: made others give way
@@ -950,15 +968,19 @@ class TimeWindowTraffic(FunctionBlock):
                 self._search = None
                 self._work_per_search += 0.1 * (search.work - self._work_per_search)
                 plan = search.plan
+                if isinstance(search, PluggedSearch):
+                    plan = self._checked(search)
                 if plan is not None and len(plan.nodes) > 1 and plan.claims[1] >= self._until:
                     # it only waits where it is until the cut-off: no plan. Taken as one,
                     # every vehicle in a jam would wait for the cut-off, round after round
                     plan = None
                 self._book(self._entries[search.vehicle], plan)
 
-    def _start_search(self, entry: _Entry) -> SafeIntervalSearch:
+    def _start_search(self, entry: _Entry) -> SafeIntervalSearch | PluggedSearch:
         goal = entry.goal
         row = self.heuristic.row(goal) if self.heuristic.has_row(goal) else None
+        if self._planner is not None:
+            return PluggedSearch(self._planner, self._request(entry, row), self._planner_limit)
         return SafeIntervalSearch(
             self.plant,
             self._next_table,
@@ -977,6 +999,48 @@ class TimeWindowTraffic(FunctionBlock):
             weights=self._weights,
             labels="cheapest",  # searches as small as without weights (sipp.py)
         )
+
+    def _request(self, entry: _Entry, row: np.ndarray | None) -> PlanRequest:
+        """What a plugged planner is told of ``entry``'s vehicle and this round."""
+        if row is None:  # a goal whose row is still being computed: this one alone
+            row = distances_to(self.plant, [entry.goal])[0]
+        return PlanRequest(
+            vehicle=entry.vehicle,
+            start=entry.committed[-1],
+            goal=entry.goal,
+            start_s=self._set_off(entry),
+            heading=entry.heading,
+            speed=self.speed,
+            turns=self.turns,
+            hold_s=self.goal_hold_s,
+            horizon_s=self._book_until,
+            until_s=self._until,
+            plant=self.plant,
+            windows=WindowView(self._next_table),
+            allowed=self._allowed_for(entry),
+            to_goal=row,
+            weights=self._weights,
+            geometry=self.geometry,
+        )
+
+    def _checked(self, search: PluggedSearch) -> TimedPlan | None:
+        """A plugged planner's plan, if the program may take it (:func:`plan_fault`);
+        None, counted with its reason, if not."""
+        fault = search.refused
+        plan = search.plan
+        if plan is not None:
+            entry = self._entries[search.vehicle]
+            fault = plan_fault(
+                plan, search.request, self._book_until, entry.starts[-1], self._next_table
+            )
+            if fault is not None:
+                fault = f"vehicle {search.vehicle}: {fault}"
+        if fault is None:
+            return None if plan is None else as_departure_claims(plan)
+        self.refused += 1
+        if self.refused_reason is None:
+            self.refused_reason = fault
+        return None
 
     def _time_fixed(self, entry: _Entry) -> TimedPlan | None:
         nodes = [entry.committed[-1], *entry.fixed]
