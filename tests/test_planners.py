@@ -30,6 +30,7 @@ from topology import Edge, Node, Plant
 def no_planner_left_behind():
     """Each test registers its own planners; none outlives it."""
     before = dict(planners.PLUGGED)
+    planners.PLUGGED.clear()
     yield
     planners.PLUGGED.clear()
     planners.PLUGGED.update(before)
