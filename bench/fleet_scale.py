@@ -119,6 +119,7 @@ def make_program(
     highway_factor: float | None = None,
     window_s: float | None = None,
     plan_order: str | None = None,
+    planner: str | None = None,
 ) -> FleetProgram:
     rng = np.random.default_rng(seed)
     starts = rng.choice(plant.ids, size=vehicles, replace=False).tolist()
@@ -144,6 +145,8 @@ def make_program(
         cfg.time_windows.window_s = window_s
     if plan_order is not None:
         cfg.time_windows.plan_order = plan_order
+    if planner is not None:
+        cfg.time_windows.planner = planner
     if highway_factor is not None:
         cfg.highway_factor = highway_factor
     return FleetProgram(cfg, clock=clock)

@@ -63,6 +63,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fleet_scale import FUNCTION, ScanRecorder, make_program, timestep_s  # noqa: E402
 
+from blocks.traffic.planners import PlanRequest, register_planner  # noqa: E402
 from blocks.traffic.tw_traffic import PLAN_ORDERS  # noqa: E402
 from plc_runtime.cli import positive, whole  # noqa: E402
 from topology import kiva, warehouse  # noqa: E402
@@ -82,6 +83,18 @@ QUICK = {
     "bound_timesteps": 200,
     "traffic": ["reactive", "time_windows"],
 }
+
+
+def route_first(request: PlanRequest):
+    """A planner of one's own as a baseline for the built-in search: the shortest route
+    over the open arcs, timed through the free windows (waiting where it must, never
+    going round anyone)."""
+    route = request.shortest_route()
+    yield
+    return None if route is None else request.timed(route)
+
+
+PLANNERS = {"sipp": None, "route_first": route_first}
 
 
 def mean_endpoint_distance(program) -> float:
@@ -113,8 +126,11 @@ def run_size(
     highway_factor: float | None = None,
     plan_order: str | None = None,
     seed: int = 0,
+    planner: str = "sipp",
 ) -> dict:
     plant = PLANTS[plant_name]()
+    if PLANNERS[planner] is not None:
+        register_planner(planner, PLANNERS[planner])
     begin = time.perf_counter()
     program = make_program(
         plant,
@@ -128,6 +144,7 @@ def run_size(
         plan_budget=plan_budget,
         highway_factor=highway_factor,
         plan_order=plan_order,
+        planner=planner,
     )
     program.rt.start()
     setup_s = time.perf_counter() - begin
@@ -177,6 +194,8 @@ def run_size(
         "traffic": traffic,
         "highway_factor": program.cfg.highway_factor,
         "plan_order": program.cfg.time_windows.plan_order,
+        "planner": planner,
+        "refused_plans": program.traffic.refused if program.traffic else 0,
         "delay_rate": delay_rate,
         "delays": sum(f.counters["delays"] for f in program.fleets),
         "state": rt.state,
@@ -253,6 +272,8 @@ def json_rows(rows: list[dict], rate: dict[str, float]) -> list[str]:
                     "traffic": r["traffic"],
                     "highway_factor": r["highway_factor"],
                     "plan_order": r["plan_order"],
+                    "planner": r["planner"],
+                    "refused_plans": r["refused_plans"],
                     "delay_rate": r["delay_rate"],
                     "timesteps": round(r["timesteps"]),
                     "tasks": r["tasks"],
@@ -309,6 +330,13 @@ def main() -> None:
         help="time_windows: who a round plans first (default: the configuration's, release)",
     )
     parser.add_argument(
+        "--planner",
+        choices=sorted(PLANNERS),
+        default="sipp",
+        help="time_windows: the built-in search (sipp), or route_first, a planner of one's "
+        "own registered by this script (the shortest route, timed through the free windows)",
+    )
+    parser.add_argument(
         "--seeds",
         type=whole,
         nargs="+",
@@ -352,6 +380,7 @@ def main() -> None:
             args.highway_factor,
             args.plan_order,
             seed,
+            args.planner,
         )
         for p in args.plant
         for traffic in args.traffic
@@ -425,7 +454,7 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
         f"{timesteps} timesteps of {timestep_s():g} s, cycle {args.cycle_ms:g} ms, "
         f"traffic {' / '.join(args.traffic)}, random delays per s {args.delay_rate}, "
         f"highway factor {rows[0]['highway_factor']:g}, time-window plan order "
-        f"{rows[0]['plan_order']}"
+        f"{rows[0]['plan_order']}, planner {rows[0]['planner']}"
     )
     for r in rows:
         n = r["vehicles"]

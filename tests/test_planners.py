@@ -5,6 +5,7 @@ and the fleet's safety holds whatever it returns."""
 from __future__ import annotations
 
 import math
+import operator
 
 import pytest
 from test_tw_traffic import kiva_config, run_checked, tw_config
@@ -300,3 +301,28 @@ def test_the_summary_counts_refused_plans(tmp_path, capsys):
     assert main(["run", str(path), "--duration", "60", "--json", "--out", str(out)]) == 0
     traffic = json.loads(capsys.readouterr().out)["traffic"]
     assert traffic["refused_plans"] > 0 and traffic["refused_reason"].startswith("vehicle ")
+
+
+def test_what_a_planner_is_given_cannot_change_what_the_others_are_given():
+    """The distances to a goal are the heuristic table's row, and the open arcs and their
+    weights the round's lists, shared by every search: a planner gets them read-only."""
+    tried = []
+
+    def meddler(request: PlanRequest):
+        for change in (
+            lambda: operator.setitem(request.to_goal, 0, -1.0),
+            lambda: operator.setitem(request.allowed, 0, False),
+        ):
+            try:
+                change()
+            except (TypeError, ValueError):
+                tried.append(request.vehicle)
+        return (yield from shortest_then_timed(request))
+
+    register_planner("meddler", meddler)
+    cfg = kiva_config(10)
+    cfg.time_windows.planner = "meddler"
+    p, _seen = run_checked(cfg, 30)
+    assert len(tried) >= 40 and p.traffic.refused == 0, p.traffic.refused_reason
+    row = p.table.row(p.cfg.clusters[2][0])
+    assert float(row.min()) >= 0.0

@@ -1004,6 +1004,11 @@ class TimeWindowTraffic(FunctionBlock):
         """What a plugged planner is told of ``entry``'s vehicle and this round."""
         if row is None:  # a goal whose row is still being computed: this one alone
             row = distances_to(self.plant, [entry.goal])[0]
+        # read-only copies and views: the heuristic table's row and the round's arc lists
+        # serve every other search too
+        to_goal = row.view()
+        to_goal.flags.writeable = False
+        weights = None if self._weights is None else tuple(self._weights)
         return PlanRequest(
             vehicle=entry.vehicle,
             start=entry.committed[-1],
@@ -1017,9 +1022,9 @@ class TimeWindowTraffic(FunctionBlock):
             until_s=self._until,
             plant=self.plant,
             windows=WindowView(self._next_table),
-            allowed=self._allowed_for(entry),
-            to_goal=row,
-            weights=self._weights,
+            allowed=tuple(self._allowed_for(entry)),
+            to_goal=to_goal,
+            weights=weights,
             geometry=self.geometry,
         )
 
