@@ -89,9 +89,8 @@ def route_first(request: PlanRequest):
     """A planner of one's own as a baseline for the built-in search: the shortest route
     over the open arcs, timed through the free windows (waiting where it must, never
     going round anyone)."""
-    route = request.shortest_route()
-    yield
-    return None if route is None else request.timed(route)
+    route = yield from request.shortest_route()
+    return None if route is None else (yield from request.timed(route))
 
 
 PLANNERS = {"sipp": None, "route_first": route_first}

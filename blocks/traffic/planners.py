@@ -70,6 +70,13 @@ class WindowView:
     ) -> list[tuple[float, float]]:
         return self._table.safe_intervals(node, vehicle, until)
 
+    def stands(self, node: int, vehicle: int | None = None) -> bool:
+        """Does a vehicle other than ``vehicle`` stand on ``node`` (or its area) until
+        further notice: a window of its there that never ends?"""
+        return any(
+            w.end == math.inf and w.vehicle != vehicle for w in self._table.node_windows(node)
+        )
+
     def earliest_entry(
         self,
         a: int,
@@ -114,11 +121,17 @@ class PlanRequest:
                 best = t if best is None else min(best, t)
         return best
 
-    def shortest_route(self) -> list[int] | None:
+    def shortest_route(
+        self, avoid_standing: bool = True
+    ) -> Generator[None, None, list[int] | None]:
         """The shortest route over the open arcs from ``start`` to ``goal`` (node ids), by
-        distance (A* with the exact distances as its estimate); None if there is none."""
+        distance: A* with the exact distances as its estimate, yielding after each node it
+        expands (``route = yield from request.shortest_route()``); None if there is none.
+        ``avoid_standing``: no way through a node where another vehicle stands until
+        further notice (a window of its that never ends), which no timing could pass."""
         plant, allowed, h = self.plant, self.allowed, self.to_goal
         start, goal = plant.idx(self.start), plant.idx(self.goal)
+        ids, windows, vehicle = plant.ids, self.windows, self.vehicle
         best = {start: 0.0}
         parent: dict[int, int] = {}
         frontier = [(float(h[start]), 0.0, start)]
@@ -128,19 +141,24 @@ class PlanRequest:
                 route = [node]
                 while route[-1] in parent:
                     route.append(parent[route[-1]])
-                return [int(plant.ids[n]) for n in reversed(route)]
+                return [int(ids[n]) for n in reversed(route)]
             if g > best[node]:
                 continue
+            yield
             for nxt, arc, length in plant.neighbors[node]:
-                if allowed[arc] and g + length < best.get(nxt, math.inf):
-                    best[nxt], parent[nxt] = g + length, node
-                    heapq.heappush(frontier, (g + length + float(h[nxt]), g + length, nxt))
+                if not allowed[arc] or g + length >= best.get(nxt, math.inf):
+                    continue
+                if avoid_standing and nxt != goal and windows.stands(int(ids[nxt]), vehicle):
+                    continue
+                best[nxt], parent[nxt] = g + length, node
+                heapq.heappush(frontier, (g + length + float(h[nxt]), g + length, nxt))
         return None
 
-    def timed(self, route: Sequence[int]) -> TimedPlan | None:
+    def timed(self, route: Sequence[int]) -> Generator[None, None, TimedPlan | None]:
         """The earliest timing of ``route`` (node ids from ``start``) through the free
-        windows, waiting where it must; None if it cannot be driven through them (a node
-        taken for good, say). The route-first, schedule-second planner in one call."""
+        windows, waiting where it must (``plan = yield from request.timed(route)``; it
+        yields once per node of the route, its work); None if the route cannot be driven
+        through them (a node taken for good, say). Route first, then schedule."""
         route = [int(n) for n in route]
         if not route or route[0] != self.start:
             return None
@@ -149,7 +167,7 @@ class PlanRequest:
         if any(s is None for s in seconds):
             return None
         directions = [self._direction(a, b) for a, b in pairs]
-        return time_route(
+        plan = time_route(
             self.windows._table,
             self.vehicle,
             route,
@@ -161,6 +179,9 @@ class PlanRequest:
             turns=self.turns,
             hold_s=self.hold_s,
         )
+        for _ in route:
+            yield
+        return plan
 
     def _direction(self, a: int, b: int) -> tuple[float, float] | None:
         arcs = self.plant.arc_index.get((a, b))
@@ -250,8 +271,12 @@ class PluggedSearch:
             if budget is not None:
                 budget -= 1
             if self.expansions >= self.limit:
-                run.close()
-                self._refuse(f"the planner ran past {self.limit} units of work for one plan")
+                reason = f"the planner ran past {self.limit} units of work for one plan"
+                try:
+                    run.close()
+                except Exception as err:  # it ignored the close, or its clean-up raised
+                    reason += f" (and on closing raised {type(err).__name__}: {err})"
+                self._refuse(reason)
         return self.done
 
     def _finish(self, plan: object) -> None:
@@ -268,67 +293,93 @@ class PluggedSearch:
         self.refused = f"vehicle {self.vehicle}: {reason}"
 
 
-def plan_fault(
+def vetted(
     plan: TimedPlan,
     request: PlanRequest,
     booked_until: float,
     frontier_from: float,
     table: TimeWindowTable,
-) -> str | None:
-    """What is wrong with a plugged planner's ``plan`` for ``request``, None if nothing:
-    its shape, its start, its arcs, its times (no faster than the vehicle drives and
-    turns), and its windows claimed before ``booked_until`` (the frontier's from
-    ``frontier_from``, where the vehicle waits until it sets off) against ``table``."""
+) -> tuple[TimedPlan | None, str | None]:
+    """A plugged planner's ``plan`` for ``request`` as the program books it (plain ints and
+    floats, its windows claimed on departure), or None with what is wrong: its shape, its
+    start and end, its arcs, its times (no faster than the vehicle drives and turns), and
+    its windows claimed before ``booked_until`` (the frontier's from ``frontier_from``,
+    where the vehicle waits until it sets off) against ``table``. The values are converted
+    first and the converted plan is checked, so what is checked is what is booked."""
     try:
-        return _fault(plan, request, booked_until, frontier_from, table)
-    except (TypeError, ValueError, AttributeError, IndexError, KeyError) as err:
-        return f"a malformed plan ({type(err).__name__}: {err})"
+        plan = _plain(plan, request)
+        return (
+            (None, plan)
+            if isinstance(plan, str)
+            else _checked(plan, request, booked_until, frontier_from, table)
+        )
+    except (TypeError, ValueError, ArithmeticError, AttributeError, IndexError, KeyError) as err:
+        return None, f"a malformed plan ({type(err).__name__}: {err})"
 
 
-def _fault(
-    plan: TimedPlan,
-    request: PlanRequest,
-    booked_until: float,
-    frontier_from: float,
-    table: TimeWindowTable,
-) -> str | None:
-    nodes, arrive, depart = plan.nodes, plan.arrive, plan.depart
-    if plan.vehicle != request.vehicle:
+def _plain(plan: TimedPlan, request: PlanRequest) -> TimedPlan | str:
+    """``plan`` in plain ints and floats, its windows claimed on departure (the release
+    rule orders visits by them, whatever the plan said); a str: what is wrong."""
+    if not isinstance(plan.vehicle, numbers.Integral) or plan.vehicle != request.vehicle:
         return f"a plan for vehicle {plan.vehicle!r}, not {request.vehicle}"
+    nodes, arrive, depart = tuple(plan.nodes), tuple(plan.arrive), tuple(plan.depart)
     if not nodes or not len(nodes) == len(arrive) == len(depart):
         return "nodes, arrive and depart must be of one length, at least 1"
+    limit = max_steps(request.plant)
+    if len(nodes) > limit:
+        return f"a plan of {len(nodes)} nodes, more than {limit}"
+    if not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) for n in nodes):
+        return "its nodes must be node ids (integers)"
+    if not all(_number(t) for t in (*arrive, *depart)):
+        return "its times must be numbers"
+    nodes = tuple(int(n) for n in nodes)
+    arrive = tuple(float(t) for t in arrive)
+    depart = tuple(float(t) for t in depart)
+    claim = (arrive[0], *depart[:-1])
+    return TimedPlan(int(plan.vehicle), nodes, arrive, depart, 0.0, claim=claim)
+
+
+def _checked(
+    plan: TimedPlan,
+    request: PlanRequest,
+    booked_until: float,
+    frontier_from: float,
+    table: TimeWindowTable,
+) -> tuple[TimedPlan | None, str | None]:
+    nodes, arrive, depart = plan.nodes, plan.arrive, plan.depart
     if nodes[0] != request.start:
-        return f"it starts at node {nodes[0]!r}, not at {request.start} where the vehicle is"
-    times = [*arrive, *depart[:-1]]
-    if not all(_number(t) and math.isfinite(t) for t in times):
-        return "its times must be finite numbers (only the last departure may be inf)"
-    if not (_number(depart[-1]) and not math.isnan(depart[-1])):
-        return "its last departure must be a number"
+        return None, f"it starts at node {nodes[0]}, not at {request.start} where the vehicle is"
+    if nodes[-1] != request.goal:
+        return None, f"it ends at node {nodes[-1]}, not at the goal {request.goal}"
+    if not all(math.isfinite(t) for t in (*arrive, *depart[:-1])):
+        return None, "its times must be finite (only the last departure may be inf)"
+    if math.isnan(depart[-1]):
+        return None, "its last departure must be a number"
     if abs(arrive[0] - request.start_s) > EPS_S:
-        return f"it starts at {arrive[0]:g} s, not at {request.start_s:g} s"
+        return None, f"it starts at {arrive[0]:g} s, not at {request.start_s:g} s"
     heading = request.heading
     for i, node in enumerate(nodes):
         if depart[i] < arrive[i] - EPS_S:
-            return f"it leaves node {node} at {depart[i]:g} s, before it arrives ({arrive[i]:g} s)"
+            return None, (
+                f"it leaves node {node} at {depart[i]:g} s, before it arrives ({arrive[i]:g} s)"
+            )
         if i + 1 == len(nodes):
             break
         nxt = nodes[i + 1]
         travel = request.travel_s(node, nxt)
         if travel is None:
-            return f"step {i + 1}: no open arc from node {node} to node {nxt!r}"
+            return None, f"step {i + 1}: no open arc from node {node} to node {nxt}"
         direction = request._direction(node, nxt)
         turn = request.turns.between(heading, direction)
         if depart[i] < arrive[i] + turn - EPS_S:
-            return f"it turns on node {node} in {depart[i] - arrive[i]:g} s, under {turn:g} s"
+            return None, f"it turns on node {node} in {depart[i] - arrive[i]:g} s, under {turn:g} s"
         if arrive[i + 1] < depart[i] + travel - EPS_S:
-            return (
+            return None, (
                 f"it drives {node} -> {nxt} in {arrive[i + 1] - depart[i]:g} s, "
                 f"under the {travel:g} s it takes"
             )
         heading = direction
-    # the claims on departure (a node is the vehicle's from when it sets off towards it),
-    # whatever the plan says: the release rule orders visits by them
-    claims = (arrive[0], *depart[:-1])
+    claims = plan.claims
     last = 0
     while last + 1 < len(nodes) and claims[last + 1] < booked_until:
         last += 1
@@ -338,21 +389,14 @@ def _fault(
     try:
         table.check(request.vehicle, windows, segments)
     except WindowConflict as err:
-        return str(err)
-    return None
+        return None, str(err)
+    return plan, None
 
 
-def as_departure_claims(plan: TimedPlan) -> TimedPlan:
-    """``plan`` with its windows claimed on departure, as the release rule needs them."""
-    claim = (plan.arrive[0], *plan.depart[:-1])
-    return TimedPlan(
-        plan.vehicle,
-        tuple(int(n) for n in plan.nodes),
-        tuple(float(t) for t in plan.arrive),
-        tuple(float(t) for t in plan.depart),
-        float(plan.cost) if _number(plan.cost) else 0.0,
-        claim=tuple(float(t) for t in claim),
-    )
+def max_steps(plant: Plant) -> int:
+    """The most nodes a plugged plan may have: a plan is checked whole in one scan, so its
+    length is bounded like a search's work (twice the plant's nodes: room for detours)."""
+    return max(100, 2 * plant.n)
 
 
 def _number(value: object) -> bool:

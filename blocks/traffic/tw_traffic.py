@@ -97,10 +97,9 @@ from .planners import (
     PlanRequest,
     PluggedSearch,
     WindowView,
-    as_departure_claims,
-    plan_fault,
     planner_names,
     plugged_planner,
+    vetted,
     work_limit,
 )
 from .reservation import OUT_OF_SERVICE, ReservationMatrix
@@ -1004,9 +1003,9 @@ class TimeWindowTraffic(FunctionBlock):
         """What a plugged planner is told of ``entry``'s vehicle and this round."""
         if row is None:  # a goal whose row is still being computed: this one alone
             row = distances_to(self.plant, [entry.goal])[0]
-        # read-only copies and views: the heuristic table's row and the round's arc lists
-        # serve every other search too
-        to_goal = row.view()
+        # read-only copies: the heuristic table's row and the round's arc lists serve every
+        # other search too
+        to_goal = row.copy()
         to_goal.flags.writeable = False
         weights = None if self._weights is None else tuple(self._weights)
         return PlanRequest(
@@ -1031,17 +1030,16 @@ class TimeWindowTraffic(FunctionBlock):
     def _checked(self, search: PluggedSearch) -> TimedPlan | None:
         """A plugged planner's plan, if the program may take it (:func:`plan_fault`);
         None, counted with its reason, if not."""
-        fault = search.refused
-        plan = search.plan
+        fault, plan = search.refused, search.plan
         if plan is not None:
             entry = self._entries[search.vehicle]
-            fault = plan_fault(
+            plan, fault = vetted(
                 plan, search.request, self._book_until, entry.starts[-1], self._next_table
             )
             if fault is not None:
                 fault = f"vehicle {search.vehicle}: {fault}"
         if fault is None:
-            return None if plan is None else as_departure_claims(plan)
+            return plan
         self.refused += 1
         if self.refused_reason is None:
             self.refused_reason = fault
