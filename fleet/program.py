@@ -61,24 +61,27 @@ AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
 
 
 class BlockadeSchedule(FunctionBlock):
-    """Closes and reopens segments at the configured times (thesis level 3)."""
+    """Closes and reopens segments at the configured times (thesis level 3). Each entry
+    closes its segment under its own name, so its end reopens only what it closed: a
+    segment an operator or another entry still keeps closed stays closed."""
 
     def __init__(self, blockades: Iterable[Blockade], constraints: RoutingConstraints) -> None:
         super().__init__()
-        self.pending = sorted(blockades, key=lambda b: b.at_s)
-        self.open_until: list[Blockade] = []
+        entries = [(("schedule", k), b) for k, b in enumerate(blockades)]
+        self.pending = sorted(entries, key=lambda e: e[1].at_s)
+        self.open_until: list[tuple[tuple[str, int], Blockade]] = []
         self.constraints = constraints
 
     def cycle(self, ctx: CycleContext) -> None:
         now = ctx.time
-        while self.pending and self.pending[0].at_s <= now:
-            b = self.pending.pop(0)
-            self.constraints.block(b.a, b.b, both_ways=True)
+        while self.pending and self.pending[0][1].at_s <= now:
+            name, b = self.pending.pop(0)
+            self.constraints.block(b.a, b.b, both_ways=True, by=name)
             if b.until_s is not None:
-                self.open_until.append(b)
-        for b in [b for b in self.open_until if b.until_s <= now]:
-            self.open_until.remove(b)
-            self.constraints.unblock(b.a, b.b, both_ways=True)
+                self.open_until.append((name, b))
+        for name, b in [e for e in self.open_until if e[1].until_s <= now]:
+            self.open_until.remove((name, b))
+            self.constraints.unblock(b.a, b.b, both_ways=True, by=name)
 
 
 class FleetCycle(FunctionBlock):

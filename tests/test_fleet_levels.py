@@ -127,6 +127,64 @@ def test_level_3_routes_avoid_a_blockade_and_come_back_after_it_clears(program):
     assert len(p.completed) >= 10
 
 
+def test_a_segment_stays_closed_while_anyone_keeps_it_closed():
+    """Two overlapping entries of the schedule, and an operator: the segment opens only
+    when the last of them reopens it; the operator's reopening opens it whoever closed it."""
+    from blocks.routing.constraints import RoutingConstraints
+
+    c = RoutingConstraints(model_plant())
+    c.block(7, 8, by=("schedule", 0))
+    c.block(8, 7, by=("schedule", 1))
+    epoch = c.epoch
+    c.unblock(8, 7, by=("schedule", 1))
+    assert c.blocked_segments() == [(7, 8), (8, 7)] and c.epoch == epoch  # nothing changed
+    assert c.closed_by(7, 8) == {("schedule", 0)}
+    c.block(7, 8)  # the operator
+    c.unblock(7, 8, by=("schedule", 0))
+    assert c.blocked_segments() == [(7, 8), (8, 7)] and c.closed_by(8, 7) == {"operator"}
+    c.unblock(7, 8, by="operator")
+    assert c.blocked_segments() == [] and c.epoch == epoch + 1
+    c.block(7, 8, by=("schedule", 0))
+    c.block(7, 8)
+    c.unblock(7, 8)  # the operator's override
+    assert c.blocked_segments() == [] and c.closed_by(7, 8) == set()
+
+
+def test_the_schedule_reopens_only_what_it_closed(program):
+    """A scheduled blockade 7-8 from 10 to 50 s and one 8-7 from 20 to 30 s: closed from
+    10 to 50 s (the second entry's end reopened it before). An operator's closure of 3-17
+    at 5 s outlasts a scheduled one of the same segment from 8 to 40 s."""
+    from fleet.config import Blockade
+
+    plant = model_plant()
+    cfg = make_config(
+        plant,
+        {1: 0, 2: 10},
+        {"out": [1]},
+        {1: [24]},
+        blockades=[
+            Blockade(7, 8, 10.0, 50.0),
+            Blockade(8, 7, 20.0, 30.0),
+            Blockade(3, 17, 8.0, 40.0),
+        ],
+    )
+    p = program(cfg)
+    closed = {}
+    rt = p.rt
+    rt.start()
+    while rt.clock.now() < 60.0:
+        if abs(rt.clock.now() - 5.0) < 1e-9:
+            p.blockades.block(3, 17)
+        rt.step()
+        closed[round(rt.clock.now(), 2)] = set(p.blockades.blocked_segments())
+    assert (7, 8) in closed[35.0] and (7, 8) in closed[45.0] and (7, 8) not in closed[50.05]
+    assert (3, 17) in closed[45.0] and (3, 17) in closed[59.95]
+    assert [e for e in p.events.segment_changes if e[2:] == (7, 8)] == [
+        (10.0, "closed", 7, 8),
+        (50.0, "reopened", 7, 8),
+    ]
+
+
 def test_level_4_the_default_job_runs_every_vehicles_own_recipes(program):
     p = program(load_config())
     run(p, 320)

@@ -11,6 +11,7 @@ they only ever make true costs larger.
 from __future__ import annotations
 
 import math
+from collections.abc import Hashable
 
 import numpy as np
 
@@ -33,20 +34,57 @@ def highway_penalty(plant: Plant, factor: float) -> np.ndarray:
 
 
 class RoutingConstraints:
+    """Closed segments and extra costs, shared by every route search.
+
+    A segment may be closed by several at once, each under its own name (``by``: an
+    operator, each entry of a blockade schedule): it stays closed until every one that
+    closed it has reopened it, so a schedule's end never reopens what an operator or an
+    overlapping entry still keeps closed. :meth:`unblock` without ``by`` is the operator's
+    override: it reopens the segment whoever closed it."""
+
+    OPERATOR = "operator"
+
     def __init__(self, plant: Plant) -> None:
         self.plant = plant
         self.blocked = np.zeros(plant.n_arcs, dtype=bool)
         self.penalty = np.zeros(plant.n_arcs, dtype=np.float64)
         self.epoch = 0  # counts blockade changes: routes planned before a change are stale
+        self._closed_by: dict[int, set[Hashable]] = {}  # closed arc -> who keeps it closed
 
-    def block(self, a: int, b: int, both_ways: bool = True) -> None:
-        """Close the segment a -> b (and b -> a); TopologyError if there is no such segment."""
-        self.blocked[self.plant.arcs_between(a, b, both_ways)] = True
-        self.epoch += 1
+    def block(self, a: int, b: int, both_ways: bool = True, by: Hashable = OPERATOR) -> None:
+        """Close the segment a -> b (and b -> a) for ``by``; TopologyError if there is no
+        such segment."""
+        arcs = self.plant.arcs_between(a, b, both_ways)
+        for arc in arcs:
+            self._closed_by.setdefault(arc, set()).add(by)
+        if not self.blocked[arcs].all():
+            self.blocked[arcs] = True
+            self.epoch += 1
 
-    def unblock(self, a: int, b: int, both_ways: bool = True) -> None:
-        self.blocked[self.plant.arcs_between(a, b, both_ways)] = False
-        self.epoch += 1
+    def unblock(self, a: int, b: int, both_ways: bool = True, by: Hashable | None = None) -> None:
+        """Reopen the segment a -> b (and b -> a): ``by`` no longer keeps it closed (it
+        opens once nobody does), or, without ``by``, whoever closed it."""
+        arcs = self.plant.arcs_between(a, b, both_ways)
+        opened = []
+        for arc in arcs:
+            holders = self._closed_by.get(arc)
+            if holders is not None:
+                if by is None:
+                    holders.clear()
+                else:
+                    holders.discard(by)
+                if holders:
+                    continue
+                del self._closed_by[arc]
+            opened.append(arc)
+        if self.blocked[opened].any():
+            self.blocked[opened] = False
+            self.epoch += 1
+
+    def closed_by(self, a: int, b: int) -> set[Hashable]:
+        """Who keeps the segment a -> b closed (empty: it is open)."""
+        arcs = self.plant.arc_index.get((a, b), ())
+        return set().union(*(self._closed_by.get(arc, ()) for arc in arcs))
 
     def penalize(self, a: int, b: int, extra: float, both_ways: bool = False) -> None:
         """Set the extra cost of a -> b (default one direction: the one an oncoming vehicle uses)."""
@@ -59,6 +97,7 @@ class RoutingConstraints:
         self.penalty[self.plant.arcs_between(a, b, both_ways)] = extra
 
     def clear(self) -> None:
+        self._closed_by.clear()
         self.blocked[:] = False
         self.penalty[:] = 0.0
         self.epoch += 1

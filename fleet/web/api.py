@@ -291,7 +291,8 @@ def build_app(
         dependencies=[Security(_BEARER)],
     )
     async def reopen_segment(a: NodeId, b: NodeId) -> JSONResponse:
-        """Reopen the segment a-b. Needs the token."""
+        """Reopen the segment a-b, whoever closed it (a scheduled blockade too). Needs the
+        token."""
         return JSONResponse(await ask(fleet.ask_blockade(a, b, False), "blockade"))
 
     # ----- tags: watch, write, force -------------------------------------------------------
