@@ -27,6 +27,7 @@ from plc_runtime import CycleContext, FunctionBlock
 # vehicle states worth an event when a vehicle enters them
 ALARM_STATES = ("offline", "stale", "fault", "no_route", "suspect")
 FOREIGN_NEWS_S = 2.0  # a vehicle stopped for a route it was not released this long is news
+REPEAT_S = 60.0  # an event a client can repeat is logged at most once per this long
 KINDS = ("deadlock", "livelock", "replan", "blockade", "reopened", "vehicle", "recovered")
 
 
@@ -86,12 +87,35 @@ class EventLog(FunctionBlock):
         self.segment_changes: deque[tuple[float, str, int, int]] = deque(maxlen=capacity)
         self.lifted: set[tuple[int, int]] = set()  # reopened during the run, open now
         self._epoch = -1  # the blockades' change counter when they were last compared
+        # events a client can repeat at will: the last time each was logged, and how many
+        # like it were left out since
+        self._recent: dict[tuple[str, int | None, str], tuple[float, int]] = {}
+        self.left_out = 0
         self._started = False
 
     def add(self, time_s: float, kind: str, vehicle: int | None, text: str) -> None:
         self.events.append(Event(round(time_s, 3), kind, vehicle, text))
         self.added += 1
         self.counts[kind] += 1
+
+    def add_unless_repeated(self, time_s: float, kind: str, vehicle: int | None, text: str) -> bool:
+        """:meth:`add`, but an event like one added less than REPEAT_S ago is left out
+        (counted in ``left_out``) and the next one logged says how many were: for events a
+        client can cause at will (a refused acknowledge), which would otherwise push every
+        other event out of the bounded log. True if it was added."""
+        key = (kind, vehicle, text)
+        last = self._recent.get(key)
+        if last is not None and time_s - last[0] < REPEAT_S:
+            self._recent[key] = (last[0], last[1] + 1)
+            self.left_out += 1
+            return False
+        skipped = 0 if last is None else last[1]
+        if len(self._recent) >= self.events.maxlen:
+            self._recent = {k: t for k, t in self._recent.items() if time_s - t[0] < REPEAT_S}
+        self._recent[key] = (time_s, 0)
+        more = f" ({skipped} more like it left out)" if skipped else ""
+        self.add(time_s, kind, vehicle, text + more)
+        return True
 
     def cycle(self, ctx: CycleContext) -> None:
         now = ctx.time

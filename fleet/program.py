@@ -453,7 +453,9 @@ class FleetProgram:
         else:
             if why == "not suspect" and isinstance(job, OrderRunner):
                 why = "not suspect, and no load left on board"
-            self.events.add(ctx.time, "vehicle", vehicle, f"acknowledge refused: {why}")
+            self.events.add_unless_repeated(
+                ctx.time, "vehicle", vehicle, f"acknowledge refused: {why}"
+            )
         return why
 
     def _priority(self, vehicle: int) -> tuple[int, int]:

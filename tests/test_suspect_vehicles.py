@@ -121,6 +121,27 @@ def test_acknowledging_a_vehicle_that_is_not_suspect_is_refused(program):
     assert p.events.events[-1].text == "acknowledge refused: not suspect"
 
 
+def test_a_flood_of_refused_acknowledges_does_not_push_other_events_out(program):
+    """A client that writes ``ack`` again and again (a new value every scan) is refused
+    every time, but logged once a minute per vehicle and reason: the bounded log keeps
+    the events before the flood, and the next logged refusal says how many were left out."""
+    p = program
+    p.blockades.block(7, 8)
+    p.rt.run(duration=5)
+    before = list(p.events.events)
+    assert [e.text for e in before] == ["segment 7-8 closed"]
+    for k in range(1, 2001):  # 100 s at 20 scans a second, three vehicles
+        for v in (1, 2, 3):
+            p.rt.image.write(f"agv{v}.ack", k % 60000 + 1)
+        p.rt.run(duration=0.05)
+        assert p.rt.image.read("agv3.ack_result") == ACK_REFUSED
+    refusals = [e for e in p.events.events if e.text.startswith("acknowledge refused")]
+    assert len(refusals) == 6  # 3 vehicles, at 5 s and at 65 s
+    assert all(e in p.events.events for e in before)
+    assert refusals[-1].text == "acknowledge refused: not suspect (1199 more like it left out)"
+    assert p.events.left_out == 3 * 2000 - 6
+
+
 def test_put_back_where_it_belongs_it_returns_to_service_by_itself(program):
     p = program
     p.rt.run(duration=20)
