@@ -138,6 +138,8 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
     }
 
 
+# The simulator's counters of injected faults, reported alike whether the vehicles run in
+# this process or in their own (the vehicles command's monitor report).
 INJECTED = ("dropped", "corrupted", "spoofed", "delays")
 DETECTED = ("crc_errors", "malformed", "repeated", "out_of_sequence", "resyncs", "unconfirmed")
 

@@ -64,3 +64,19 @@ def test_bad_fault_settings_name_the_key(extra, says):
     with pytest.raises(ConfigError) as err:
         parse_config(DEFAULT_CONFIG.read_text() + "\n" + extra, "f.toml")
     assert str(err.value) == f"f.toml: {says}"
+
+
+def test_the_vehicles_process_reports_every_injected_fault_kind(tmp_path):
+    """The monitor report of vehicles in their own process, which a run's summary shows as
+    faults.injected, counts the same kinds as a run with the vehicles in-process."""
+    from ports import free_base_port
+
+    from fleet.report import INJECTED
+
+    cfg = tmp_path / "ft.toml"
+    cfg.write_text(DEFAULT_CONFIG.read_text() + "\n[faults]\ndrop_rate = 0.1\ndelay_rate = 0.5\n")
+    report = tmp_path / "m.json"
+    args = ["vehicles", "--config", str(cfg), "--modbus-base-port", str(free_base_port(4))]
+    assert main([*args, "--duration", "0.5", "--monitor-out", str(report)]) == 0
+    injected = json.loads(report.read_text())["faults_injected"]
+    assert tuple(injected) == INJECTED and "delays" in injected

@@ -18,6 +18,7 @@ from plc_runtime.errors import ConfigError
 from plc_runtime.files import is_special, same_path
 
 from ..config import LOOPBACK, MODBUS, link_problem, modbus_endpoint, parse_bus
+from ..report import INJECTED
 from ..route import load_plant
 
 # A simulation step: below a tenth of a millisecond the loop only spins; above a second a
@@ -76,9 +77,6 @@ def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -
     p.add_argument(
         "--json", action="store_true", help="print the final state of every vehicle as JSON"
     )
-
-
-INJECTED = ("dropped", "corrupted", "spoofed")  # the simulator's counters of injected faults
 
 
 def check_writable(name: str, inputs: dict[str, Path]) -> None:
