@@ -22,6 +22,7 @@ from io_drivers.protocol import MAX_NODE_ID, MAX_VEHICLE_ID
 from plc_runtime.collector import DEFAULT_YOUNG_THRESHOLD
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import FileProblem, read_limited
+from plc_runtime.runtime import MAX_TIME
 from topology import SAMPLES, Plant, TopologyError, load
 from topology.formats.numbers import parse_int
 from topology.validate import text_problem
@@ -295,7 +296,7 @@ def parse_config(text: str, source: str = "<config>", base: Path | None = None) 
         processing_s=stations.number("processing_s", 3.0, 0.0, 3600.0),
         rounds=sequencer.integer("rounds", 0, 0, 10**6),
         cycle_time=runtime.number("cycle_time_ms", 10.0, 0.1, 1000.0) / 1e3,
-        watchdog=runtime.number("watchdog_ms", 150.0, 1.0, 6000.0) / 1e3,
+        watchdog=runtime.positive("watchdog_ms", 150.0, MAX_TIME * 1e3) / 1e3,
         gc_threshold=runtime.integer("gc_threshold", DEFAULT_YOUNG_THRESHOLD, 0, 10**9) or None,
         gc_full_between_scans=runtime.get("gc_full_between_scans", bool, True),
         duration_s=runtime.number("duration_s", 600.0, 0.001, 1e7),

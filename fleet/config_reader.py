@@ -46,6 +46,14 @@ class TableReader:
             raise self.fail(key, f"must be in {low}..{high}, got {value}")
         return value
 
+    def positive(self, key: str, default: float, high: float) -> float:
+        """The key's number in (0, high]: for a limit where any positive value is meaningful
+        and 0 would mean none, as the command line's options of the same limit accept."""
+        value = self.get(key, float, default)
+        if not 0 < value <= high:
+            raise self.fail(key, f"must be > 0 and <= {high:g}, got {value:g}")
+        return value
+
     def integer(self, key: str, default: Any, low: int, high: int) -> int:
         """The key's integer in low..high; ``default`` ``...`` makes the key required."""
         value = self.get(key, int, default)

@@ -81,6 +81,14 @@ def test_config_file_on_the_command_line(tmp_path, capsys):
         (("start = 10", "start = 99"), "vehicles[1].start: node 99 is not in plant 'model-plant'"),
         (("start = 10", "start = 0"), "vehicles[1].start: node 0 is already vehicle 1's start"),
         (("cycle_time_ms = 10", "cycle_time_ms = 0"), "runtime.cycle_time_ms: must be in"),
+        (
+            ("watchdog_ms = 150", "watchdog_ms = 0"),
+            "runtime.watchdog_ms: must be > 0 and <= 6e+06, got 0",
+        ),
+        (
+            ("watchdog_ms = 150", "watchdog_ms = 7e6"),
+            "runtime.watchdog_ms: must be > 0 and <= 6e+06, got 7e+06",
+        ),
         (('strategy = "random"', 'strategy = "best"'), "stations.strategy: must be one of"),
         (
             ("functions = [6, 5, 1]", "functions = [6, 9, 1]"),
@@ -104,6 +112,15 @@ def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):
     with pytest.raises(ConfigError) as exc:
         load_config(path)
     assert message in str(exc.value) and str(path) in str(exc.value)
+
+
+@pytest.mark.parametrize("ms", [0.5, 10000, 6e6])
+def test_the_watchdog_takes_in_the_file_what_the_command_line_takes(tmp_path, ms):
+    """A long watchdog for batch runs is as good in the file as with --watchdog, up to the
+    runtime's own limit."""
+    path = tmp_path / "fleet.toml"
+    path.write_text(DEFAULT_CONFIG.read_text().replace("watchdog_ms = 150", f"watchdog_ms = {ms}"))
+    assert load_config(path).watchdog == ms / 1e3
 
 
 def test_a_configuration_saved_with_a_byte_order_mark_loads(tmp_path):
