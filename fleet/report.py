@@ -105,9 +105,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "head_on_conflicts": monitor.head_on if monitor else None,
         "node_conflicts": monitor.node if monitor else None,
         "area_conflicts": monitor.area if monitor else None,
-        "conflict_monitor": "simulated positions"
-        if monitor
-        else "not available (vehicles in another process)",
+        "conflict_monitor": MONITORED_HERE if monitor else NOT_MONITORED,
         "refused_reports": program.reservation.refused_reports,
         "suspect_vehicles": {
             str(v): c.suspect_reason for v, c in program.controls.items() if c.suspect
@@ -137,6 +135,13 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "tasks": stats["tasks"],
     }
 
+
+# Where a run's conflict counts come from (the summary's ``conflict_monitor``): scripts
+# compare these strings, so docs/fleet-config.md lists them exactly.
+MONITORED_HERE = "simulated positions"
+MONITORED_IN_VEHICLES = "simulated positions, in the vehicles' process"
+NOT_MONITORED = "not available (vehicles in another process)"
+CONFLICT_MONITORS = (MONITORED_HERE, MONITORED_IN_VEHICLES, NOT_MONITORED)
 
 # The simulator's counters of injected faults, reported alike whether the vehicles run in
 # this process or in their own (the vehicles command's monitor report).

@@ -68,6 +68,7 @@ from blocks.jobs.recipe import Recipe
 from fleet.cli import main
 from fleet.config import FleetConfig, parse_config
 from fleet.program import FleetProgram
+from fleet.report import CONFLICT_MONITORS
 from topology import Plant, load
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -615,5 +616,16 @@ def test_every_summary_key_of_a_run_is_documented(tmp_path, capsys):
     for config in (examples / "workshop-orders.toml", examples / "workshop.toml"):
         args = ["run", str(config), "--duration", "5", "--json", "--out", str(tmp_path / "o")]
         assert main(args) == 0
-        printed |= set(json.loads(capsys.readouterr().out))
+        run = json.loads(capsys.readouterr().out)
+        assert run["conflict_monitor"] in CONFLICT_MONITORS
+        printed |= set(run)
     assert printed - documented == set()
+
+
+def test_every_conflict_monitor_value_is_documented_exactly():
+    """Scripts compare the summary's ``conflict_monitor`` string: the Summary keys table
+    names each value the runs print, letter for letter."""
+    page = (ROOT / "docs" / "fleet-config.md").read_text(encoding="utf-8")
+    row = next(line for line in page.splitlines() if line.startswith("| `conflict_monitor` |"))
+    documented = set(re.findall(r"`([^`]+)`", row)) - {"conflict_monitor"}
+    assert documented == set(CONFLICT_MONITORS)

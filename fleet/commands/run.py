@@ -68,6 +68,7 @@ from ..config import (
 from ..dashboard import dashboard, final_tables
 from ..program import FleetProgram
 from ..report import (
+    MONITORED_IN_VEHICLES,
     OUTPUT_FILES,
     ResultsNotWritten,
     claim_out_dir,
@@ -300,7 +301,7 @@ def _summed_up(
         result["head_on_conflicts"] = monitor.get("head_on_conflicts")
         result["node_conflicts"] = monitor.get("node_conflicts")
         result["area_conflicts"] = monitor.get("area_conflicts")
-        result["conflict_monitor"] = "simulated positions, in the vehicles' process"
+        result["conflict_monitor"] = MONITORED_IN_VEHICLES
         result["faults"]["injected"] = monitor.get("faults_injected")
     return result, state
 
