@@ -182,14 +182,35 @@ def check_retain_path(path: str | os.PathLike[str]) -> None:
         raise ConfigError(f"retain file {path} is {what}, not a file; give a file path")
 
 
+def check_retain_header(path: str | os.PathLike[str]) -> None:
+    """ConfigError if ``path`` exists and does not begin with a retain file's header: a
+    mistyped name (a configuration, a log) must be refused before the run, not moved aside
+    and replaced by retain data. A file with the header that is damaged further on is left
+    to the start, which sets it aside as a retain file that cannot be trusted."""
+    magic = f"{MAGIC} ".encode()
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(magic))
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise ConfigError(f"retain file {path}: cannot read it: {exc.strerror or exc}") from None
+    if head != magic:
+        raise ConfigError(
+            f"retain file {path}: not a retain file (it does not begin with {MAGIC}); "
+            "it was left as it is: give a new file name, or the file of an earlier run"
+        )
+
+
 def claim_retain_file(path: str | os.PathLike[str]) -> IO[bytes]:
     """An exclusive lock on ``PATH.lock`` beside the retain file ``path``, for a command
     that runs a program with it: two runs saving into one retain file would each write its
     values over the other's, and one run's retained data (a lifetime counter) would be lost
     without a word. Held until :func:`plc_runtime.files.release_lock`, or the process's end.
     (The retain file itself is replaced on every save, so it cannot hold the lock.)
-    ConfigError if another process holds it."""
+    ConfigError if another process holds it, or if the file is none of ours."""
     check_retain_path(path)
+    check_retain_header(path)
     retain = Path(path)
     return lock_file(
         retain.with_name(retain.name + ".lock"),

@@ -71,6 +71,26 @@ def test_a_retain_file_another_run_uses_is_refused_and_left_alone(
     assert not (tmp_path / "cc.retain.lock").exists()
 
 
+@pytest.mark.parametrize("program", [["--program", "demo"], ["--out", "o"]])
+@pytest.mark.parametrize("content", [b"[plant]\nsample = 'model-plant'\n", b""])
+def test_a_retain_file_that_is_no_retain_file_is_refused_and_left_alone(
+    program, content, tmp_path, capsys, monkeypatch
+):
+    """A configuration named as the retain file by mistake: refused before the run in one
+    line, the file as it was, not moved aside and replaced by retain data."""
+    mistaken = tmp_path / "mycfg.toml"
+    mistaken.write_bytes(content)
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", *program, "--cycles", "5", "--retain", str(mistaken)]) == 2
+    assert capsys.readouterr().err == (
+        f"plc-runtime: error: retain file {mistaken}: not a retain file (it does not begin "
+        "with PLCRETAIN); it was left as it is: give a new file name, or the file of an "
+        "earlier run\n"
+    )
+    assert [p.name for p in tmp_path.glob("mycfg.toml*")] == ["mycfg.toml"]
+    assert mistaken.read_bytes() == content
+
+
 def test_a_test_runtime_keeps_its_limit_but_enforces_a_wide_one():
     """tests/conftest.py: a busy machine must not fault an unmarked test's scan; the limit
     given is still what the runtime reports."""
@@ -148,8 +168,9 @@ def test_ctrl_c_or_sigterm_finishes_the_cycle_and_prints_the_summary(sig, code):
 
 
 def test_retain_problems_are_one_line_warnings(tmp_path, capsys):
+    """A retain file damaged after its header: a cold start, said in one line."""
     retain = tmp_path / "demo.retain"
-    retain.write_text("not a retain file\n")
+    retain.write_text("PLCRETAIN damaged\n")
     assert (
         main(["run", "--program", "demo", "--cycles", "5", "--json", "--retain", str(retain)]) == 0
     )
