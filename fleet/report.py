@@ -280,6 +280,26 @@ def is_order_history(path: Path) -> bool:
 HISTORY_START = HISTORY_COLUMNS[:5]  # id, get, put, vehicle, state
 
 
+def missing_folders(folder: Path) -> list[Path]:
+    """``folder`` and those of its parents that do not exist yet, deepest first: what
+    claiming it for a run makes, and what a run refused before it wrote anything removes."""
+    missing = []
+    for each in (folder, *folder.parents):
+        if each.exists() or each.is_symlink():
+            break
+        missing.append(each)
+    return missing
+
+
+def remove_empty(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) while they are empty; what holds a file stays."""
+    for each in folders:
+        try:
+            each.rmdir()
+        except OSError:  # not empty (results, or another's files), or gone already
+            return
+
+
 def claim_out_dir(out_dir: Path, inputs: dict[str, Path] | None = None) -> IO[bytes]:
     """Make sure the results can be written before a run starts, not after it finished,
     and that no other run writes its results into the same folder meanwhile (one run's

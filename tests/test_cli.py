@@ -91,6 +91,20 @@ def test_a_retain_file_that_is_no_retain_file_is_refused_and_left_alone(
     assert mistaken.read_bytes() == content
 
 
+def test_a_run_refused_before_it_starts_makes_no_out_folder(tmp_path, capsys, monkeypatch):
+    """Refused because another run holds the retain file: the --out folder the run would
+    have made (with its parents) is not left behind, empty, to be mistaken for results."""
+    import fcntl
+
+    monkeypatch.chdir(tmp_path)
+    with open(tmp_path / "cc.retain.lock", "ab") as other:  # another run, holding it
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        args = ["run", "--out", "new/out", "--cycles", "5", "--retain", "cc.retain"]
+        assert main(args) == 2
+    assert "another run is using it" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cc.retain.lock"]
+
+
 def test_a_test_runtime_keeps_its_limit_but_enforces_a_wide_one():
     """tests/conftest.py: a busy machine must not fault an unmarked test's scan; the limit
     given is still what the runtime reports."""

@@ -72,6 +72,8 @@ from ..report import (
     OUTPUT_FILES,
     ResultsNotWritten,
     claim_out_dir,
+    missing_folders,
+    remove_empty,
     summary,
     write_all,
 )
@@ -183,8 +185,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
             if same_path(retain, path):
                 raise CliError(f"--retain {args.retain}: that is {what}; name a file of its own")
         inputs["the retain file"] = retain
-    out_lock, retain_lock = claim_out_dir(out, inputs), None
+    made, out_lock, retain_lock = missing_folders(out), None, None
     try:  # the lock files go however the run ends (a failed start too)
+        out_lock = claim_out_dir(out, inputs)
         if args.retain is not None:
             retain_lock = claim_retain_file(args.retain)
         broken = liveness.violations(cfg)
@@ -224,7 +227,9 @@ def run(args: argparse.Namespace, modbus: Any) -> int:
     finally:
         if retain_lock is not None:
             release_lock(retain_lock)
-        release_lock(out_lock)
+        if out_lock is not None:
+            release_lock(out_lock)
+        remove_empty(made)  # a run refused before it started leaves no folder behind
     if args.json:
         print(json.dumps(result))
     else:
