@@ -1,6 +1,7 @@
 """plc-runtime plant validate / plant show / route."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -114,6 +115,20 @@ def test_validate_reports_warnings_and_errors(tmp_path, capsys):
         "edges[1] (1 -> 2): length must be a finite number >= 0 (at most 1e+12), got -1.0"
         in capsys.readouterr().err
     )
+
+
+def test_a_duplicate_edge_in_the_documented_example_is_named(tmp_path, capsys):
+    """The example of docs/plant-format.md with one of its edges pasted again at the end."""
+    page = (Path(__file__).parent.parent / "docs" / "plant-format.md").read_text()
+    example = page.split("```toml\n", 1)[1].split("```", 1)[0]
+    assert "[[edges]]\nfrom = 0\nto = 3\n" in example
+    path = tmp_path / "p.toml"
+    path.write_text(example + "\n[[edges]]\nfrom = 0\nto = 3\nlength = 1.2\n")
+    warning = "edges[4] joins nodes 0 and 3 both ways, as edges[1] does: a copy? drop one of them"
+    assert main(["plant", "validate", str(path)]) == 0
+    assert f"{path}: warning: {warning}" in capsys.readouterr().out
+    code, summary = run_json(capsys, "plant", "show", str(path), "--json")
+    assert code == 0 and summary["warnings"] == [warning]
 
 
 def test_show_json_and_png(tmp_path, capsys):

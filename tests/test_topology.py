@@ -256,6 +256,31 @@ def test_unreachable_from_some_node_is_a_warning():
     assert plant.warnings == ("target 2 cannot be reached from 1 node(s), e.g. 3",)
 
 
+_LINE = [Node(0, role="entry"), Node(1), Node(2, role="station", functions=(2,))]
+
+
+@pytest.mark.parametrize(
+    ("extra", "warnings"),
+    [
+        (  # a copy-pasted line, its length edited
+            Edge(0, 1, 1.5),
+            ("edges[2] joins nodes 0 and 1 both ways, as edges[0] does: a copy? drop one of them",),
+        ),
+        (  # the same two-way lane written the other way round
+            Edge(1, 0, 1.0),
+            ("edges[2] joins nodes 0 and 1 both ways, as edges[0] does: a copy? drop one of them",),
+        ),
+        (Edge(1, 0, 1.0, bidirectional=False), ()),  # one way beside a two-way lane
+        (Edge(2, 1, 1.0, routable=False), ()),  # the other way of a one-way lane
+    ],
+)
+def test_an_edge_that_repeats_another_is_a_warning(extra, warnings):
+    """Routing keeps the shorter of two edges on the same nodes and directions: a copy is
+    accepted, named with the edge it repeats, by their places in the file."""
+    edges = [Edge(0, 1, 1.0), Edge(1, 2, 1.0, bidirectional=False), extra]
+    assert Plant.build(_LINE, edges).warnings == warnings
+
+
 @pytest.mark.parametrize(
     "content",
     [

@@ -8,7 +8,8 @@ functions on nodes that cannot provide them, a queue node without the station it
 function of the plant, an empty area name, a declared function no station provides, a
 target that cannot be reached from an entry; a name (of the plant, a function, a node, an
 area) that is not a string of printable text.
-Warnings (returned): a target that some other node cannot reach.
+Warnings (returned): a target that some other node cannot reach; an edge that joins the
+same two nodes in the same direction(s) as an earlier one (a copy-pasted line).
 
 Each rule is a mask over all nodes or all edges, computed for the whole plant at once: a
 grid of a million nodes is checked in a second or two, about ten times faster than a loop
@@ -36,6 +37,7 @@ if TYPE_CHECKING:
 
 FUNCTION_ROLES = ("station", "entry", "exit", "charger")
 MAX_REACHABILITY_WARNINGS = 20
+MAX_DUPLICATE_WARNINGS = 20
 
 NO_PORT, NOT_A_PORT = -1, -2
 PORT_CODES: dict[object, int] = {port: code for code, port in enumerate(PORTS)} | {None: NO_PORT}
@@ -49,7 +51,7 @@ def validate(plant: Plant, source: str | None = None) -> list[str]:
     _check_places(plant, source)
     _check_edges(plant, source)
     _check_functions(plant, source)
-    return _check_reachability(plant, source)
+    return _duplicate_edges(plant) + _check_reachability(plant, source)
 
 
 def _raise_first_failure(
@@ -418,6 +420,40 @@ def _check_edges(plant: Plant, source: str | None) -> None:
         ],
         source,
         lambda i: f"edges[{i}] ({_short(sources[i])} -> {_short(targets[i])})",
+    )
+
+
+def _duplicate_edges(plant: Plant) -> list[str]:
+    """A warning for each edge that joins the same two nodes in the same direction(s) as an
+    earlier one: routing keeps only the shorter, so a copy-pasted line changes nothing it
+    could show, and an edited copy (its length fixed in one line) silently loses its edit.
+    One sort over all edges, as the rules are (plants have hundreds of thousands)."""
+    edges = plant.edges
+    if len(edges) < 2:
+        return []
+    s = _node_indices(plant, [e.source for e in edges])
+    t = _node_indices(plant, [e.target for e in edges])
+    both = np.fromiter((e.bidirectional for e in edges), bool, len(edges))
+    keys = np.stack(
+        [np.where(both, np.minimum(s, t), s), np.where(both, np.maximum(s, t), t), both], axis=1
+    )
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    earlier = first[inverse.ravel()]
+    again = np.flatnonzero(earlier != np.arange(len(edges)))
+    warnings = [_duplicate_warning(edges, int(earlier[j]), int(j)) for j in again]
+    if len(again) > MAX_DUPLICATE_WARNINGS:
+        warnings = warnings[:MAX_DUPLICATE_WARNINGS] + [
+            f"(duplicate edges reported for the first {MAX_DUPLICATE_WARNINGS} of {len(again)})"
+        ]
+    return warnings
+
+
+def _duplicate_warning(edges: tuple[Edge, ...], i: int, j: int) -> str:
+    e = edges[i]
+    way = "both ways" if e.bidirectional else "one way"
+    return (
+        f"edges[{j}] joins nodes {e.source} and {e.target} {way}, as edges[{i}] does: "
+        "a copy? drop one of them"
     )
 
 
