@@ -426,7 +426,8 @@ def check_config(cfg: FleetConfig) -> None:
         )
     if cfg.orders is not None and not cfg.order_vehicles:
         raise ConfigError(
-            f"{where}orders: given, but no vehicle takes orders (order_vehicles is empty)"
+            f"{where}orders: given, but no vehicle takes orders: every [[vehicles]] entry names "
+            "its recipes; leave recipes out of those that should take orders"
         )
     for v in cfg.starts:
         if v not in cfg.order_vehicles and v not in cfg.goal_vehicles:

@@ -25,7 +25,7 @@ from topology import Plant
 if TYPE_CHECKING:
     from .config import FleetConfig
 
-MAX_VEHICLE_SHARE = 0.10  # vehicles per node
+NODES_PER_VEHICLE = 10  # at most 10 % as many vehicles as nodes, counted in whole numbers
 
 
 def violations(cfg: FleetConfig) -> list[str]:
@@ -42,12 +42,8 @@ def violations(cfg: FleetConfig) -> list[str]:
         shown = ", ".join(str(n) for n in cuts[:3])
         more = f" and {len(cuts) - 3} more" if len(cuts) > 3 else ""
         out.append(f"not 2-connected: losing node {shown}{more} disconnects the plant")
-    n_vehicles = len(cfg.starts)
-    if n_vehicles > MAX_VEHICLE_SHARE * plant.n:
-        out.append(
-            f"{n_vehicles} vehicles on {plant.n} nodes (more than "
-            f"{MAX_VEHICLE_SHARE:.0%}: at most {int(MAX_VEHICLE_SHARE * plant.n)})"
-        )
+    if (crowd := _crowded(len(cfg.starts), plant.n)) is not None:
+        out.append(crowd)
     needed = sorted({f for r in cfg.recipes.values() for f in r.functions})
     single = [f for f in needed if len(cfg.clusters.get(f, ())) < 2]
     if single:
@@ -200,6 +196,18 @@ def _repeated_functions(cfg: FleetConfig) -> Iterator[tuple[int, int, int]]:
                 continue
             if steps[k - 1] == f:  # k == 0: the last step of the round before
                 yield v, k, f
+
+
+def _crowded(n_vehicles: int, n_nodes: int) -> str | None:
+    """The clause on the share of vehicles, if broken: said with the plant size the fleet
+    needs, which helps where "at most N vehicles" would tell a small plant "at most 0"."""
+    if n_vehicles * NODES_PER_VEHICLE <= n_nodes:
+        return None
+    vehicles = f"{n_vehicles} vehicle{'s' if n_vehicles != 1 else ''}"
+    return (
+        f"{vehicles} on {n_nodes} nodes, more than 1 vehicle per {NODES_PER_VEHICLE} nodes "
+        f"(at least {n_vehicles * NODES_PER_VEHICLE} nodes for {vehicles})"
+    )
 
 
 def _one_way_segments(plant: Plant) -> list[tuple[int, int]]:

@@ -58,7 +58,8 @@ def positive(kind: type, least: float | None = None, most: float | None = None) 
             value = kind(text)
         except ValueError:
             number = "a whole number" if kind is int else "a number"
-            raise argparse.ArgumentTypeError(f"not {number}: {text!r}") from None
+            hint = as_digits(text) if kind is int else ""
+            raise argparse.ArgumentTypeError(f"not {number}: {text!r}{hint}") from None
         if least is not None and not (math.isfinite(value) and value >= least):
             # one message for every value refused below, not "> 0" for 0 and ">= 1" for 0.5
             raise argparse.ArgumentTypeError(f"must be a finite number >= {least:g}: {text!r}")
@@ -97,8 +98,20 @@ def whole(text: str) -> int:
     except ValueError:
         value = -1
     if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0: {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0: {text!r}{as_digits(text)}")
     return value
+
+
+def as_digits(text: str) -> str:
+    """A hint for a whole number written as a float (``1e9``, ``100.0``), which ``int``
+    refuses: the same number in digits, so the message does not read as if it were none."""
+    try:
+        value = float(text)
+    except ValueError:
+        return ""
+    if not (math.isfinite(value) and value.is_integer()):
+        return ""
+    return f" (write it as digits: {int(value)})"
 
 
 MIN_CYCLE_S, MAX_CYCLE_S = 0.0001, 1.0  # a scan cycle's range, as a configuration's

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import pytest
 from netns import realtime_run, unavailable
 
 from fleet.cli import main
-from fleet.config import DEFAULT_CONFIG, load_config, parse_config
+from fleet.config import DEFAULT_CONFIG, check_config, load_config, parse_config
 from plc_runtime.errors import ConfigError
 
 CONTRACT = {
@@ -112,6 +113,25 @@ def test_bad_configuration_names_the_file_and_key(tmp_path, change, message):
     with pytest.raises(ConfigError) as exc:
         load_config(path)
     assert message in str(exc.value) and str(path) in str(exc.value)
+
+
+def test_orders_no_vehicle_takes_say_what_to_change_in_the_file(tmp_path):
+    """Every vehicle names its recipes, so none is left for the orders: the message says
+    what to write in the file, not the name of a field inside the program."""
+    text = re.sub(
+        r"(\[\[vehicles\]\]\nid = \d+\nstart = \d+\n)",
+        r'\1recipes = ["wash-inspect"]\n',
+        DEFAULT_CONFIG.read_text(),
+    )
+    (tmp_path / "orders.csv").write_text("id,get,put\n")
+    path = tmp_path / "fleet.toml"
+    path.write_text(text + '\n[orders]\nfile = "orders.csv"\n')
+    with pytest.raises(ConfigError) as exc:
+        check_config(load_config(path))  # as a run does, before it starts
+    assert str(exc.value) == (
+        f"{path}: orders: given, but no vehicle takes orders: every [[vehicles]] entry names "
+        "its recipes; leave recipes out of those that should take orders"
+    )
 
 
 @pytest.mark.parametrize("ms", [0.5, 10000, 6e6])

@@ -708,6 +708,14 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
         (["vehicles", "--plant", "model-plant", "--seed", "-1"], "--seed: must be a whole number"),
         (["run", "--program", "demo", "--watchdog", "7e6"], "--watchdog: must be at most 6e+06"),
         (["route", "model-plant", "--from", "0", "--to", "5", "--budget", "1.5"], "whole number"),
+        (
+            ["route", "model-plant", "--from", "0", "--to", "5", "--budget", "1e9"],
+            "--budget: not a whole number: '1e9' (write it as digits: 1000000000)",
+        ),
+        (
+            ["vehicles", "--plant", "model-plant", "--seed", "1e3"],
+            "--seed: must be a whole number >= 0: '1e3' (write it as digits: 1000)",
+        ),
     ],
     ids=[
         "speed",
@@ -718,6 +726,8 @@ def test_configuration_values_that_once_raised_tracebacks_are_located_errors(old
         "vehicles-seed",
         "watchdog-ms",
         "budget",
+        "budget-as-float",
+        "seed-as-float",
     ],
 )
 def test_command_line_numbers_beyond_sense_are_refused(args, message, capsys):

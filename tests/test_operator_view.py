@@ -208,6 +208,38 @@ def test_each_clause_of_the_liveness_condition_is_checked():
     assert "a blockade that never reopens" in liveness.violations(cfg)
 
 
+@pytest.mark.parametrize(
+    ("vehicles", "nodes", "clause"),
+    [
+        (
+            1,
+            4,
+            "1 vehicle on 4 nodes, more than 1 vehicle per 10 nodes (at least 10 nodes for 1 vehicle)",
+        ),
+        (
+            4,
+            25,
+            "4 vehicles on 25 nodes, more than 1 vehicle per 10 nodes (at least 40 nodes for 4 vehicles)",
+        ),
+        (3, 30, None),
+    ],
+)
+def test_the_share_of_vehicles_says_how_many_nodes_they_need(vehicles, nodes, clause):
+    """A small plant is told the size its fleet needs, not that it takes "at most 0"."""
+    from topology import Edge, Node, Plant
+
+    ring = Plant.build(
+        [Node(0, role="entry", functions=(0,))]
+        + [Node(k, role="station", functions=(2,)) for k in (1, 2)]
+        + [Node(k) for k in range(3, nodes)],
+        [Edge(k, (k + 1) % nodes, 1.0) for k in range(nodes)],
+    )
+    cfg = load_config(DEFAULT_CONFIG)
+    cfg.plant, cfg.starts = ring, {v: v - 1 for v in range(1, vehicles + 1)}
+    found = [v for v in liveness.violations(cfg) if "nodes" in v and "vehicle" in v]
+    assert found == ([clause] if clause else [])
+
+
 def test_time_window_traffic_needs_a_parking_position_per_order_vehicle():
     """That mode pushes nobody aside: an idle vehicle that cannot park may block a way."""
     cfg = load_config(
@@ -448,7 +480,8 @@ def test_a_fleet_program_starts_once(programs):
         ),
         (
             lambda c: setattr(c, "orders", OrdersConfig()),
-            "test: orders: given, but no vehicle takes orders (order_vehicles is empty)",
+            "test: orders: given, but no vehicle takes orders: every [[vehicles]] entry names "
+            "its recipes; leave recipes out of those that should take orders",
         ),
         (
             lambda c: c.order_vehicles.append(7),

@@ -119,6 +119,7 @@ HEADER = "id,get,put,start_s,end_s,priority,vehicle\n"
 BAD_CSV = [
     ("id,get,put,colour\n", ":1: unknown column 'colour'"),
     ("id,get,put,get\n", ":1: column 'get' appears twice"),
+    ("id,get,put,\n", ":1: an empty column name (a trailing comma, or two commas in a row?)"),
     ("id,put\n", ":1: missing column 'get'"),
     ("", ": empty, expected the header id,get,put"),
     ("\n \n", ": empty, expected the header"),

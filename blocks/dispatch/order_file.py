@@ -136,6 +136,10 @@ def _header(reader: Any, source: str) -> list[str]:
             continue
         where = f"{source}:{reader.line_num}"
         for name in names:
+            if not name:
+                raise OrderFileError(
+                    f"{where}: an empty column name (a trailing comma, or two commas in a row?)"
+                )
             if name not in COLUMNS:
                 raise OrderFileError(
                     f"{where}: unknown column {shown(name)} (columns: {','.join(COLUMNS)})"
