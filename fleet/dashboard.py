@@ -15,7 +15,7 @@ from rich.console import Console, Group
 from rich.table import Table
 from rich.text import Text
 
-from plc_runtime.cli import task_table
+from plc_runtime.cli import StatsTables, task_table
 
 from .program import FleetProgram
 
@@ -113,7 +113,7 @@ def dashboard(program: FleetProgram, total: int | None, width: int | None = None
     )
 
 
-def _tasks(rows: dict[str, dict[str, Any]], width: int) -> Table:
+def _tasks(rows: dict[str, dict[str, Any]], width: int) -> Table | StatsTables:
     if width >= 100:
         return task_table("scan statistics", rows, live=True)
     table = Table(title="scan statistics")

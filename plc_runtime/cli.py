@@ -469,18 +469,77 @@ _SUMMARY_COLUMNS = [
 ]
 
 
-def _stats_table(title: str, rows: dict[str, dict[str, Any]], columns: list[str]) -> Table:
+def _stats_table(
+    title: str, rows: dict[str, dict[str, Any]], columns: list[str], tight: bool = False
+) -> Table:
+    """The statistics of ``rows`` in ``columns``; ``tight``: each column exactly as wide as
+    its longest number or header word, the headers wrapped at their spaces."""
     table = Table(title=title)
     table.add_column("task")
     for header in columns:
-        table.add_column(header, justify="right")
+        width = _column_width(rows, header) if tight else None
+        table.add_column(header, justify="right", width=width)
     for name, d in rows.items():
         table.add_row(name, *(_COLUMNS[header](d) for header in columns))
     return table
 
 
-def task_table(title: str, rows: dict[str, dict[str, Any]], live: bool) -> Table:
-    return _stats_table(title, rows, _LIVE_COLUMNS if live else _SUMMARY_COLUMNS)
+def _task_width(rows: dict[str, dict[str, Any]]) -> int:
+    return max(len("task"), *(len(name) for name in rows))
+
+
+def _column_width(rows: dict[str, dict[str, Any]], header: str, whole: bool = False) -> int:
+    """The narrowest the column can be without cutting a number or a word of its header
+    (``whole``: the header on one line)."""
+    head = [len(header)] if whole else [len(word) for word in header.split()]
+    return max(*head, *(len(_COLUMNS[header](d)) for d in rows.values()))
+
+
+CELL_CHROME = 3  # a column's border and the padding each side
+
+
+@dataclass
+class StatsTables:
+    """The statistics table, as rich draws it where the console is wide enough; else its
+    columns at their narrowest, split over as many tables as it takes, each with the task
+    names. Rich fits a table too wide for the console by cutting its cells, and a number
+    cut short (the maximum scan time ``18044…``) reads as another one."""
+
+    title: str
+    rows: dict[str, dict[str, Any]]
+    columns: list[str]
+    caption: str | None = None
+
+    def __rich_console__(self, console: Console, options: Any) -> Iterator[Table]:
+        width = options.max_width
+        whole = _table_width(self.rows, self.columns, whole=True) <= width
+        groups = [self.columns] if whole else _column_groups(self.rows, self.columns, width)
+        for k, group in enumerate(groups):
+            table = _stats_table(self.title if k == 0 else "", self.rows, group, not whole)
+            table.caption = self.caption if k == len(groups) - 1 else None
+            yield table
+
+
+def _table_width(rows: dict[str, dict[str, Any]], columns: list[str], whole: bool) -> int:
+    widths = [_column_width(rows, header, whole) for header in columns]
+    return 1 + _task_width(rows) + CELL_CHROME + sum(w + CELL_CHROME for w in widths)
+
+
+def _column_groups(
+    rows: dict[str, dict[str, Any]], columns: list[str], width: int
+) -> list[list[str]]:
+    """``columns`` in order, in groups whose tight table (with the task column) fits
+    ``width``; a column too wide for any table is a group of its own."""
+    groups: list[list[str]] = [[]]
+    for header in columns:
+        if groups[-1] and _table_width(rows, [*groups[-1], header], whole=False) > width:
+            groups.append([])
+        groups[-1].append(header)
+    return groups
+
+
+def task_table(title: str, rows: dict[str, dict[str, Any]], live: bool) -> StatsTables:
+    return StatsTables(title, rows, _LIVE_COLUMNS if live else _SUMMARY_COLUMNS)
 
 
 def _status_table(rt: Runtime, total: int | None) -> Table:
@@ -512,14 +571,14 @@ def summary(rt: Runtime, program: str, state: str, wall: float) -> dict[str, Any
     }
 
 
-def summary_table(summary: dict[str, Any]) -> Table:
+def summary_table(summary: dict[str, Any]) -> StatsTables:
     title = (
         f"{summary['program']}: {summary['state']} after {summary['cycles']} cycles, "
         f"{summary['sim_time_s']:.2f} s on the {summary['clock']} clock, {summary['wall_time_s']:.2f} s of wall time"
     )
-    table = _stats_table(title, {**summary["tasks"], "(scan)": summary["scan"]}, _SUMMARY_COLUMNS)
     if summary["fault_reason"]:
-        table.caption = f"FAULT: {summary['fault_reason']}"
+        caption = f"FAULT: {summary['fault_reason']}"
     else:
-        table.caption = "  ".join(f"{k}={v}" for k, v in summary["tags"].items())
-    return table
+        caption = "  ".join(f"{k}={v}" for k, v in summary["tags"].items())
+    rows = {**summary["tasks"], "(scan)": summary["scan"]}
+    return StatsTables(title, rows, _SUMMARY_COLUMNS, caption)

@@ -63,3 +63,20 @@ def test_the_final_tables_show_names_reasons_and_files_literally(program):
     text = rendered(final_tables(result), 200)
     for literal in ("[/s]", "FAULT: block [red]x raised [/oops]", "[/out]/summary.json"):
         assert literal in text
+
+
+@pytest.mark.parametrize("width", [80, 60])
+def test_the_final_tables_never_cut_a_number_short(program, width):
+    """A long run's numbers in an 80-column terminal (COLUMNS=80) or narrower: every one
+    is shown whole, on lines no wider than the terminal, the columns split over more
+    tables where one cannot take them all."""
+    result = summary(program, wall_s=1.0)
+    for stats in [*result["tasks"].values(), result["scan"]]:
+        stats["cycles"], stats["overruns"], stats["omitted"] = 60000, 12345, 54321
+        stats["exec_us"] |= {"mean": 96.0, "p99": 255.4, "max": 18044123.3}
+        stats["lateness_us"] |= {"p99": 7000.5, "max": 1234567.5}
+    text = rendered(final_tables(result), width)
+    assert "…" not in text and max(len(line) for line in text.splitlines()) <= width
+    for number in ("60000", "96.0", "255.4", "18044123.3", "7000.5", "1234567.5", "12345", "54321"):
+        rows = [line for line in text.splitlines() if f" {number} " in line]
+        assert len(rows) == len(result["tasks"]) + 1, number  # each task's and the scan's
