@@ -28,6 +28,8 @@ import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
+from blocks.plugins import register
+
 from .estimates import SectionEstimates
 from .orders import TransportOrder
 from .station_schedule import StationSchedule
@@ -80,16 +82,7 @@ def register_strategy(name: str, strategy: PluggedStrategy, replace: bool = Fals
     fleet. A name already registered is taken again
     only with ``replace=True`` (a second experiment must not change the first one's
     strategy unnoticed)."""
-    if not name.isidentifier() or name in STRATEGIES:
-        raise ValueError(f"a plugged strategy needs a new name (an identifier), got {name!r}")
-    if not callable(strategy):
-        raise TypeError(f"strategy {name!r}: not callable")
-    if name in PLUGGED and not replace and PLUGGED[name] is not strategy:
-        raise ValueError(
-            f"strategy {name!r} is registered already; register_strategy(..., replace=True) "
-            "replaces it"
-        )
-    PLUGGED[name] = strategy
+    register(PLUGGED, "strategy", STRATEGIES, name, strategy, replace)
 
 
 def plugged_strategy(name: str) -> PluggedStrategy | None:

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from blocks.plugins import register
 from topology import Plant
 
 from .sipp import ArcGeometry, TimedPlan, TurnTimes, time_route
@@ -199,16 +200,7 @@ def register_planner(name: str, planner: PluggedPlanner, replace: bool = False) 
     called with a :class:`PlanRequest` per vehicle and round, and is a generator that
     yields after each unit of its work and returns a :class:`TimedPlan` (or None). A name
     already registered is taken again only with ``replace=True``."""
-    if not name.isidentifier() or name in BUILT_IN:
-        raise ValueError(f"a plugged planner needs a new name (an identifier), got {name!r}")
-    if not callable(planner):
-        raise TypeError(f"planner {name!r}: not callable")
-    if name in PLUGGED and not replace and PLUGGED[name] is not planner:
-        raise ValueError(
-            f"planner {name!r} is registered already; register_planner(..., replace=True) "
-            "replaces it"
-        )
-    PLUGGED[name] = planner
+    register(PLUGGED, "planner", BUILT_IN, name, planner, replace)
 
 
 def plugged_planner(name: str) -> PluggedPlanner | None:
