@@ -100,7 +100,8 @@ class EventLog(FunctionBlock):
 
     def add_unless_repeated(self, time_s: float, kind: str, vehicle: int | None, text: str) -> bool:
         """:meth:`add`, but an event like one added less than REPEAT_S ago is left out
-        (counted in ``left_out``) and the next one logged says how many were: for events a
+        (counted in ``left_out`` and in ``counts``) and the next one logged says how many
+        were, since when: for events a
         client can cause at will (a refused acknowledge), which would otherwise push every
         other event out of the bounded log. True if it was added."""
         key = (kind, vehicle, text)
@@ -108,12 +109,14 @@ class EventLog(FunctionBlock):
         if last is not None and time_s - last[0] < REPEAT_S:
             self._recent[key] = (last[0], last[1] + 1)
             self.left_out += 1
+            self.counts[kind] += 1  # the counts stay whole: every one happened
             return False
-        skipped = 0 if last is None else last[1]
+        more = ""
+        if last is not None and last[1]:
+            more = f" ({last[1]} more like it left out since {round(last[0], 3):g} s)"
         if len(self._recent) >= self.events.maxlen:
             self._recent = {k: t for k, t in self._recent.items() if time_s - t[0] < REPEAT_S}
         self._recent[key] = (time_s, 0)
-        more = f" ({skipped} more like it left out)" if skipped else ""
         self.add(time_s, kind, vehicle, text + more)
         return True
 

@@ -282,7 +282,11 @@ HISTORY_START = HISTORY_COLUMNS[:5]  # id, get, put, vehicle, state
 
 def missing_folders(folder: Path) -> list[Path]:
     """``folder`` and those of its parents that do not exist yet, deepest first: what
-    claiming it for a run makes, and what a run refused before it wrote anything removes."""
+    claiming it for a run makes, and what a run refused before it wrote anything removes.
+    None for a path through ``..``: which folder that names is the file system's to say
+    once the folders before it exist, not the path's (``new/../mine`` is ``mine``)."""
+    if ".." in folder.parts:
+        return []
     missing = []
     for each in (folder, *folder.parents):
         if each.exists() or each.is_symlink():

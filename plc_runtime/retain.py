@@ -182,24 +182,38 @@ def check_retain_path(path: str | os.PathLike[str]) -> None:
         raise ConfigError(f"retain file {path} is {what}, not a file; give a file path")
 
 
+# how much of a file is read to tell a user's text document from a damaged retain file
+SNIFF_BYTES = 4096
+
+
 def check_retain_header(path: str | os.PathLike[str]) -> None:
-    """ConfigError if ``path`` exists and does not begin with a retain file's header: a
-    mistyped name (a configuration, a log) must be refused before the run, not moved aside
-    and replaced by retain data. A file with the header that is damaged further on is left
-    to the start, which sets it aside as a retain file that cannot be trusted."""
+    """ConfigError if ``path`` is a text file that does not begin with a retain file's
+    header: a mistyped name (a configuration, a log) is refused before the run, not moved
+    aside and replaced by retain data. Anything else is left to the start: an empty file
+    holds nothing to keep (a cold start), and a retain file damaged on disk (binary
+    garbage, zeros after a crash, a header damaged further on) is set aside there with a
+    warning and the start is cold, so that a plant controller still starts unattended."""
     magic = f"{MAGIC} ".encode()
     try:
         with open(path, "rb") as f:
-            head = f.read(len(magic))
-    except FileNotFoundError:
+            head = f.read(SNIFF_BYTES)
+    except OSError:  # missing (a first run), or for the start's own checks to name
         return
-    except OSError as exc:
-        raise ConfigError(f"retain file {path}: cannot read it: {exc.strerror or exc}") from None
-    if head != magic:
-        raise ConfigError(
-            f"retain file {path}: not a retain file (it does not begin with {MAGIC}); "
-            "it was left as it is: give a new file name, or the file of an earlier run"
-        )
+    if not head or head.startswith(magic) or b"\0" in head or not _text(head):
+        return
+    raise ConfigError(
+        f"retain file {path}: not a retain file (a text file that does not begin with "
+        f"{MAGIC}); it was left as it is: give a new file name, or the file of an earlier run"
+    )
+
+
+def _text(head: bytes) -> bool:
+    """Does ``head`` read as UTF-8 text (its last character may be cut off)?"""
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        return err.start >= len(head) - 3 and err.reason == "unexpected end of data"
+    return True
 
 
 def claim_retain_file(path: str | os.PathLike[str]) -> IO[bytes]:

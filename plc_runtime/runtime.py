@@ -37,7 +37,7 @@ from .errors import (
 from .fb import FunctionBlock
 from .image import ProcessImage, ProgramImage
 from .io import IoDriver
-from .retain import RetainStore, check_retain_path, layout_hash
+from .retain import RetainStore, check_retain_header, check_retain_path, layout_hash
 from .stats import RuntimeStats, ScanStats
 from .tags import TagTable
 from .task import OVERRUN_POLICIES, Task
@@ -144,6 +144,7 @@ class Runtime:
         self.stats = RuntimeStats(self)
         if retain_file is not None:
             check_retain_path(retain_file)
+            check_retain_header(retain_file)
         self._retain = RetainStore(retain_file)
         if self._retain.file is not None:
             try:

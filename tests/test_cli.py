@@ -10,6 +10,7 @@ from conftest import WIDE_WATCHDOG_NS
 
 from fleet.cli import main
 from plc_runtime import Runtime
+from plc_runtime.errors import ConfigError
 
 SCRIPT = Path(sys.executable).parent / "plc-runtime"
 
@@ -72,7 +73,7 @@ def test_a_retain_file_another_run_uses_is_refused_and_left_alone(
 
 
 @pytest.mark.parametrize("program", [["--program", "demo"], ["--out", "o"]])
-@pytest.mark.parametrize("content", [b"[plant]\nsample = 'model-plant'\n", b""])
+@pytest.mark.parametrize("content", [b"[plant]\nsample = 'model-plant'\n", b"PLCRETAI"])
 def test_a_retain_file_that_is_no_retain_file_is_refused_and_left_alone(
     program, content, tmp_path, capsys, monkeypatch
 ):
@@ -83,12 +84,34 @@ def test_a_retain_file_that_is_no_retain_file_is_refused_and_left_alone(
     monkeypatch.chdir(tmp_path)
     assert main(["run", *program, "--cycles", "5", "--retain", str(mistaken)]) == 2
     assert capsys.readouterr().err == (
-        f"plc-runtime: error: retain file {mistaken}: not a retain file (it does not begin "
-        "with PLCRETAIN); it was left as it is: give a new file name, or the file of an "
-        "earlier run\n"
+        f"plc-runtime: error: retain file {mistaken}: not a retain file (a text file that "
+        "does not begin with PLCRETAIN); it was left as it is: give a new file name, or the "
+        "file of an earlier run\n"
     )
     assert [p.name for p in tmp_path.glob("mycfg.toml*")] == ["mycfg.toml"]
     assert mistaken.read_bytes() == content
+
+
+def test_an_empty_retain_file_is_a_cold_start(tmp_path, capsys):
+    """An empty file (one mktemp made) holds nothing to keep: the run starts cold and
+    saves into it."""
+    retain = tmp_path / "empty.retain"
+    retain.write_bytes(b"")
+    assert main(["run", "--program", "demo", "--cycles", "5", "--retain", str(retain)]) == 0
+    assert retain.read_bytes().startswith(b"PLCRETAIN ")
+
+
+def test_the_python_api_refuses_a_retain_file_that_is_no_retain_file(tmp_path):
+    """FleetProgram(cfg, retain_file=...) checks the file as the command line does: a
+    configuration named by mistake is refused and left as it is."""
+    from fleet.config import load_config
+    from fleet.program import FleetProgram
+
+    mistaken = tmp_path / "mycfg.toml"
+    mistaken.write_text("[plant]\n")
+    with pytest.raises(ConfigError, match="not a retain file"):
+        FleetProgram(load_config(), retain_file=mistaken)
+    assert mistaken.read_text() == "[plant]\n" and not list(tmp_path.glob("*.rejected"))
 
 
 def test_a_run_refused_before_it_starts_makes_no_out_folder(tmp_path, capsys, monkeypatch):
@@ -103,6 +126,13 @@ def test_a_run_refused_before_it_starts_makes_no_out_folder(tmp_path, capsys, mo
         assert main(args) == 2
     assert "another run is using it" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cc.retain.lock"]
+    # a path through "..": the folder it names may be the user's own, empty: kept
+    (tmp_path / "mine").mkdir()
+    with open(tmp_path / "cc.retain.lock", "ab") as other:
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        args = ["run", "--out", "new/../mine", "--cycles", "5", "--retain", "cc.retain"]
+        assert main(args) == 2
+    assert (tmp_path / "mine").is_dir()
 
 
 def test_a_test_runtime_keeps_its_limit_but_enforces_a_wide_one():

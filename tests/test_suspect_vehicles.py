@@ -138,8 +138,11 @@ def test_a_flood_of_refused_acknowledges_does_not_push_other_events_out(program)
     refusals = [e for e in p.events.events if e.text.startswith("acknowledge refused")]
     assert len(refusals) == 6  # 3 vehicles, at 5 s and at 65 s
     assert all(e in p.events.events for e in before)
-    assert refusals[-1].text == "acknowledge refused: not suspect (1199 more like it left out)"
+    assert refusals[-1].text == (
+        "acknowledge refused: not suspect (1199 more like it left out since 5 s)"
+    )
     assert p.events.left_out == 3 * 2000 - 6
+    assert p.events.counts["vehicle"] == 3 * 2000  # every refusal counted
 
 
 def test_put_back_where_it_belongs_it_returns_to_service_by_itself(program):
