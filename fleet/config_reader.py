@@ -51,7 +51,7 @@ class TableReader:
         and 0 would mean none, as the command line's options of the same limit accept."""
         value = self.get(key, float, default)
         if not 0 < value <= high:
-            raise self.fail(key, f"must be > 0 and <= {high:g}, got {value:g}")
+            raise self.fail(key, f"must be > 0 and <= {high:g}, got {value!r}")
         return value
 
     def integer(self, key: str, default: Any, low: int, high: int) -> int:

@@ -87,8 +87,8 @@ def test_config_file_on_the_command_line(tmp_path, capsys):
             "runtime.watchdog_ms: must be > 0 and <= 6e+06, got 0",
         ),
         (
-            ("watchdog_ms = 150", "watchdog_ms = 7e6"),
-            "runtime.watchdog_ms: must be > 0 and <= 6e+06, got 7e+06",
+            ("watchdog_ms = 150", "watchdog_ms = 6000000.5"),
+            "runtime.watchdog_ms: must be > 0 and <= 6e+06, got 6000000.5",
         ),
         (('strategy = "random"', 'strategy = "best"'), "stations.strategy: must be one of"),
         (

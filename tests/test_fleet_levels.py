@@ -144,7 +144,8 @@ def test_a_segment_stays_closed_while_anyone_keeps_it_closed():
     assert c.blocked_segments() == [(7, 8), (8, 7)] and c.closed_by(8, 7) == {"operator"}
     c.unblock(7, 8, by="operator")
     assert c.blocked_segments() == [] and c.epoch == epoch + 1
-    c.block(7, 8, by=("schedule", 0))
+    c.block(8, 7, by=("schedule", 0))
+    assert c.closed_by(7, 8) == c.closed_by(8, 7) == {("schedule", 0)}  # either way
     c.block(7, 8)
     c.unblock(7, 8)  # the operator's override
     assert c.blocked_segments() == [] and c.closed_by(7, 8) == set()

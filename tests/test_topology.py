@@ -264,7 +264,10 @@ _LINE = [Node(0, role="entry"), Node(1), Node(2, role="station", functions=(2,))
     [
         (  # a copy-pasted line, its length edited
             Edge(0, 1, 1.5),
-            ("edges[2] joins nodes 0 and 1 both ways, as edges[0] does: a copy? drop one of them",),
+            (
+                "edges[2] joins nodes 0 and 1 both ways, as edges[0] does: only the shorter is "
+                "ever driven: drop the other, or give it its own speed limit",
+            ),
         ),
         (  # the same two-way lane written the other way round
             Edge(1, 0, 1.0),
@@ -272,11 +275,14 @@ _LINE = [Node(0, role="entry"), Node(1), Node(2, role="station", functions=(2,))
         ),
         (Edge(1, 0, 1.0, bidirectional=False), ()),  # one way beside a two-way lane
         (Edge(2, 1, 1.0, routable=False), ()),  # the other way of a one-way lane
+        (Edge(1, 2, 1.0, routable=False), ()),  # a return lane beside a one-way lane
+        (Edge(0, 1, 1.5, max_speed=2.0), ()),  # a parallel lane, faster on purpose
     ],
 )
 def test_an_edge_that_repeats_another_is_a_warning(extra, warnings):
-    """Routing keeps the shorter of two edges on the same nodes and directions: a copy is
-    accepted, named with the edge it repeats, by their places in the file."""
+    """Routing drives only the shorter of two routable edges on the same nodes and
+    directions at one speed limit: a copy is accepted, named with the edge it repeats, by
+    their places in the file."""
     edges = [Edge(0, 1, 1.0), Edge(1, 2, 1.0, bidirectional=False), extra]
     assert Plant.build(_LINE, edges).warnings == warnings
 

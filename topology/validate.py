@@ -424,23 +424,33 @@ def _check_edges(plant: Plant, source: str | None) -> None:
 
 
 def _duplicate_edges(plant: Plant) -> list[str]:
-    """A warning for each edge that joins the same two nodes in the same direction(s) as an
-    earlier one: routing keeps only the shorter, so a copy-pasted line changes nothing it
-    could show, and an edited copy (its length fixed in one line) silently loses its edit.
-    One sort over all edges, as the rules are (plants have hundreds of thousands)."""
-    edges = plant.edges
+    """A warning for each routable edge that joins the same two nodes in the same
+    direction(s) as an earlier one at the same speed limit: of the two, routing only ever
+    drives the shorter (both traffic modes), so a copy-pasted line changes nothing, and an
+    edited copy (its length fixed in one line) silently loses its edit. Parallel lanes with
+    different limits are left alone (one may be the faster way), as is a return lane (not
+    routable) beside a lane. One sort over the edges, as the rules are (plants have
+    hundreds of thousands)."""
+    edges = [k for k, e in enumerate(plant.edges) if e.routable]
     if len(edges) < 2:
         return []
-    s = _node_indices(plant, [e.source for e in edges])
-    t = _node_indices(plant, [e.target for e in edges])
-    both = np.fromiter((e.bidirectional for e in edges), bool, len(edges))
+    chosen = [plant.edges[k] for k in edges]
+    s = _node_indices(plant, [e.source for e in chosen])
+    t = _node_indices(plant, [e.target for e in chosen])
+    both = np.fromiter((e.bidirectional for e in chosen), bool, len(chosen))
+    limit = np.fromiter(
+        (math.inf if e.max_speed is None else e.max_speed for e in chosen), float, len(chosen)
+    )
     keys = np.stack(
-        [np.where(both, np.minimum(s, t), s), np.where(both, np.maximum(s, t), t), both], axis=1
+        [np.where(both, np.minimum(s, t), s), np.where(both, np.maximum(s, t), t), both, limit],
+        axis=1,
     )
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     earlier = first[inverse.ravel()]
-    again = np.flatnonzero(earlier != np.arange(len(edges)))
-    warnings = [_duplicate_warning(edges, int(earlier[j]), int(j)) for j in again]
+    again = np.flatnonzero(earlier != np.arange(len(chosen)))
+    warnings = [
+        _duplicate_warning(plant.edges, edges[int(earlier[j])], edges[int(j)]) for j in again
+    ]
     if len(again) > MAX_DUPLICATE_WARNINGS:
         warnings = warnings[:MAX_DUPLICATE_WARNINGS] + [
             f"(duplicate edges reported for the first {MAX_DUPLICATE_WARNINGS} of {len(again)})"
@@ -449,12 +459,13 @@ def _duplicate_edges(plant: Plant) -> list[str]:
 
 
 def _duplicate_warning(edges: tuple[Edge, ...], i: int, j: int) -> str:
-    e = edges[i]
+    e, f = edges[i], edges[j]
     way = "both ways" if e.bidirectional else "one way"
-    return (
-        f"edges[{j}] joins nodes {e.source} and {e.target} {way}, as edges[{i}] does: "
-        "a copy? drop one of them"
-    )
+    if e.length == f.length:
+        advice = "a copy? drop one of them"
+    else:
+        advice = "only the shorter is ever driven: drop the other, or give it its own speed limit"
+    return f"edges[{j}] joins nodes {e.source} and {e.target} {way}, as edges[{i}] does: {advice}"
 
 
 def _not_against_another_highway(edges) -> np.ndarray:

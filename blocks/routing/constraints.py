@@ -82,8 +82,9 @@ class RoutingConstraints:
             self.epoch += 1
 
     def closed_by(self, a: int, b: int) -> set[Hashable]:
-        """Who keeps the segment a -> b closed (empty: it is open)."""
-        arcs = self.plant.arc_index.get((a, b), ())
+        """Who keeps the segment between a and b closed, either way (empty: it is open)."""
+        index = self.plant.arc_index
+        arcs = [*index.get((a, b), ()), *index.get((b, a), ())]
         return set().union(*(self._closed_by.get(arc, ()) for arc in arcs))
 
     def penalize(self, a: int, b: int, extra: float, both_ways: bool = False) -> None:
