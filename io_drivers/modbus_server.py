@@ -40,7 +40,9 @@ Modbus/TCP has no authentication (docs/security.md), so the server is closed by 
 - At most ``max_connections`` clients (16) at once, the next one is closed at once; a
   connection that sends no request for ``idle_timeout`` seconds (60) is closed.
 - A frame that is not Modbus/TCP's closes its connection at once.
-- Every refused request or connection is one log line (a warning), never a traceback.
+- Every refused request or connection is one log line (a warning), never a traceback; one
+  a second per client at most (every loopback address together), the next line saying how
+  many were left out, so a client pipelining refused requests cannot flood the log.
 - Listening on anything but a loopback address warns (a RuntimeWarning, on stderr).
 
 pymodbus 3.16.1 has neither a connection limit nor an idle timeout: both live in the
@@ -61,6 +63,7 @@ import logging
 import re
 import socket
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from contextvars import ContextVar
@@ -83,6 +86,7 @@ from plc_runtime import (
     parse_address,
 )
 from plc_runtime.quiet import QuietSelector
+from plc_runtime.throttle import LineThrottle, client_of, left_out
 
 log = logging.getLogger(__name__)
 
@@ -290,6 +294,7 @@ class _Connection(ServerRequestHandler):
         super().__init__(owner, self._trace, None, None)
         self.guard = guard
         self.peer = "?"
+        self.client = "?"  # who its log lines count against (plc_runtime.throttle)
         self.rx_fc = 0  # function code of the request being handled
         self.bad_coil_value = False  # that request is an FC5 with a value other than on/off
         self.reason: str | None = None  # why the request being handled is refused
@@ -305,6 +310,7 @@ class _Connection(ServerRequestHandler):
         if peer:
             host = str(peer[0])
             self.peer = f"[{host}]:{peer[1]}" if ":" in host else f"{host}:{peer[1]}"
+            self.client = client_of(host)
         if not self.guard.admit(self):
             self.close()  # unregisters it from pymodbus' listener (it has no transport yet)
             transport.close()
@@ -539,6 +545,8 @@ class _ModbusThread:
         self.idle_timeout = idle_timeout
         self.counters = {"connections_refused": 0, "idle_closed": 0, "exceptions": 0}
         self._open: set[_Connection] = set()  # touched in the server thread only
+        self._lines = LineThrottle()  # the warnings, per client; touched in the server thread
+        self.clock: Callable[[], float] = time.monotonic  # seconds, for the throttle
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop_evt: asyncio.Event | None = None
@@ -558,7 +566,8 @@ class _ModbusThread:
         """Count a new connection in, unless the cap is reached (then log it)."""
         if len(self._open) >= self.max_connections:
             self.counters["connections_refused"] += 1
-            log.warning(
+            self._warn(
+                conn,
                 "%s: refused connection from %s: %d connections open (the limit)",
                 self._where(),
                 conn.peer,
@@ -581,14 +590,15 @@ class _ModbusThread:
         )
 
     def dropped(self, conn: _Connection, why: str) -> None:
-        log.warning("%s: closed connection from %s: %s", self._where(), conn.peer, why)
+        self._warn(conn, "%s: closed connection from %s: %s", self._where(), conn.peer, why)
 
     def refused(self, conn: _Connection, fc: int, code: int) -> None:
         """One line per request answered with an exception: who, what, why."""
         self.counters["exceptions"] += 1
         reason = conn.reason or _DEFAULT_REASONS.get(code, "refused")
         conn.reason = None
-        log.warning(
+        self._warn(
+            conn,
             "%s: refused FC%d from %s: exception %02d, %s",
             self._where(),
             fc,
@@ -596,6 +606,14 @@ class _ModbusThread:
             code,
             reason,
         )
+
+    def _warn(self, conn: _Connection, form: str, *args: object) -> None:
+        """A warning about what ``conn``'s client did, one a second per client at most: a
+        client pipelining refused requests would otherwise write thousands of lines a
+        second. The next line written says how many were left out."""
+        count = self._lines.admit(conn.client, self.clock())
+        if count is not None:
+            log.warning(form + "%s", *args, left_out(count, "from this client"))
 
     @staticmethod
     def _refuse(code: ExcCodes, reason: str) -> ExcCodes:

@@ -4,6 +4,7 @@ opened), exception codes and their log lines, the connection cap and the idle ti
 the warning for a non-loopback address, an independent client (mbpoll), clean shutdown.
 Loopback only, ephemeral ports."""
 
+import itertools
 import logging
 import shutil
 import socket
@@ -30,6 +31,7 @@ from plc_runtime import (
     parse_address,
 )
 from plc_runtime import image as image_module
+from plc_runtime.throttle import LineThrottle
 
 LOGGER = "io_drivers.modbus_server"
 WAIT_S = 30.0  # upper bound for what a busy machine may delay; never reached when it works
@@ -60,12 +62,20 @@ def served():
     rt.add_task("main", [Probe(cycle)])
     threads_before = threading.active_count()
     rt.start()
+    every_line(server._server)
     client = ModbusTcpClient("127.0.0.1", port=server.port, timeout=2.0, retries=0)
     assert client.connect()
     yield rt, server, client
     client.close()
     rt.stop()
     assert threading.active_count() == threads_before  # the server thread is gone
+
+
+def every_line(thread: _ModbusThread) -> None:
+    """Give the server a clock a second later at every look, so that each warning is a line
+    of its own (the throttle lets one a second per client through)."""
+    ticks = itertools.count(0.0, 1.0)
+    thread.clock = lambda: next(ticks)
 
 
 def exception_code(response):
@@ -430,6 +440,48 @@ def test_a_refused_request_is_one_log_line_without_traceback(served, caplog):
         assert closed_by_server(sock)
     loud = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert len(loud) == 1 and "protocol id 4660, not Modbus/TCP's 0" in loud[0]
+
+
+def test_a_flood_of_refused_requests_is_one_log_line_a_second(served, caplog):
+    """A client pipelining refused writes as fast as it can gets every answer, but the log
+    one line a second: the rest are counted, and the next line says how many were left
+    out. The server's clock is held still, then moved on a second and a half."""
+    _rt, server, _client = served
+    thread = server._server
+    thread.clock = lambda: 1000.0
+    caplog.set_level(logging.WARNING, logger=LOGGER)
+    flood = b"".join(struct.pack(">HHHBBHH", tid, 0, 6, 1, 6, 0, 1) for tid in range(200))
+    with socket.create_connection(("127.0.0.1", server.port), timeout=WAIT_S) as sock:
+        sock.sendall(flood)
+        replies = receive_exactly(sock, 200 * 9)
+        assert all(replies[i * 9 + 7 : i * 9 + 9] == b"\x86\x02" for i in range(200))
+        lines = [r.getMessage() for r in caplog.records]
+        assert len(lines) == 1 and "refused FC6" in lines[0] and "left out" not in lines[0]
+        thread.clock = lambda: 1001.5
+        sock.sendall(flood[:12])
+        assert receive_exactly(sock, 9)[7:] == b"\x86\x02"
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and lines[1].endswith("(199 more from this client left out)")
+    assert server.stats()["exceptions"] == 201  # every refusal counted all the same
+
+
+def test_the_log_throttle_remembers_a_bounded_number_of_clients():
+    """Clients come from many addresses: past ``max_keys`` the one quiet longest is
+    forgotten (its next line is written at once), so memory stays bounded."""
+    lines = LineThrottle(max_keys=2)
+    assert [lines.admit(k, 0.0) for k in ("a", "a", "a", "b")] == [0, None, None, 0]
+    assert lines.admit("c", 0.5) == 0  # "a" forgotten, with its two left out
+    assert (lines.admit("a", 0.6), lines.admit("c", 0.7), lines.admit("c", 1.6)) == (0, None, 1)
+
+
+def receive_exactly(sock: socket.socket, size: int) -> bytes:
+    """``size`` bytes from ``sock`` (its timeout bounds each wait)."""
+    data = b""
+    while len(data) < size:
+        chunk = sock.recv(size - len(data))
+        assert chunk, f"connection closed after {len(data)} of {size} bytes"
+        data += chunk
+    return data
 
 
 def test_a_failing_callback_is_one_log_line_and_exception_4(caplog):

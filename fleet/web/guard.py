@@ -47,6 +47,7 @@ from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
 from plc_runtime.cli import terminal_text
+from plc_runtime.throttle import client_of
 
 from .gate import ScanGate
 
@@ -283,24 +284,10 @@ def _replay(body: bytes, receive: Receive) -> Receive:
 
 
 def client_key(scope: Scope) -> str:
-    """Who a request's rate and warnings count against. Every loopback address is one
-    client (on Linux a local process may send from any of 127.0.0.0/8, so one bucket per
-    address would give it as many allowances as it likes), and so is an IPv6 /64 (what one
-    site is given: its hosts pick the rest of the address as they like)."""
+    """Who a request's rate and warnings count against (``plc_runtime.throttle.client_of``:
+    every loopback address together, an IPv6 /64 as one)."""
     client = scope.get("client")
-    if not client:
-        return "?"
-    try:
-        ip = ipaddress.ip_address(client[0])
-    except ValueError:
-        return client[0]  # not an IP address (a Unix socket's path): itself
-    if ip.is_loopback:
-        return "loopback"
-    if ip.version == 6:
-        if ip.ipv4_mapped is not None:
-            return str(ip.ipv4_mapped)
-        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
-    return str(ip)
+    return client_of(client[0]) if client else "?"
 
 
 def _loopback_host(host: str | None) -> bool:

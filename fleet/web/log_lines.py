@@ -17,23 +17,23 @@ import sys
 import time
 from collections.abc import Callable
 
+from plc_runtime.throttle import LineThrottle, left_out
+
 # a client's upgrade request is answered as plain HTTP: no library is missing
 DROPPED = ("No supported WebSocket library detected",)
 # what any client can make uvicorn log, one line a request
 THROTTLED = frozenset({"Invalid HTTP request received.", "Unsupported upgrade request."})
 LOGGERS = ("fleet.web", "uvicorn.error")
-INTERVAL_S = 1.0
 
 
 class OncePerSecond(logging.Filter):
-    """Lets each of the THROTTLED messages through at most once per ``INTERVAL_S``, saying
-    how many were left out since the last one; drops the DROPPED; passes the others."""
+    """Lets each of the THROTTLED messages through at most once a second, saying how many
+    were left out since the last one; drops the DROPPED; passes the others."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__()
         self.clock = clock
-        self._last: dict[str, float] = {}
-        self._left_out: dict[str, int] = {}
+        self._lines = LineThrottle()
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
@@ -41,15 +41,10 @@ class OncePerSecond(logging.Filter):
             return False
         if text not in THROTTLED:
             return True
-        now = self.clock()
-        if now - self._last.get(text, -INTERVAL_S) < INTERVAL_S:
-            self._left_out[text] = self._left_out.get(text, 0) + 1
-            return False
-        self._last[text] = now
-        left_out = self._left_out.pop(text, 0)
-        if left_out:
-            record.msg, record.args = f"{text} ({left_out} more like it left out)", None
-        return True
+        count = self._lines.admit(text, self.clock())
+        if count:
+            record.msg, record.args = text + left_out(count, "like it"), None
+        return count is not None
 
 
 class _Prefixed(logging.Formatter):
