@@ -208,6 +208,28 @@ def test_foreign_hosts_count_against_the_rate_and_are_logged_once_a_second(caplo
         assert len(lines) == 1 and "Host header 'evil.example'" in lines[0]
 
 
+def test_refused_tokens_and_bodies_are_logged_once_a_second(caplog):
+    """A client guessing tokens (a wrong one, none) or sending bodies over the limit is
+    refused every time, but logged once a second: the next line says how many were left
+    out. The guard's clock is held still (the rate allows 100 requests in that instant)."""
+    with Controller() as ctl:
+        ctl.web.guard.clock = lambda: 1000.0
+        with caplog.at_level(logging.WARNING, logger="fleet.web.guard"):
+            statuses = []
+            for token in ("wrong", None) * 15:
+                statuses.append(ctl.call("POST", f"{API}/orders", {}, token=token).status)
+            big = {"Content-Length": "999999"}
+            statuses.append(ctl.call("POST", f"{API}/orders", token=TOKEN, headers=big).status)
+            assert statuses == [403, 401] * 15 + [413]
+            lines = [r.getMessage() for r in caplog.records if r.name == "fleet.web.guard"]
+            assert len(lines) == 1 and lines[0].endswith(": 403, wrong token")
+            ctl.web.guard.clock = lambda: 1001.5
+            assert ctl.call("POST", f"{API}/orders", {}, token="wrong").status == 403
+        lines = [r.getMessage() for r in caplog.records if r.name == "fleet.web.guard"]
+        assert len(lines) == 2
+        assert lines[1].endswith(": 403, wrong token (30 more from this client left out)")
+
+
 def test_requests_uvicorn_answers_itself_reach_the_log_once_a_second(ctl, capsys):
     """Upgrade requests (answered as plain HTTP: the server has no WebSocket) and requests
     that are not HTTP are logged by uvicorn, one line each: 30 of each kind within a

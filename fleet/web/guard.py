@@ -28,10 +28,11 @@ changed:
 A request that passed waits for the end of the next scan before the application sees it
 (``gate``, :mod:`fleet.web.gate` says why).
 
-Refusals of 2 to 5 are logged, one warning line each (who, what, why), like the Modbus
-server's; those that a client can repeat without limit, a foreign host, a late body and
-the rate, once per second per client address at most, so a flood of them cannot flood the
-log too.
+Refusals are logged, one warning line each (who, what, why), like the Modbus server's,
+and like them once a second per client at most (``plc_runtime.throttle``), the next line
+saying how many were left out: every refusal, a wrong or missing token as much as the
+rate, is one a client can repeat as fast as it can send, so a flood of them cannot flood
+the log too.
 """
 
 from __future__ import annotations
@@ -40,14 +41,13 @@ import asyncio
 import ipaddress
 import json
 import logging
-import math
 import secrets
 import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
 from plc_runtime.cli import terminal_text
-from plc_runtime.throttle import client_of
+from plc_runtime.throttle import LineThrottle, client_of, left_out
 
 from .gate import ScanGate
 
@@ -97,9 +97,10 @@ class Guard:
         self.in_flight = 0  # only touched in the server's event loop
         self.receiving = 0  # requests whose body is arriving (not in flight yet)
         self.refused = 0  # requests refused, for the statistics
-        self.clock: Callable[[], float] = time.monotonic  # seconds, for the rate
-        # client address -> (tokens, monotonic time of the last refill, last throttled warning)
+        self.clock: Callable[[], float] = time.monotonic  # seconds, for the rate and the log
+        # client address -> (tokens, monotonic time of the last refill)
         self._buckets: dict[str, list[float]] = {}
+        self._lines = LineThrottle()  # the warnings, per client address
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -118,12 +119,12 @@ class Guard:
         twice = sorted({n for n in SINGLE_HEADERS if names.count(n) > 1})
         if twice:  # which one counts would be the server's guess, not the client's intent
             why = f"header {twice[0]!r} given more than once"
-            await self._refuse(scope, send, 400, why, throttled=True)
+            await self._refuse(scope, send, 400, why)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         if self.loopback and not _loopback_host(headers.get("host")):
             why = f"Host header {headers.get('host')!r} not accepted"
-            await self._refuse(scope, send, 400, why, throttled=True)
+            await self._refuse(scope, send, 400, why)
             return
         if scope["method"] in WRITE_METHODS:
             scheme, _, given = headers.get("authorization", "").partition(" ")
@@ -150,7 +151,7 @@ class Guard:
                 body = await self._body(receive)
         except TimeoutError:
             why = f"request body not received within {self.body_timeout:g} s"
-            await self._refuse(scope, send, 408, why, throttled=True, close=True)
+            await self._refuse(scope, send, 408, why, close=True)
             return
         finally:
             self.receiving -= 1
@@ -199,34 +200,30 @@ class Guard:
             if len(self._buckets) >= MAX_CLIENTS:
                 idlest = min(self._buckets, key=lambda a: self._buckets[a][1])
                 del self._buckets[idlest]
-            bucket = self._buckets[address] = [self.max_rate, now, -math.inf]
+            bucket = self._buckets[address] = [self.max_rate, now]
         tokens = min(self.max_rate, bucket[0] + (now - bucket[1]) * self.max_rate)
         bucket[1] = now
         if tokens >= 1.0:
             bucket[0] = tokens - 1.0
             return True
         bucket[0] = tokens
-        if self._may_warn(address):
-            log.warning(
-                "%s: refused %s %s from %s: 429, over %g requests per second",
-                self.where,
-                scope["method"],
-                terminal_text(scope["path"]),  # decoded: %1b would be an ESC
-                address,
-                self.max_rate,
-            )
+        self._warn(
+            scope,
+            "%s: refused %s %s from %s: 429, over %g requests per second",
+            self.where,
+            scope["method"],
+            terminal_text(scope["path"]),  # decoded: %1b would be an ESC
+            address,
+            self.max_rate,
+        )
         return False
 
-    def _may_warn(self, address: str) -> bool:
-        """Whether a throttled warning about ``address`` may be logged now (none in the
-        last second); if so, the time is noted."""
-        bucket = self._buckets.get(address)
-        now = self.clock()
-        if bucket is not None and now - bucket[2] < 1.0:
-            return False
-        if bucket is not None:
-            bucket[2] = now
-        return True
+    def _warn(self, scope: Scope, form: str, *args: object) -> None:
+        """A warning about a refused request, once a second per client at most; the next
+        one written says how many were left out."""
+        count = self._lines.admit(client_key(scope), self.clock())
+        if count is not None:
+            log.warning(form + "%s", *args, left_out(count, "from this client"))
 
     async def _refuse(
         self,
@@ -235,24 +232,22 @@ class Guard:
         status: int,
         why: str,
         *,
-        throttled: bool = False,
         close: bool = False,
     ) -> None:
-        """Answer ``status`` and log it (``throttled``: once a second per client at most);
-        ``close``: the connection is closed after the answer (its request is unfinished)."""
+        """Answer ``status`` and log it (``_warn``); ``close``: the connection is closed
+        after the answer (its request is unfinished)."""
         self.refused += 1
         client = scope.get("client")
-        if not throttled or self._may_warn(client_key(scope)):
-            peer = f"{client[0]}:{client[1]}" if client else "?"
-            log.warning(
-                "%s: refused %s %s from %s: %d, %s",
-                self.where,
-                scope["method"],
-                terminal_text(scope["path"]),  # decoded: %1b would be an ESC
-                peer,
-                status,
-                why,
-            )
+        self._warn(
+            scope,
+            "%s: refused %s %s from %s: %d, %s",
+            self.where,
+            scope["method"],
+            terminal_text(scope["path"]),  # decoded: %1b would be an ESC
+            f"{client[0]}:{client[1]}" if client else "?",
+            status,
+            why,
+        )
         await reply(send, status, why, [(b"connection", b"close")] if close else None)
 
 
