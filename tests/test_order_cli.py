@@ -422,6 +422,18 @@ def test_control_characters_in_an_answer_do_not_reach_the_terminal(capsys):
         assert "\\x1b]0;pwned" in out and "\\u202e" in out
 
 
+def test_line_breaks_in_an_answer_do_not_start_table_lines(capsys):
+    """A table cell is one line: a line break a server puts in an id or a reason is shown
+    as its escape, so it cannot start a forged row in ``order list`` or ``order show``."""
+    hostile = _answer_order(id="a\nFORGED", reason="r\r\nFORGED\u2028FORGED")
+    for argv in (["list"], ["show", "o1"]):
+        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0}
+                                   if argv == ["list"] else hostile, *argv)  # fmt: skip
+        assert (code, err) == (0, "")
+        assert "r\\r\\nFORGED\\u2028FORGED" in out, out
+        assert all("\\nFORGED" in line for line in out.splitlines() if "FORGED" in line), out
+
+
 @pytest.mark.parametrize(
     ("raw", "where"),
     [

@@ -14,8 +14,9 @@ A request is given up 15 s after it connected, however slowly the server sends. 
 straight to the URL given: no proxy from the environment sees the token, and a redirect is
 not followed. Numbers are read as order files read them (ASCII digits only),
 and the tables show ids, reasons and every other text of the answer literally, never as
-rich markup, with control characters written as escapes: the answer may come from any
-server the URL names, and an ESC in it would drive the operator's terminal.
+rich markup, with control characters (line breaks included) written as escapes: the answer
+may come from any server the URL names, an ESC in it would drive the operator's terminal
+and a line break would start a table line of the server's making.
 """
 
 from __future__ import annotations
@@ -405,15 +406,16 @@ def _maybe(value: object) -> str:
 
 def _row(table: Table, *cells: object) -> None:
     """A row shown literally: an id like ``[red]x`` or ``[/oops]`` is not rich markup, and
-    control characters are escapes."""
-    table.add_row(*(Text(terminal_text(str(cell))) for cell in cells))
+    control characters are escapes, line breaks included: a cell is one line, so a server's
+    text cannot start a row of its own making."""
+    table.add_row(*(Text(one_line(str(cell))) for cell in cells))
 
 
 def orders_table(orders: list[OrderOut], url: str) -> Table:
     """Every order, a row each. The id and the state are what a reader looks for: they
     keep their width on a narrow terminal (the reason folds instead)."""
     table = Table(title=Text(terminal_text(f"{len(orders)} orders at {url}")))
-    longest = max((len(terminal_text(o.id)) for o in orders), default=2)
+    longest = max((len(one_line(o.id)) for o in orders), default=2)
     for name in ("id", "get", "put", "start s", "end s", "prio", "vehicle", "state", "assigned"):
         whole = {"id": longest, "state": len("BEING_PROCESSED")}.get(name)
         table.add_column(
