@@ -124,7 +124,7 @@ def modbus_server(spec: str, writable: str | None = None) -> ModbusServer:
         host, port = host_port(spec, "127.0.0.1:5020")
     except ValueError as exc:
         raise CliError(f"--modbus: {exc}") from None
-    extra = [] if writable is None else [name.strip() for name in writable.split(",")]
+    extra = [] if writable is None else [name.strip(" ") for name in writable.split(",")]
     return ModbusServer(host=host, port=port, writable_extra=extra)
 
 

@@ -840,7 +840,7 @@ def _bind_problem(host: str, port: int) -> str | None:
 
 
 # %MW<first>..%MW<last>: a range of marker words for writable_extra
-_RANGE_RE = re.compile(r"^%MW(\d+)\.\.%MW(\d+)$")
+_RANGE_RE = re.compile(r"%MW([0-9]+)\.\.%MW([0-9]+)")  # fullmatch: ASCII digits, no newline
 _AREA_NAMES = {"I": "the input image (%I)", "Q": "the output image (%Q)"}
 _MW_BITS = MAX_MW_WORDS * 16  # bits of %M that Modbus can address (holding registers 1024..65535)
 
@@ -1006,10 +1006,10 @@ class ModbusServer:
         where = f"{self.name}: writable {ref!r}"
         if not isinstance(ref, str) or not ref.strip():
             raise ConfigError(f"{where}: expected a tag name, a %M address or %MWa..%MWb")
-        text = ref.strip().upper()
+        text = ref.strip(" ")
         if not text.startswith("%"):
             return None
-        if match := _RANGE_RE.match(text):
+        if match := _RANGE_RE.fullmatch(text.upper()):
             lo, hi = int(match[1]), int(match[2])
             if hi < lo:
                 raise ConfigError(f"{where}: the range ends before it starts")

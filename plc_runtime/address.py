@@ -19,7 +19,9 @@ AREAS = ("I", "Q", "M")
 # size letter -> bytes per unit (X is a bit inside a byte)
 SIZE_BYTES = {"X": 1, "B": 1, "W": 2, "D": 4, "L": 8}
 
-_ADDRESS_RE = re.compile(r"^%([IQM])([XBWDL]?)(\d+)(?:\.(\d+))?$")
+# matched whole (fullmatch) and with ASCII digits only: \d would take other scripts'
+# digits (int() reads '%MW٩٠٠' as 900) and $ a trailing newline
+_ADDRESS_RE = re.compile(r"%([IQM])([XBWDL]?)([0-9]+)(?:\.([0-9]+))?")
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,11 +50,15 @@ class Address:
 def parse_address(text: str) -> Address:
     """Parse an IEC direct address; raise AddressError naming it when it is malformed.
 
-    ``%I0.3`` (no size letter but a bit number) is accepted as ``%IX0.3``.
+    ``%I0.3`` (no size letter but a bit number) is accepted as ``%IX0.3``. Spaces around
+    it are ignored; any other character that is not ASCII is an error, not read as the
+    letter or digit it resembles (``str.upper`` makes a dotless i an I).
     """
     if not isinstance(text, str):
         raise AddressError(f"address must be a string like '%IX0.3', got {text!r}")
-    match = _ADDRESS_RE.match(text.strip().upper())
+    if not text.isascii():
+        raise AddressError(f"invalid IEC address {text!r}: ASCII letters and digits (0-9) only")
+    match = _ADDRESS_RE.fullmatch(text.strip(" ").upper())
     if match is None:
         raise AddressError(
             f"invalid IEC address {text!r}: expected %<area><size><index>[.<bit>] "

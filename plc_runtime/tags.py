@@ -24,7 +24,7 @@ from .datatypes import TYPES, DataType
 from .errors import AddressError, ConfigError
 from .files import FileProblem, read_limited
 
-_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
+_NAME_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_.]*")  # fullmatch: $ would allow a trailing newline
 
 MAX_TAG_FILE_BYTES = 4 * 2**20  # far above any tag table
 
@@ -59,7 +59,7 @@ class TagTable:
 
         ``writable``: a client (an HMI over Modbus) may write it; every other tag is read-only
         for clients."""
-        if not isinstance(name, str) or not _NAME_RE.match(name) or name.startswith("%"):
+        if not isinstance(name, str) or not _NAME_RE.fullmatch(name) or name.startswith("%"):
             raise ConfigError(f"tag name {name!r} is not a valid identifier")
         if name in self._tags:
             raise ConfigError(f"tag {name!r} is declared twice")

@@ -39,6 +39,32 @@ def test_parse_invalid_names_the_address(text):
     assert repr(text) in str(err.value)
 
 
+@pytest.mark.parametrize(
+    "text",
+    [
+        "%MW\u0669\u0660\u0660",  # Arabic-Indic 900: int() reads it, \d matches it
+        "%MW\uff19",  # fullwidth 9
+        "%MX1.\u0663",  # Arabic-Indic 3 as the bit
+        "%\u0131X0.0",  # dotless i: str.upper() makes it I
+    ],
+)
+def test_only_ascii_digits_and_letters_make_an_address(text):
+    """What merely resembles an address is an error naming it, not the address it
+    resembles (an Arabic-Indic %MW900 would otherwise open %MW900 for writes)."""
+    with pytest.raises(AddressError) as err:
+        parse_address(text)
+    assert str(err.value) == (f"invalid IEC address {text!r}: ASCII letters and digits (0-9) only")
+
+
+@pytest.mark.parametrize("text", ["%MW900\n", "%IX0.3\n", "\t%MW1"])
+def test_an_address_is_matched_whole(text):
+    """A line break or tab is no part of an address (``$`` alone would let a trailing
+    newline through); only spaces around it are ignored."""
+    with pytest.raises(AddressError, match="expected %<area><size><index>"):
+        parse_address(text)
+    assert parse_address(" %MW900 ").byte_offset == 1800
+
+
 def test_out_of_range_names_address_and_area():
     img = ProcessImage({"I": 16, "Q": 16, "M": 16})
     with pytest.raises(AddressError, match=r"%IW8: outside the I area \(16 bytes"):
@@ -89,6 +115,7 @@ def test_tags_typed_access():
         (("x", "%MW0", "REAL"), "needs a D-sized address"),
         (("x", "%MW0", "FLOAT"), "unknown data type"),
         (("9x", "%MW0"), "not a valid identifier"),
+        (("x\n", "%MW0"), "not a valid identifier"),
         (("x", "%QW0", "INT"), None),
     ],
 )

@@ -258,6 +258,10 @@ def test_the_option_opens_named_tags_and_ranges():
         ("%MW64500..%MW64530", r"writable '%MW64500..%MW64530': beyond the Modbus map"),
         ("%MW9..%MW3", r"writable '%MW9..%MW3': the range ends before it starts"),
         ("%MW1..%QW3", r"writable '%MW1..%QW3': invalid IEC address .* a range is %MWa..%MWb"),
+        ("%MW\u0669\u0660\u0660", r"invalid IEC address '%MW\u0669\u0660\u0660': ASCII letters"),
+        ("%MW900..%MW\u0669\u0660\u0669", r"writable '%MW900..%MW\u0669\u0660\u0669': invalid"),
+        ("%MW900\n", r"writable '%MW900\\n': invalid IEC address"),
+        ("%MW900..%MW909\n", r"writable '%MW900..%MW909\\n': invalid IEC address"),
         ("", r"writable '': expected a tag name, a %M address or %MWa..%MWb"),
     ],
 )
@@ -329,6 +333,9 @@ def test_the_cli_option_opens_writes_and_reports_bad_entries(capsys, tmp_path):
     assert main([*argv, "--modbus-writable", "%MW20,%QW5"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "writable '%QW5': the output image (%Q)" in err
+    assert main([*argv, "--modbus-writable", "%MW\u0669\u0660\u0660"]) == 2  # Arabic-Indic 900
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'%MW\u0669\u0660\u0660': invalid IEC address" in err
     assert main([*argv, "--modbus-writable", "analog_filtered, %MW20..%MW21"]) == 0
     # the example README and --help give works for either program
     assert main([*argv, "--modbus-writable", "%MW450,%MW900..%MW909"]) == 0
