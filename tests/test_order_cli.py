@@ -245,6 +245,10 @@ def test_an_unreachable_controller_is_one_line(capsys):
         ("http://127.0.0.1:-1", "the port is not a number 0-65535"),
         ("http://127.0.0.1:\u0668\u0660", "the port is not a number 0-65535"),  # Arabic-Indic 80
         ("http://127.0.0.1:80_80", "the port is not a number 0-65535"),
+        ("http://127.0.0.1:18080?x=1", "a query (?...) is not taken"),
+        ("http://127.0.0.1:18080/api/v1?", "a query (?...) is not taken"),
+        ("http://127.0.0.1:18080#top", "a fragment (#...) is not taken"),
+        ("http://127.0.0.1:18080/#?x", "a fragment (#...) is not taken"),
     ],
 )
 def test_a_url_that_names_no_controller_is_one_line(capsys, url, wrong):
@@ -253,6 +257,17 @@ def test_a_url_that_names_no_controller_is_one_line(capsys, url, wrong):
         assert error_line(code, err) == (
             f"--url {url!r}: {wrong}; expected http://HOST:PORT, e.g. http://127.0.0.1:8080"
         )
+
+
+@pytest.mark.parametrize("url", ["http://user:secret@127.0.0.1:18080", "http://secret@[::1]:1"])
+def test_a_url_with_user_info_is_one_line_without_the_password(capsys, url):
+    """urllib would take the user info for part of the host name ("Name or service not
+    known"); the line names it instead, and does not repeat what may be a password."""
+    argv = ["add", "--url", url, "--token", TOKEN, "--id", "a", "--get", "21", "--put", "23"]
+    line = error_line(*order(capsys, *argv)[::2])
+    assert line.startswith("--url 'http://...@")
+    assert "user info (USER:PASSWORD@) is not taken: the token is the only credential" in line
+    assert "secret" not in line
 
 
 @pytest.mark.parametrize(

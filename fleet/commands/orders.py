@@ -32,7 +32,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Callable
 from typing import Any, TypeVar
-from urllib.parse import quote, urlsplit
+from urllib.parse import SplitResult, quote, urlsplit
 
 from pydantic import BaseModel, ValidationError
 from rich.console import Console
@@ -336,24 +336,41 @@ def _json(raw: bytes) -> Any:
 
 def check_url(url: str) -> None:
     """CliError unless ``url`` can name a controller: http(s), a host, a port 0-65535 in ASCII
-    digits if any. urllib would find a bad port or bracket only when it connects, and raise
-    an exception of its own."""
+    digits if any, and nothing a request path cannot follow: the API's paths are appended
+    to it, so a query or a fragment would swallow them (``?x=1/api/v1/orders`` asks for
+    ``/``), and urllib takes user info for part of the host name. urllib would find a bad
+    port or bracket only when it connects, and raise an exception of its own."""
     expected = f"expected http://HOST:PORT, e.g. {DEFAULT_URL}"
     try:
         parts = urlsplit(url)
     except ValueError as exc:  # an unclosed "[": "Invalid IPv6 URL"
         raise CliError(f"--url {url!r}: {exc}; {expected}") from None
+    wrong = _url_problem(url, parts)
+    if wrong is None:
+        return
+    shown = url
+    if "@" in parts.netloc:  # a password in it is not repeated on the screen
+        shown = url.replace(parts.netloc.rpartition("@")[0], "...", 1)
+    raise CliError(f"--url {shown!r}: {wrong}; {expected}")
+
+
+def _url_problem(url: str, parts: SplitResult) -> str | None:
+    """What keeps ``url`` (split into ``parts``) from naming a controller; None: nothing."""
     if parts.scheme not in ("http", "https"):
-        wrong = "not http or https"
-    elif not parts.hostname:
-        wrong = "no host"
-    else:
-        try:
-            _ = parts.port  # raises unless ASCII digits 0-65535 (or none)
-            return
-        except ValueError:
-            wrong = "the port is not a number 0-65535"
-    raise CliError(f"--url {url!r}: {wrong}; {expected}")
+        return "not http or https"
+    if not parts.hostname:
+        return "no host"
+    try:
+        _ = parts.port  # raises unless ASCII digits 0-65535 (or none)
+    except ValueError:
+        return "the port is not a number 0-65535"
+    if "@" in parts.netloc:
+        return "user info (USER:PASSWORD@) is not taken: the token is the only credential"
+    if "?" in url.partition("#")[0]:
+        return "a query (?...) is not taken"
+    if "#" in url:
+        return "a fragment (#...) is not taken"
+    return None
 
 
 class _DeadlineHTTPHandler(urllib.request.HTTPHandler):
