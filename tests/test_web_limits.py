@@ -291,6 +291,18 @@ def test_a_refused_path_reaches_the_log_escaped(caplog):
     assert lines[0].isprintable()
 
 
+def test_a_line_break_in_a_refused_path_cannot_forge_a_log_line(caplog):
+    """%0a in the path is a line break once decoded: logged as it was, it would start a
+    line of the client's making."""
+    with Controller() as ctl:
+        with caplog.at_level(logging.WARNING, logger="fleet.web.guard"):
+            path = f"{API}/orders%0d%0aplc-runtime:%20error:%20forged"
+            assert ctl.call("POST", path, {}, token="wrong").status == 403
+    lines = [r.getMessage() for r in caplog.records if r.name == "fleet.web.guard"]
+    assert len(lines) == 1 and "orders\\r\\nplc-runtime: error: forged from" in lines[0]
+    assert lines[0].isprintable()
+
+
 # ----- integers and repeats ---------------------------------------------------------------------
 @pytest.mark.parametrize(
     ("method", "path", "field"),

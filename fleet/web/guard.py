@@ -46,7 +46,7 @@ import time
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
-from plc_runtime.cli import terminal_text
+from plc_runtime.cli import one_line
 from plc_runtime.throttle import LineThrottle, client_of, left_out
 
 from .gate import ScanGate
@@ -212,7 +212,7 @@ class Guard:
             "%s: refused %s %s from %s: 429, over %g requests per second",
             self.where,
             scope["method"],
-            terminal_text(scope["path"]),  # decoded: %1b would be an ESC
+            one_line(scope["path"]),  # decoded: %1b would be an ESC, %0a a forged line
             address,
             self.max_rate,
         )
@@ -243,7 +243,7 @@ class Guard:
             "%s: refused %s %s from %s: %d, %s",
             self.where,
             scope["method"],
-            terminal_text(scope["path"]),  # decoded: %1b would be an ESC
+            one_line(scope["path"]),  # decoded: %1b would be an ESC, %0a a forged line
             f"{client[0]}:{client[1]}" if client else "?",
             status,
             why,
