@@ -4,6 +4,7 @@ and the fleet's safety holds whatever it returns."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import operator
 
@@ -131,6 +132,12 @@ def test_a_timed_route_waits_for_a_vehicle_booked_before_it():
     assert "meets vehicle 2's window" in fault(free_flow(request), request, table)
 
 
+def raising():
+    """A lazy field that fails half-way."""
+    yield 0
+    raise RuntimeError("lazy")
+
+
 class Sneaky(int):
     """An int that says it is another one when converted."""
 
@@ -168,7 +175,9 @@ GOOD = ((0, 1, 2), (10.0, 11.0, 12.0), (10.0, 11.0, 16.0))  # 0 -> 1 -> 2, at to
         (line((0, True, 2), GOOD[1], GOOD[2]), "node ids (integers)"),
         (line(GOOD[0], GOOD[1], (10.0, 11.0, 10**400)), "a malformed plan (OverflowError"),
         (line((0, Sneaky(1), 2), GOOD[1], GOOD[2]), "no open arc from node 0 to node 4"),
-        (line((0, 1) * 60 + (2,), (10.0,) * 121, (10.0,) * 121), "121 nodes, more than 100"),
+        (line((0, 1) * 60 + (2,), (10.0,) * 121, (10.0,) * 121), "a plan of more than 100 nodes"),
+        (line(itertools.count(), GOOD[1], GOOD[2]), "a plan of more than 100 nodes"),
+        (line(raising(), GOOD[1], GOOD[2]), "a malformed plan (RuntimeError: lazy"),
     ],
 )
 def test_what_is_wrong_with_a_plan_is_named(plan, reason):
@@ -176,6 +185,15 @@ def test_what_is_wrong_with_a_plan_is_named(plan, reason):
     request = request_on(plant, table, 0, 2)
     assert fault(line(*GOOD), request, table) is None
     assert reason in fault(plan, request, table)
+
+
+def test_a_route_longer_than_a_plan_may_be_is_not_timed():
+    plant, table = tee(), TimeWindowTable(0.5)
+    request = request_on(plant, table, 0, 2)
+    assert done(request.timed([0, 1] * 50 + [2])) is None  # 101 nodes: one too many
+    assert done(request.timed(itertools.chain([0, 1] * 60, [2]))) is None
+    assert done(request.timed([0, 1] * 49 + [2])) is not None  # back and forth, 99 nodes
+    assert done(request.timed([0, 1, 2])) is not None
 
 
 def test_the_arc_speed_limit_holds_for_a_plan():
@@ -346,11 +364,29 @@ def test_a_planner_that_never_returns_is_cut_off_and_the_round_goes_on(monkeypat
     tw = p.traffic
     assert tw.refused >= 1
     assert tw.refused_reason == (
-        "vehicle 1: the planner ran past 2000 units of work for one plan (and on closing "
+        "vehicle 1: the planner took 2000 units of work without a plan (and on closing "
         "raised RuntimeError: generator ignored GeneratorExit)"
     )
     assert {r.vehicle for r in p.completed} - {1}
     assert 1 not in {r.vehicle for r in p.completed}
+
+
+def test_a_planner_that_answers_at_once_keeps_the_rounds_estimate_sound(monkeypatch):
+    """A round sizes itself by the work of the latest searches; a planner that returns
+    without a unit of work must not bring that estimate to nothing (it divides by it)."""
+    from blocks.traffic import tw_traffic
+
+    monkeypatch.setattr(tw_traffic, "FIRST_WORK_ESTIMATE", 1e-300)
+
+    def at_once(request: PlanRequest):
+        return None
+        yield  # a generator all the same
+
+    register_planner("at_once", at_once)
+    cfg = kiva_config(10)
+    cfg.time_windows.planner = "at_once"
+    p, seen = run_checked(cfg, 60)  # the runtime in RUN after every cycle
+    assert p.traffic.failed > 250 and p.traffic._work_per_search > 0.5
 
 
 def test_the_summary_counts_refused_plans(tmp_path, capsys):

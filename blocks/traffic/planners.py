@@ -31,7 +31,8 @@ import heapq
 import math
 import numbers
 from collections.abc import Callable, Generator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from itertools import islice
 
 import numpy as np
 
@@ -157,11 +158,12 @@ class PlanRequest:
 
     def timed(self, route: Sequence[int]) -> Generator[None, None, TimedPlan | None]:
         """The earliest timing of ``route`` (node ids from ``start``) through the free
-        windows, waiting where it must (``plan = yield from request.timed(route)``; it
-        yields once per node of the route, its work); None if the route cannot be driven
-        through them (a node taken for good, say). Route first, then schedule."""
-        route = [int(n) for n in route]
-        if not route or route[0] != self.start:
+        windows, waiting where it must (``plan = yield from request.timed(route)``; its
+        work is counted as a unit per node of the route, yielded after the timing); None if
+        the route cannot be driven through them (a node taken for good, say) or has more
+        than :func:`max_steps` nodes. Route first, then schedule."""
+        route = [int(n) for n in islice(route, max_steps(self.plant) + 1)]
+        if not route or route[0] != self.start or len(route) > max_steps(self.plant):
             return None
         pairs = list(zip(route, route[1:], strict=False))
         seconds = [self.travel_s(a, b) for a, b in pairs]
@@ -233,8 +235,8 @@ class PluggedSearch:
         self.plan: TimedPlan | None = None
         self.refused: str | None = None
         self._run: PlannerRun | None = None
-        try:
-            run = planner(request)
+        try:  # a copy: what it does to its request is not what its plan is checked against
+            run = planner(replace(request))
         except Exception as err:  # the planner's own fault, not the fleet's
             self._refuse(f"the planner raised {type(err).__name__}: {err}")
             return
@@ -263,7 +265,7 @@ class PluggedSearch:
             if budget is not None:
                 budget -= 1
             if self.expansions >= self.limit:
-                reason = f"the planner ran past {self.limit} units of work for one plan"
+                reason = f"the planner took {self.limit} units of work without a plan"
                 try:
                     run.close()
                 except Exception as err:  # it ignored the close, or its clean-up raised
@@ -299,14 +301,12 @@ def vetted(
     where the vehicle waits until it sets off) against ``table``. The values are converted
     first and the converted plan is checked, so what is checked is what is booked."""
     try:
-        plan = _plain(plan, request)
-        return (
-            (None, plan)
-            if isinstance(plan, str)
-            else _checked(plan, request, booked_until, frontier_from, table)
-        )
-    except (TypeError, ValueError, ArithmeticError, AttributeError, IndexError, KeyError) as err:
+        plain = _plain(plan, request)
+    except Exception as err:  # its fields are the planner's: whatever they do is its fault
         return None, f"a malformed plan ({type(err).__name__}: {err})"
+    if isinstance(plain, str):
+        return None, plain
+    return _checked(plain, request, booked_until, frontier_from, table)
 
 
 def _plain(plan: TimedPlan, request: PlanRequest) -> TimedPlan | str:
@@ -314,12 +314,15 @@ def _plain(plan: TimedPlan, request: PlanRequest) -> TimedPlan | str:
     rule orders visits by them, whatever the plan said); a str: what is wrong."""
     if not isinstance(plan.vehicle, numbers.Integral) or plan.vehicle != request.vehicle:
         return f"a plan for vehicle {plan.vehicle!r}, not {request.vehicle}"
-    nodes, arrive, depart = tuple(plan.nodes), tuple(plan.arrive), tuple(plan.depart)
+    limit = max_steps(request.plant)
+    # at most one more than allowed is read: a field may be a generator without end
+    nodes, arrive, depart = (
+        tuple(islice(f, limit + 1)) for f in (plan.nodes, plan.arrive, plan.depart)
+    )
+    if len(nodes) > limit:
+        return f"a plan of more than {limit} nodes"
     if not nodes or not len(nodes) == len(arrive) == len(depart):
         return "nodes, arrive and depart must be of one length, at least 1"
-    limit = max_steps(request.plant)
-    if len(nodes) > limit:
-        return f"a plan of {len(nodes)} nodes, more than {limit}"
     if not all(isinstance(n, numbers.Integral) and not isinstance(n, bool) for n in nodes):
         return "its nodes must be node ids (integers)"
     if not all(_number(t) for t in (*arrive, *depart)):
@@ -383,6 +386,13 @@ def _checked(
     except WindowConflict as err:
         return None, str(err)
     return plan, None
+
+
+def check_units(plan: TimedPlan | None) -> int:
+    """What checking and booking ``plan`` costs, in units of the round's budget (a unit per
+    ten nodes, as the round counts the visits it books): charged to the planner's scan, so
+    that one-yield planners returning long plans do not make a scan long."""
+    return 0 if plan is None else -(-len(plan.nodes) // 10)
 
 
 def max_steps(plant: Plant) -> int:

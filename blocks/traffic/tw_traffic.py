@@ -97,6 +97,7 @@ from .planners import (
     PlanRequest,
     PluggedSearch,
     WindowView,
+    check_units,
     planner_names,
     plugged_planner,
     vetted,
@@ -239,7 +240,9 @@ class TimeWindowTraffic(FunctionBlock):
         self.wait_free_ns = round(wait_free_s * 1e9)
         self.wait_occupied_ns = round(wait_occupied_s * 1e9)
         self._waits_handled: dict[int, int] = {}  # vehicle -> the wait it was replanned for
-        self._failing_since: dict[int, float] = {}  # vehicle -> first failed plan in a row
+        # vehicle -> the round of its first failed plan in a row (a round that ends with a
+        # plan for it ends the row)
+        self._failing_since: dict[int, float] = {}
         self.stranded_at: dict[int, int] = {}  # stranded vehicle -> the node it stands on
         # how long a plan keeps its goal: until the next round at least, which books the
         # vehicle standing there for good if it stays (a vehicle that only keeps its goal
@@ -965,10 +968,13 @@ class TimeWindowTraffic(FunctionBlock):
             self.expansions += search.expansions - before
             if search.done:
                 self._search = None
-                self._work_per_search += 0.1 * (search.work - self._work_per_search)
+                # at least a unit a search: searches that do no work (a plugged planner
+                # that answers at once) must not bring the estimate to nothing
+                self._work_per_search += 0.1 * (max(search.work, 1) - self._work_per_search)
                 plan = search.plan
                 if isinstance(search, PluggedSearch):
                     plan = self._checked(search)
+                    budget -= check_units(plan)
                 if plan is not None and len(plan.nodes) > 1 and plan.claims[1] >= self._until:
                     # it only waits where it is until the cut-off: no plan. Taken as one,
                     # every vehicle in a jam would wait for the cut-off, round after round
@@ -1080,7 +1086,8 @@ class TimeWindowTraffic(FunctionBlock):
             self._failing_since.setdefault(v, self._t0)
             self._stand(entry)
             return
-        self._failing_since.pop(v, None)
+        # whether it is failing still is the swap's to say: a plan made here may yet be
+        # dropped to let another vehicle get away, and its failing clock must not restart
         claims = plan.claims
         last = self._last_booked(plan)
         entry.hold_end = entry.ends[-1]
@@ -1223,8 +1230,9 @@ class TimeWindowTraffic(FunctionBlock):
         self._labels = labels_of
         self._limit = {}
         for v in list(self._failing_since):
-            if v not in self._late:
-                del self._failing_since[v]  # not planned this round (it stays, or is kept)
+            # not planned this round (it stays, or is kept), or planned in the end
+            if v not in self._late or self._made.get(v) is not None:
+                del self._failing_since[v]
         self.stranded_at = {
             v: self._entries[v].committed[-1]
             for v, since in self._failing_since.items()
