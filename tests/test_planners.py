@@ -425,3 +425,22 @@ def test_what_a_planner_is_given_cannot_change_what_the_others_are_given():
     assert len(tried) >= 40 and p.traffic.refused == 0, p.traffic.refused_reason
     row = p.table.row(p.cfg.clusters[2][0])
     assert float(row.min()) >= 0.0
+
+
+def test_a_vehicle_that_finds_no_plan_round_after_round_is_reported_stranded():
+    """Route first on 60 kiva vehicles jams: plans are made, dropped for vehicles they box
+    in (give way), and fail again. A vehicle whose every round ends without a plan is
+    reported (FAULT event, summary ``traffic.stranded``) after ``wait_occupied_s``,
+    however many plans it was given and lost meanwhile."""
+    register_planner("route_first", shortest_then_timed)
+    cfg = kiva_config(60)
+    cfg.time_windows.planner = "route_first"
+    p = FleetProgram(cfg)
+    try:
+        p.rt.start()
+        p.rt.run(duration=75)
+        tw = p.traffic
+        assert tw.give_ways > 100 and tw.stranded_at
+        assert any(e.kind == "vehicle" and "FAULT" in e.text for e in p.events.events)
+    finally:
+        p.close()
