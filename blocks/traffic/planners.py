@@ -14,12 +14,12 @@ unit of its work (an expansion, say), so the round advances it a bounded number 
 per scan, like the built-in search, and returns a :class:`TimedPlan` or None (no plan: the
 vehicle stands until the next round).
 
-What the program trusts it with is checked before anything is booked
-(:func:`plan_fault`): the plan must start where and when the request says, use open arcs
-only, be no faster than the vehicle (speed limits and turns included), and its windows up
-to the round's horizon must keep the table's rules against every vehicle planned before it.
-A plan that breaks one, a planner that raises, returns something else or runs past
-:func:`work_limit` units, is refused (counted, with the first reason, in the summary's
+What the program trusts it with is converted and checked before anything is booked
+(:func:`vetted`): the plan must start where and when the request says and end at the goal,
+be at most :func:`max_steps` long, use open arcs only, be no faster than the vehicle (speed
+limits and turns included), and its windows up to the round's horizon must keep the
+table's rules against every vehicle planned before it. A plan that breaks one, a planner
+that raises, returns something else or uses up :func:`work_limit` units, is refused (counted, with the first reason, in the summary's
 ``traffic.refused_plans``) and its vehicle stands as if no plan was found; the fleet runs
 on. The release rule and the reservations hold whatever a plan says, as for the built-in
 planner: no plan can put two vehicles on one node or make them meet head-on.

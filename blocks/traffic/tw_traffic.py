@@ -1034,7 +1034,7 @@ class TimeWindowTraffic(FunctionBlock):
         )
 
     def _checked(self, search: PluggedSearch) -> TimedPlan | None:
-        """A plugged planner's plan, if the program may take it (:func:`plan_fault`);
+        """A plugged planner's plan as the program books it, if it may take it (:func:`vetted`);
         None, counted with its reason, if not."""
         fault, plan = search.refused, search.plan
         if plan is not None:
