@@ -5,8 +5,6 @@
 - ``blocks.traffic``: the scheduler of shared space: node reservations, per-vehicle control,
   deadlock resolution, and the record views through which they see the vehicles.
 - ``blocks.jobs``: what vehicles are sent to do: the recipe sequencer and station choice.
-- ``blocks.plugins``: the one rule by which a user's own dispatch strategy or time-window
-  planner is registered under a name.
 
 Dependencies point one way: ``routing`` needs only the standard library, ``traffic`` uses
 ``routing``, ``jobs`` uses both.

@@ -28,7 +28,7 @@ import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
-from blocks.plugins import register
+from plc_runtime.registry import register
 
 from .estimates import SectionEstimates
 from .orders import TransportOrder

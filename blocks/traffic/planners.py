@@ -36,7 +36,7 @@ from itertools import islice
 
 import numpy as np
 
-from blocks.plugins import register
+from plc_runtime.registry import register
 from topology import Plant
 
 from .sipp import ArcGeometry, TimedPlan, TurnTimes, time_route

@@ -1,5 +1,5 @@
-"""What a user plugs into the fleet's blocks by name (a dispatch strategy, a time-window
-planner): one rule for registering, so that every kind behaves the same."""
+"""Registries of what a user plugs in by name (a function of one's own that a configuration
+then names): one rule for registering, so that every kind of plug-in behaves the same."""
 
 from __future__ import annotations
 
