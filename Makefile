@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --plant kiva --sizes 60 --timesteps 300 --traffic reactive time_windows --delay-rate 0 0.001 0.01
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/order_backlog.py
+	$(BIN)/python bench/long_run.py
 	$(BIN)/python bench/time_windows.py
 	$(BIN)/python bench/windowed_search.py
 	$(BIN)/python bench/lorr.py
@@ -55,6 +56,7 @@ bench-quick: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --quick
 	$(BIN)/python bench/allocation.py --quick
 	$(BIN)/python bench/order_backlog.py --quick
+	$(BIN)/python bench/long_run.py --quick
 	$(BIN)/python bench/time_windows.py --quick
 	$(BIN)/python bench/windowed_search.py --quick
 	$(BIN)/python bench/lorr.py --quick

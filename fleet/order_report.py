@@ -3,8 +3,9 @@ waiting times, charging, and the per-order history CSV (the seed's section times
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
-from statistics import mean
 from typing import TYPE_CHECKING, Any
 
 from blocks.dispatch.order_file import write_history
@@ -34,30 +35,75 @@ def waiting_s(order: TransportOrder) -> float:
     return total
 
 
+@dataclass
+class OrderTotals:
+    """What the summary reports of a set of orders, summed, so that orders that have left
+    the book (``OrderBook.sweep``) still count: a month-long run's summary covers the month
+    while its book holds only the last day."""
+
+    finished: int = 0
+    timed: int = 0  # finished orders with an execution time
+    execution_s: float = 0.0
+    waiting_s: float = 0.0
+    makespan_s: float | None = None
+    station_use: dict[int, tuple[int, float]] = field(default_factory=dict)
+
+    def add(self, orders: Iterable[TransportOrder]) -> OrderTotals:
+        for order in orders:
+            for name, station in (("Get", order.get), ("Put", order.put)):
+                times = order.sections.get(name)
+                if times is not None and len(times) == 2:
+                    visits, busy = self.station_use.get(station, (0, 0.0))
+                    self.station_use[station] = (visits + 1, busy + times[1] - times[0])
+            if order.state is not OrderState.FINISHED:
+                continue
+            self.finished += 1
+            self.waiting_s += waiting_s(order)
+            if (t := execution_s(order)) is not None:
+                self.timed += 1
+                self.execution_s += t
+            end = order.finished_s
+            if end is not None and (self.makespan_s is None or end > self.makespan_s):
+                self.makespan_s = end
+        return self
+
+    def merged(self, other: OrderTotals) -> OrderTotals:
+        out = OrderTotals(
+            self.finished + other.finished,
+            self.timed + other.timed,
+            self.execution_s + other.execution_s,
+            self.waiting_s + other.waiting_s,
+            max((t for t in (self.makespan_s, other.makespan_s) if t is not None), default=None),
+            dict(self.station_use),
+        )
+        for station, (visits, busy) in other.station_use.items():
+            v, b = out.station_use.get(station, (0, 0.0))
+            out.station_use[station] = (v + visits, b + busy)
+        return out
+
+
+def run_totals(system: OrderSystem) -> OrderTotals:
+    """The totals of every order of the run: those in the book and those swept from it."""
+    return OrderTotals().add(system.book).merged(system.swept)
+
+
 def station_use(system: OrderSystem) -> dict[int, tuple[int, float]]:
     """Per station: the transport orders' finished visits (Get and Put dwells) and the
     seconds they took, for the summary's ``station_utilisation``."""
-    use: dict[int, tuple[int, float]] = {}
-    for order in system.book:
-        for name, station in (("Get", order.get), ("Put", order.put)):
-            times = order.sections.get(name)
-            if times is not None and len(times) == 2:
-                visits, busy = use.get(station, (0, 0.0))
-                use[station] = (visits + 1, busy + times[1] - times[0])
-    return use
+    return run_totals(system).station_use
 
 
 def order_summary(system: OrderSystem) -> dict[str, Any]:
-    finished = [o for o in system.book if o.state is OrderState.FINISHED]
-    times = [t for o in finished if (t := execution_s(o)) is not None]
+    totals = run_totals(system)
     runners = system.runners.values()
     d = system.dispatcher
     return {
         "orders": system.book.counts(),
         "orders_pending_release": len(system.intake.pending),
-        "mean_order_time_s": round(mean(times), 3) if times else None,
-        "station_wait_s": round(mean(waiting_s(o) for o in finished), 3) if finished else None,
-        "makespan_s": round(max(o.finished_s for o in finished), 3) if finished else None,
+        "orders_swept": system.book.swept,
+        "mean_order_time_s": round(totals.execution_s / totals.timed, 3) if totals.timed else None,
+        "station_wait_s": round(totals.waiting_s / totals.finished, 3) if totals.finished else None,
+        "makespan_s": round(totals.makespan_s, 3) if totals.makespan_s is not None else None,
         "dispatch": {
             "strategy": d.strategy,
             "rounds": d.rounds,

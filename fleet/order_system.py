@@ -12,7 +12,9 @@ the book behind the scan's back. Whatever a request raises while it is taken in 
 request's answer, never a fault of the scan.
 
 The intake's work per scan is bounded (a scan has a watchdog): an order file of 100,000
-orders due at once is released ``RELEASE_BUDGET`` orders a scan, in the feed's order.
+orders due at once is released ``RELEASE_BUDGET`` orders a scan, in the feed's order,
+and final orders leave the book ``keep_final_s`` after they became final,
+``SWEEP_BUDGET`` a scan, their totals kept for the summary.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from blocks.dispatch.executor import Claims, OrderRunner, area_entries
 from blocks.dispatch.generator import OrderFeed, generate_orders
 from blocks.dispatch.order_file import located_orders
 from blocks.dispatch.orders import (
+    KEEP_FINAL_S,
     OrderBook,
     OrderError,
     TransportOrder,
@@ -45,6 +48,7 @@ from plc_runtime.errors import ConfigError
 from topology import Plant
 
 from .config import FleetConfig
+from .order_report import OrderTotals
 
 # configured orders released, and outside requests decided, per scan at most: an add costs
 # some 5 us (500 take about 2.5 ms), so releasing 100,000 orders due at once keeps every
@@ -59,6 +63,10 @@ MAX_WAITING = 100_000
 # orders as fast as its rate allows, and each open order costs memory and the dispatcher's
 # indexes; the run's own orders (file, generator) are never refused for it
 MAX_OPEN_ORDERS = 100_000
+# final orders swept from the book per scan at most: removing one costs a few microseconds,
+# and the seed's distribution centre finishes an order every 9 s, so the sweep keeps up
+# with any plant while a day's orders turning final at once do not stretch a scan
+SWEEP_BUDGET = 100
 
 
 def order_stations(plant: Plant) -> dict[int, str]:
@@ -111,7 +119,8 @@ def order_book(cfg: FleetConfig) -> OrderBook:
     """An empty book for the configuration: an intended vehicle must take orders (a vehicle
     that runs recipes never takes one, so its order would wait for ever)."""
     recipes = [v for v in cfg.starts if v not in cfg.order_vehicles]
-    return OrderBook(order_stations(cfg.plant), cfg.order_vehicles, recipes)
+    keep = cfg.orders.keep_final_s if cfg.orders else KEEP_FINAL_S
+    return OrderBook(order_stations(cfg.plant), cfg.order_vehicles, recipes, keep)
 
 
 def _fresh(order: TransportOrder) -> TransportOrder:
@@ -122,7 +131,8 @@ def _fresh(order: TransportOrder) -> TransportOrder:
 
 class OrderIntake(FunctionBlock):
     """Puts orders into the book: the released ones of the feed, and those submitted or
-    withdrawn from outside the scan (applied here, at the start of the program's scan).
+    withdrawn from outside the scan (applied here, at the start of the program's scan), and
+    takes out the final orders whose time in the book is up, adding them to ``swept``.
 
     At most ``budget`` released orders and ``budget`` requests a scan: the rest wait, in
     their order, for the next scans, so no number of orders due at once stretches a scan."""
@@ -133,6 +143,7 @@ class OrderIntake(FunctionBlock):
         feed: OrderFeed,
         configured: Iterable[TransportOrder] = (),
         budget: int = RELEASE_BUDGET,
+        swept: OrderTotals | None = None,
     ) -> None:
         super().__init__()
         if budget < 1:
@@ -140,12 +151,14 @@ class OrderIntake(FunctionBlock):
         self.book = book
         self.feed = feed
         self.budget = budget
+        self.swept = swept if swept is not None else OrderTotals()
         # the configured orders not released yet: their ids are taken, and the operator may
         # withdraw them before they are released
         self.pending: dict[str, TransportOrder] = {o.id: o for o in configured}
         self.requests: queue.SimpleQueue = queue.SimpleQueue()
 
     def cycle(self, ctx: CycleContext) -> None:
+        self.swept.add(self.book.sweep(ctx.time, SWEEP_BUDGET))
         for order in self.feed.due(ctx.time, self.budget):
             if self.pending.pop(order.id, None) is not None:  # else withdrawn before release
                 self.book.add(_fresh(order), ctx.time)  # checked against the plant at start
@@ -207,7 +220,8 @@ class OrderSystem:
         self.book = order_book(cfg)
         configured = configured_orders(cfg)
         self.feed = OrderFeed(configured, cfg.orders.lead_s if cfg.orders else 0.0)
-        self.intake = OrderIntake(self.book, self.feed, configured)
+        self.swept = OrderTotals()  # the orders that have left the book
+        self.intake = OrderIntake(self.book, self.feed, configured, swept=self.swept)
         # why a request would never be answered now (None: it will be); its owner sets it
         self.refusal: Callable[[], str | None] = lambda: None
         self.claims = Claims(occupied)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from blocks.dispatch.charging import ChargePolicy
 from blocks.dispatch.generator import SEED_RELATIONS, WINDOW_S, Relation, order_counts
+from blocks.dispatch.orders import KEEP_FINAL_S
 from blocks.dispatch.strategies import strategy_names
 from plc_runtime.errors import ConfigError
 from topology import Plant
@@ -39,6 +40,7 @@ class OrdersConfig:
     file: Path | None = None
     generator: GeneratorConfig | None = None
     lead_s: float = 600.0  # an order is known this long before its start (the seed's WMS)
+    keep_final_s: float = KEEP_FINAL_S  # a final order leaves the book this long after
 
 
 @dataclass
@@ -76,6 +78,8 @@ class BatteryConfig:
 def parse_orders(reader: TableReader, base: Path, plant: Plant) -> OrdersConfig:
     file = reader.get("file", str, None)
     lead = reader.number("lead_s", 600.0, 0.0, 1e7)
+    given_keep = "keep_final_s" in reader.table
+    keep = reader.number("keep_final_s", KEEP_FINAL_S, 0.0, 1e9)
     table = reader.get("generator", dict, None)
     reader.finish()
     path = None
@@ -86,9 +90,11 @@ def parse_orders(reader: TableReader, base: Path, plant: Plant) -> OrdersConfig:
     generator = None
     if table is not None:
         generator = _generator(TableReader(reader.source, table, "orders.generator."), plant)
-    if path is None and generator is None:
-        raise reader.fail("file", "give orders.file, [orders.generator], or both")
-    return OrdersConfig(path, generator, lead)
+    if path is None and generator is None and not given_keep:
+        raise reader.fail(
+            "file", "give orders.file, [orders.generator], or both (or only keep_final_s)"
+        )
+    return OrdersConfig(path, generator, lead, keep)
 
 
 def _generator(r: TableReader, plant: Plant) -> GeneratorConfig:

@@ -99,14 +99,17 @@ def test_list_pages_and_show_agree_with_the_book(ctl):
             "reason",
             "history",
             "sections",
+            "position",
         }
         assert order["history"][0]["state"] == "RAW" and order["get"] in STATIONS
+    assert [o["position"] for o in everything] == list(range(len(everything)))
+    assert first.body["added"] == len(everything) == first.body["next_offset"]
     paged = [
         o["id"]
         for k in range(len(everything))
         for o in ctl.call("GET", f"{ORDERS}?offset={k}&limit=1").body["orders"]
     ]
-    assert paged == [o["id"] for o in everything]  # the book only grows: pages never shift
+    assert paged == [o["id"] for o in everything]  # by position: pages never shift
     beyond = ctl.call("GET", f"{ORDERS}?offset=100000").body
     assert beyond["orders"] == [] and beyond["offset"] == 100000
 

@@ -340,6 +340,7 @@ class _RawServer:
         self.url = f"http://127.0.0.1:{self.listener.getsockname()[1]}"
         self.stop = threading.Event()
         self.threads = [threading.Thread(target=self._accept)]
+        self.requests: list[bytes] = []  # each request's head, in the order they came
 
     def __enter__(self) -> _RawServer:
         self.threads[0].start()
@@ -371,6 +372,7 @@ class _RawServer:
                     if not chunk:
                         return
                     request += chunk
+                self.requests.append(request)
                 self.respond(conn, self.stop)
             except OSError:
                 pass  # the command gave up and closed: as intended
@@ -396,19 +398,27 @@ def _answered(capsys, body: object, *argv: str) -> tuple[int, str, str]:
 def _answer_order(**changes: object) -> dict:
     base = {"id": "o1", "get": 21, "put": 23, "start_s": 0, "end_s": None, "priority": 0,
             "vehicle": None, "state": "RAW", "assigned": None, "reason": "", "history": [],
-            "sections": {}}  # fmt: skip
+            "sections": {}, "position": 0}  # fmt: skip
     return base | changes
 
 
 @pytest.mark.parametrize(
     ("argv", "body", "where"),
     [
-        (["list"], {"orders": [{}], "total": 1, "offset": 0}, "orders.0.id: Field required"),
+        (
+            ["list"],
+            {"orders": [{}], "total": 1, "offset": 0, "next_offset": 1, "added": 1},
+            "orders.0.id: Field required",
+        ),
         (["list"], [1, 2], "the answer: Input should be a valid dictionary"),
         (["list"], {"orders": "x", "total": "y", "offset": 0}, "total: Input should be"),
         (["show", "o1"], {"id": "o1"}, "get: Field required"),
         (["show", "o1"], _answer_order(history=[{"time_s": "soon"}]), "history.0.time_s: "),
-        (["list", "--json"], {"orders": [{}], "total": 1, "offset": 0}, "orders.0.id: "),
+        (
+            ["list", "--json"],
+            {"orders": [{}], "total": 1, "offset": 0, "next_offset": 1, "added": 1},
+            "orders.0.id: ",
+        ),
     ],
 )
 def test_an_answer_that_is_not_the_apis_is_one_line(capsys, argv, body, where):
@@ -430,7 +440,7 @@ def test_control_characters_in_an_answer_do_not_reach_the_terminal(capsys):
     printed as an escape: it cannot recolour, retitle or reorder the operator's screen."""
     hostile = _answer_order(id="\x1b]0;pwned\x07x", reason="late \u202ereversed\x1b[2J")
     for argv in (["list"], ["show", "o1"]):
-        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0}
+        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0, "next_offset": 1, "added": 1}
                                    if argv == ["list"] else hostile, *argv)  # fmt: skip
         assert (code, err) == (0, "")
         assert "\x1b" not in out and "\u202e" not in out and "\x07" not in out
@@ -442,7 +452,7 @@ def test_line_breaks_in_an_answer_do_not_start_table_lines(capsys):
     as its escape, so it cannot start a forged row in ``order list`` or ``order show``."""
     hostile = _answer_order(id="a\nFORGED", reason="r\r\nFORGED\u2028FORGED")
     for argv in (["list"], ["show", "o1"]):
-        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0}
+        code, out, err = _answered(capsys, {"orders": [hostile], "total": 1, "offset": 0, "next_offset": 1, "added": 1}
                                    if argv == ["list"] else hostile, *argv)  # fmt: skip
         assert (code, err) == (0, "")
         assert "r\\r\\nFORGED\\u2028FORGED" in out, out
@@ -491,14 +501,15 @@ def test_an_added_orders_line_cannot_be_forged(capsys):
 @pytest.mark.parametrize(
     ("page", "where"),
     [
-        ({"orders": [_answer_order()], "total": 10**18, "offset": 0}, "a page of 1 orders from offset 0"),
-        ({"orders": [], "total": 10, "offset": 0}, "a page of 0 orders from offset 0"),
-        ({"orders": [_answer_order()], "total": 1, "offset": 7}, "a page of 1 orders from offset 7"),
+        ({"orders": [_answer_order()] * 2, "total": 9, "offset": 0, "next_offset": 0, "added": 9}, "a page of 2 orders from offset 0, the next at 0"),
+        ({"orders": [_answer_order()] * 3, "total": 9, "offset": 0, "next_offset": 3, "added": 9}, "a page of 3 orders from offset 0"),
+        ({"orders": [_answer_order()], "total": 1, "offset": 7, "next_offset": 8, "added": 8}, "a page of 1 orders from offset 7"),
     ],
 )  # fmt: skip
-def test_list_stops_at_pages_that_do_not_add_up(capsys, page, where):
-    """A server claiming a huge book but sending one order a page (or a page from elsewhere)
-    cannot keep ``list`` paging for ever: every page but the last must be full."""
+def test_list_stops_at_pages_that_do_not_add_up(capsys, monkeypatch, page, where):
+    """A server whose full pages do not move the offset on (it would keep ``list`` paging
+    for ever), a page larger than asked, or a page from elsewhere: one line naming it."""
+    monkeypatch.setattr(order_cli, "PAGE", 2)
     assert where in error_line(*_answered(capsys, page, "list")[::2])
 
 
@@ -512,7 +523,17 @@ def test_list_reads_at_most_its_limit(capsys, monkeypatch):
         offset = 2 * (pages.served - 1)
         orders = [_answer_order(id=f"o{offset + k}") for k in range(2)]
         conn.sendall(
-            _http(json.dumps({"orders": orders, "total": 10**9, "offset": offset}).encode())
+            _http(
+                json.dumps(
+                    {
+                        "orders": orders,
+                        "total": 10**9,
+                        "offset": offset,
+                        "next_offset": offset + 2,
+                        "added": 10**9,
+                    }
+                ).encode()
+            )
         )
 
     pages.served = 0
@@ -710,7 +731,7 @@ def test_the_order_list_keeps_ids_and_states_whole_on_a_narrow_terminal():
     def order(oid, state, reason=""):
         return OrderOut(
             id=oid, get=25, put=26, start_s=15.0, end_s=400.0, priority=0, vehicle=None,
-            state=state, assigned=1, reason=reason, history=[], sections={},
+            state=state, assigned=1, reason=reason, history=[], sections={}, position=0,
         )  # fmt: skip
 
     orders = [
@@ -722,3 +743,25 @@ def test_the_order_list_keeps_ids_and_states_whole_on_a_narrow_terminal():
     text = console.export_text()
     for whole in ("paint-1", "paint-2", "BEING_PROCESSED", "FINISHED"):
         assert whole in text
+
+
+def test_list_pages_on_from_next_offset_over_orders_that_have_left_the_book(capsys, monkeypatch):
+    """Positions of orders that left the book are gaps: ``list`` asks from each page's
+    ``next_offset`` and shows every order once."""
+    monkeypatch.setattr(order_cli, "PAGE", 2)
+    book = {0: "a", 1: "b", 5: "c", 6: "d", 9: "e"}  # position -> id; the rest were swept
+    asked = []
+
+    def pages(conn: socket.socket, stop: threading.Event) -> None:
+        offset = int(server.requests[-1].decode().split("offset=")[1].split("&")[0])
+        asked.append(offset)
+        held = [p for p in sorted(book) if p >= offset][:2]
+        body = {"orders": [_answer_order(id=book[p]) for p in held], "total": len(book),
+                "offset": offset, "next_offset": held[-1] + 1 if held else offset, "added": 10}  # fmt: skip
+        conn.sendall(_http(json.dumps(body).encode()))
+
+    with _RawServer(pages) as server:
+        code, out, err = order(capsys, "list", "--json", "--url", server.url)
+    assert (code, err) == (0, ""), err
+    assert [o["id"] for o in json.loads(out)] == ["a", "b", "c", "d", "e"]
+    assert asked == [0, 2, 7]

@@ -527,7 +527,13 @@ def test_the_feed_copies_nothing_while_nobody_listens():
 def test_a_recipe_fleet_is_served_and_refuses_orders():
     with Controller(config=RECIPES_ONLY) as ctl:
         assert len(ctl.call("GET", f"{API}/vehicles").body) == len(ctl.program.vehicles)
-        assert ctl.call("GET", f"{API}/orders").body == {"total": 0, "offset": 0, "orders": []}
+        assert ctl.call("GET", f"{API}/orders").body == {
+            "total": 0,
+            "offset": 0,
+            "orders": [],
+            "next_offset": 0,
+            "added": 0,
+        }
         assert ctl.call("GET", f"{API}/orders/x").status == 404
         added = ctl.call("POST", f"{API}/orders", {"id": "a", "get": 1, "put": 2}, token=TOKEN)
         assert added.status == 409 and "no vehicle of this run takes" in added.body["error"]

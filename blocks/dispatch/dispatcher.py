@@ -548,11 +548,11 @@ class Dispatcher(FunctionBlock):
 
     def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:
         """Each Get station's supply rate: the orders it has had so far per hour. The count
-        is kept up to date with the orders added since the last round (the book only grows),
-        so a round costs the new orders, not the run's whole book."""
-        for order in self.book.page(self._supply_counted, len(self.book) - self._supply_counted):
+        is kept up to date with the orders added since the last round (by position, which
+        never changes), so a round costs the new orders, not the run's whole book."""
+        for order in self.book.page(self._supply_counted, self.book.added - self._supply_counted):
             self._supply[order.get] += 1
-        self._supply_counted = len(self.book)
+        self._supply_counted = self.book.added
         hours = max(ctx.time / 3600.0, 1.0 / 60.0)
         for station, n in self._supply.items():
             s = self.stats.setdefault(station, StationStats(pickups_s=[]))

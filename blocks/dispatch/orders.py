@@ -26,6 +26,7 @@ transition is time-stamped in the order's ``history`` with the time the caller p
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -36,6 +37,10 @@ import numpy as np
 from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
+# a controller that runs for months takes some 10,000 orders a day: a final order leaves the
+# book a day after it became final by default, so the book holds about a day of orders, not
+# the whole run (openTCS sweeps its order pool of old final orders the same way)
+KEEP_FINAL_S = 86400.0
 MAX_ID_CHARS = 64  # ids are shown in messages, the dashboard and the history CSV
 FORMULA_STARTS = frozenset("=+-@")  # what a spreadsheet reads a cell beginning with as a formula
 # integers (stations, priority, vehicle) have at most the digits an order file reads, so
@@ -133,6 +138,7 @@ class TransportOrder:
     sections: dict[str, list[float]] = field(default_factory=dict)  # name -> [start, end]
     assigned: int | None = None  # the vehicle that has it
     reason: str = ""  # why the last transition happened (FAILED, WITHDRAWN, taken back ...)
+    position: int = -1  # the orders added to the book before it (-1: not in a book yet)
 
     @property
     def created_s(self) -> float | None:
@@ -270,6 +276,7 @@ def order_copy(order: TransportOrder) -> TransportOrder:
         {name: list(times) for name, times in order.sections.items()},
         order.assigned,
         order.reason,
+        order.position,
     )
 
 
@@ -277,8 +284,12 @@ class OrderBook:
     """The pool of orders of a run, open and final: the dispatcher takes orders from it, the
     executors record their progress in it, reports read it.
 
-    Final orders stay in the book, so an id is never used twice in a run and the history
-    can be written at the end (docs/orders.md, "Size limits").
+    A final order stays in the book for ``keep_final_s`` after it became final, then
+    :meth:`sweep` removes it, so a controller that runs for months holds the orders of the
+    last ``keep_final_s``, not of the whole run (docs/orders.md, "Size limits"). Until then
+    its id cannot be used again, and the history written at the end holds it. Each order
+    has a position, the count of orders added before it, which never changes: pages of the
+    book are by position, so a page does not shift when older orders leave.
     """
 
     def __init__(
@@ -286,6 +297,7 @@ class OrderBook:
         stations: Mapping[int, str],
         vehicles: Iterable[int] | None = None,
         recipe_vehicles: Iterable[int] = (),
+        keep_final_s: float = KEEP_FINAL_S,
     ) -> None:
         """``stations``: the valid Get/Put stations (node id -> name for messages);
         ``vehicles``: the ids of the vehicles that take orders, if intended vehicles are to
@@ -294,10 +306,18 @@ class OrderBook:
         self.stations = dict(stations)
         self.vehicles = None if vehicles is None else frozenset(vehicles)
         self.recipe_vehicles = frozenset(recipe_vehicles)
+        if not (isinstance(keep_final_s, int | float) and keep_final_s >= 0):
+            raise ValueError(f"keep_final_s must be a number of seconds >= 0, got {keep_final_s!r}")
+        self.keep_final_s = float(keep_final_s)
         self._orders: dict[str, TransportOrder] = {}
-        # the same orders in the order added: orders never leave the book, so an order's
-        # position never changes and a page of the book is a slice of this list
-        self._added: list[TransportOrder] = []
+        self.added = 0  # orders ever added: the next order's position
+        self.swept = 0  # final orders that have left the book
+        # the positions of the orders in the book, ascending, and the order at each: a page
+        # is a slice from a bisection, so it costs the orders it holds, whatever the offset
+        self._positions: list[int] = []
+        self._at: dict[int, TransportOrder] = {}
+        # (time it became final, id), oldest first: what the sweep removes next
+        self._final: deque[tuple[float, str]] = deque()
         # the DISPATCHABLE ones, in the order added: a scan asks for them every cycle, and a
         # long run's book is mostly final orders
         self._dispatchable: dict[str, TransportOrder] = {}
@@ -336,7 +356,10 @@ class OrderBook:
             )
         _check_time(order, now_s)
         self._orders[oid] = order
-        self._added.append(order)
+        order.position = self.added
+        self._positions.append(self.added)
+        self._at[self.added] = order
+        self.added += 1
         self._counts[order.state.value] += 1
         order.history.append((now_s, OrderState.RAW))
         if withdrawn is None:
@@ -373,12 +396,29 @@ class OrderBook:
         return len(self._orders)
 
     def page(self, offset: int, limit: int) -> list[TransportOrder]:
-        """Orders ``offset`` .. ``offset + limit - 1`` in the order added (fewer at the end).
-        A slice: it costs the orders it holds, not the offset, so a page deep in a long run's
-        book costs a scan no more than the first one."""
+        """The first ``limit`` orders of the book at position ``offset`` or later, in the
+        order added (fewer at the end; orders that have left the book are skipped). A slice
+        after a bisection: it costs the orders it holds, not the offset, so a page deep in a
+        long run's book costs a scan no more than the first one."""
         if offset < 0 or limit < 0:
             raise ValueError(f"a page needs offset >= 0 and limit >= 0, got {offset}, {limit}")
-        return self._added[offset : offset + limit]
+        first = bisect_left(self._positions, offset)
+        return [self._at[p] for p in self._positions[first : first + limit]]
+
+    def sweep(self, now_s: float, budget: int) -> list[TransportOrder]:
+        """Remove at most ``budget`` orders that have been final for ``keep_final_s`` by
+        ``now_s``, oldest first, and return them (for totals kept beyond the book). Their
+        ids can be used again; counts() still counts them."""
+        out: list[TransportOrder] = []
+        until = now_s - self.keep_final_s
+        while self._final and len(out) < budget and self._final[0][0] <= until:
+            _, oid = self._final.popleft()
+            order = self._orders.pop(oid)
+            del self._positions[bisect_left(self._positions, order.position)]
+            del self._at[order.position]
+            self.swept += 1
+            out.append(order)
+        return out
 
     def dispatchable(self) -> list[TransportOrder]:
         """Orders waiting for a vehicle: DISPATCHABLE and not assigned, in the order they
@@ -401,7 +441,8 @@ class OrderBook:
         if self.revision - revision > len(self._changed):
             return None
         newest_first = dict.fromkeys(oid for rev, oid in reversed(self._changed) if rev > revision)
-        return [self._orders[oid] for oid in reversed(newest_first)]
+        # an order swept since is no longer in the book; an id used again names the new order
+        return [self._orders[oid] for oid in reversed(newest_first) if oid in self._orders]
 
     # ----- the life cycle ------------------------------------------------------------------
     def transition(
@@ -431,6 +472,8 @@ class OrderBook:
             self._dispatchable[order.id] = order
         else:
             self._dispatchable.pop(order.id, None)
+        if state.final:
+            self._final.append((now_s, order.id))
 
     # ----- sections ------------------------------------------------------------------------
     def start_section(self, order: TransportOrder, name: str, now_s: float) -> None:

@@ -180,25 +180,30 @@ class Api:
         self._read = 0  # bytes of answers read by this Api
 
     def all_orders(self) -> list[OrderOut]:
-        """Every order, page by page (the book only grows, so pages do not shift). Each page
-        must start where the last ended and be full unless it is the last, and all of them
-        hold at most MAX_LIST_BYTES: a server that is not the API cannot keep the command
-        paging for ever."""
+        """Every order in the book, page by page (pages are by position, which never
+        changes, so they do not shift when old orders leave the book). Each page must
+        answer the offset asked, hold at most PAGE orders and, unless it is the last (not
+        full), move the offset on; all of them hold at most MAX_LIST_BYTES: a server that is
+        not the API cannot keep the command paging for ever."""
         orders: list[OrderOut] = []
+        offset = 0
         while True:
-            path = f"/orders?offset={len(orders)}&limit={PAGE}"
+            path = f"/orders?offset={offset}&limit={PAGE}"
             page = self.call("GET", path, OrderPage)
-            # (total and orders come from one scan: a page holds all it can)
-            if page.offset != len(orders) or len(page.orders) != max(
-                0, min(PAGE, page.total - page.offset)
+            if (
+                page.offset != offset
+                or len(page.orders) > PAGE
+                or (len(page.orders) == PAGE and page.next_offset <= offset)
             ):
                 raise CliError(
                     f"GET {self.base}{PREFIX}{path}: a page of {len(page.orders)} orders from "
-                    f"offset {page.offset} in the answer (not a plc-runtime HTTP API?)"
+                    f"offset {page.offset}, the next at {page.next_offset}, in the answer "
+                    "(not a plc-runtime HTTP API?)"
                 )
             orders += page.orders
-            if not page.orders or len(orders) >= page.total:
+            if len(page.orders) < PAGE:
                 return orders
+            offset = page.next_offset
             if self._read > MAX_LIST_BYTES:
                 raise CliError(
                     f"{self.base}: more than {MAX_LIST_BYTES:,} bytes of orders "

@@ -216,7 +216,14 @@ def build_app(
     @app.get(f"{PREFIX}/orders", response_model=OrderPage, responses=_ERRORS)
     async def list_orders(
         offset: Annotated[
-            int, Query(ge=0, le=MAX_OFFSET, description="first order, from 0"), Digits
+            int,
+            Query(
+                ge=0,
+                le=MAX_OFFSET,
+                description="the position to start at (0: the run's first order; the last "
+                "page's next_offset)",
+            ),
+            Digits,
         ] = 0,
         limit: Annotated[int, Query(ge=1, le=MAX_PAGE, description="orders at most"), Digits] = (
             DEFAULT_PAGE
@@ -224,7 +231,7 @@ def build_app(
     ) -> OrderPage:
         """A page of the order book, in the order the orders were added."""
         if orders is None:
-            return OrderPage(total=0, offset=offset, orders=[])
+            return OrderPage(total=0, offset=offset, orders=[], next_offset=offset, added=0)
         return OrderPage.of(await ask(orders.ask_page(offset, limit), "list"))
 
     @app.get(f"{PREFIX}/orders/{{order_id:path}}", response_model=OrderOut, responses=_ERRORS)

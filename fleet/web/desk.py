@@ -64,6 +64,7 @@ class OrderView(NamedTuple):
     reason: str
     history: tuple[tuple[float, OrderState], ...]
     sections: dict[str, tuple[float, ...]]
+    position: int
 
     @classmethod
     def of(cls, order: TransportOrder) -> OrderView:
@@ -80,17 +81,22 @@ class OrderView(NamedTuple):
             order.reason,
             tuple(order.history),
             {name: tuple(times) for name, times in order.sections.items()},
+            order.position,
         )
 
 
 @dataclass(frozen=True)
 class Page:
-    """Orders ``offset`` .. ``offset + len(orders) - 1`` of the book (in the order they were
-    added; the book only grows, so pages stay stable) and how many it holds in all."""
+    """The book's orders from position ``offset`` on (positions count the orders added
+    before, and never change, so pages stay stable when old orders leave the book), how
+    many it holds in all, the position the next page starts at, and the orders ever added
+    (the next order's position: a view of the newest orders pages from a little before it)."""
 
     total: int
     offset: int
     orders: tuple[OrderView, ...]
+    next_offset: int
+    added: int
 
 
 class Desk:
@@ -210,8 +216,10 @@ class OrderDesk(Desk):
         """The page is a slice of the book (``OrderBook.page``), so its work is the orders
         it copies whatever the offset, and that is what it costs the budget (an empty page
         beyond the end costs one, as any request)."""
-        orders = tuple(OrderView.of(o) for o in self._book.page(offset, limit))
-        done.set_result(Page(len(self._book), offset, orders))
+        book = self._book.page(offset, limit)
+        orders = tuple(OrderView.of(o) for o in book)
+        after = book[-1].position + 1 if book else max(offset, self._book.added)
+        done.set_result(Page(len(self._book), offset, orders, after, self._book.added))
         return max(1, len(orders))
 
     def _show(self, done: Future, order_id: str) -> int:

@@ -65,6 +65,10 @@ class OrderOut(BaseModel):
     reason: str = Field(description="why its last transition happened")
     history: list[HistoryEntry]
     sections: dict[str, list[float]] = Field(description="section -> [start] or [start, end]")
+    position: int = Field(
+        description="the orders added to the book before it in the run: never changes, the "
+        "order of the book's pages"
+    )
 
     @classmethod
     def of(cls, view: OrderView) -> OrderOut:
@@ -81,20 +85,31 @@ class OrderOut(BaseModel):
             reason=view.reason,
             history=[HistoryEntry(time_s=t, state=s.value) for t, s in view.history],
             sections={name: list(times) for name, times in view.sections.items()},
+            position=view.position,
         )
 
 
 class OrderPage(BaseModel):
-    """Orders ``offset`` .. ``offset + len(orders) - 1`` of ``total``, in the order added."""
+    """Up to ``limit`` orders of the book from position ``offset`` on, in the order added
+    (an order's position: the orders added before it in the run; final orders leave the
+    book a while after they end, and are skipped). ``total``: the orders in the book now;
+    ``next_offset``: where the next page starts; ``added``: the orders added in the run so
+    far (the newest ``n`` are from ``added - n`` on)."""
 
     total: int
     offset: int
     orders: list[OrderOut]
+    next_offset: int
+    added: int
 
     @classmethod
     def of(cls, page: Page) -> OrderPage:
         return cls(
-            total=page.total, offset=page.offset, orders=[OrderOut.of(v) for v in page.orders]
+            total=page.total,
+            offset=page.offset,
+            orders=[OrderOut.of(v) for v in page.orders],
+            next_offset=page.next_offset,
+            added=page.added,
         )
 
 

@@ -587,9 +587,7 @@
 
   // ----- orders ------------------------------------------------------------------------------
   const orders = {
-    rows: new Map(), // id -> { tr, cells, seq, state }
-    seqOf: new Map(), // id -> position in the book (0 = the first order added), for ordering
-    nextSeq: 0,
+    rows: new Map(), // id -> { tr, cells, seq, state }; seq: the order's position in the book
     loading: false,
     again: false,
     pending: [], // changes that arrived while the list was being read
@@ -628,17 +626,16 @@
     orders.loading = true;
     orders.pending = [];
     try {
+      // the newest orders: those added from ORDER_PAGE positions before the next one on
+      // (positions never change; orders that have left the book leave gaps)
       const head = await api("GET", "/orders?offset=0&limit=1");
-      const offset = Math.max(0, head.total - ORDER_PAGE);
-      const page = head.total > 1 ? await api("GET", `/orders?offset=${offset}&limit=${ORDER_PAGE}`) : head;
+      const offset = Math.max(0, head.added - ORDER_PAGE);
+      const page = head.added > 1 ? await api("GET", `/orders?offset=${offset}&limit=${ORDER_PAGE}`) : head;
       const tbody = $("#orders tbody");
       orders.rows.clear();
-      orders.seqOf.clear();
-      page.orders.forEach((o, i) => orders.seqOf.set(o.id, page.offset + i));
-      orders.nextSeq = page.offset + page.orders.length;
       const fragment = document.createDocumentFragment();
       for (const o of page.orders.slice(-ORDER_ROWS).reverse()) {
-        const row = orderRow(o, orders.seqOf.get(o.id));
+        const row = orderRow(o, o.position);
         fragment.appendChild(row.tr);
       }
       tbody.replaceChildren(fragment);
@@ -687,12 +684,13 @@
   }
 
   function upsertOrder(o) {
-    let seq = orders.seqOf.get(o.id);
-    if (seq === undefined) { // not in the list read: added since
-      seq = orders.nextSeq++;
-      orders.seqOf.set(o.id, seq);
+    const seq = o.position;
+    let row = orders.rows.get(o.id);
+    if (row && row.seq !== seq) { // an id used again once its old order had left the book
+      row.tr.remove();
+      orders.rows.delete(o.id);
+      row = undefined;
     }
-    const row = orders.rows.get(o.id);
     if (row) {
       // a change that raced the list's reading must not undo a final state
       if (!(FINAL.has(row.state) && !FINAL.has(o.state))) fillOrderRow(row, o);
