@@ -170,3 +170,26 @@ def test_the_apis_pages_skip_swept_orders_and_say_where_the_next_starts():
     assert [o.id for o in last.orders] == ["o6"] and last.next_offset == 7
     assert page(7).orders == () and page(7).next_offset == 7
     assert page(50).next_offset == 50  # nothing from there on: the client stops
+
+
+def test_an_order_that_leaves_the_book_while_waiting_to_be_checked_again_is_passed_over(
+    tmp_path, made, monkeypatch
+):
+    """A blockade makes the dispatcher check every waiting order's routes again, a budget's
+    worth a scan; one withdrawn and swept meanwhile is skipped, not looked up (the scan
+    would fault on the missing order)."""
+    from blocks.dispatch import dispatcher as dispatcher_module
+
+    monkeypatch.setattr(dispatcher_module, "ROUTE_BUDGET", 1)
+    rows = "".join(f"w{k},{20 + k},{29 - k},5000\n" for k in range(6))
+    cfg = config("id,get,put,start_s\n" + rows, tmp_path)
+    cfg.orders.keep_final_s, cfg.orders.lead_s = 0.0, 1e6  # all known now, none startable
+    cfg.dispatch.strategy = "dhht"
+    p = start(cfg, made)
+    run(p, 1.0)
+    assert len(p.orders.book) == 6
+    p.blockades.block(16, 17)  # every waiting order is checked again, one a scan
+    run(p, 0.05)
+    p.orders.withdraw("w5")  # the last one to be checked again
+    run(p, 1.0)  # withdrawn, swept, and then its turn to be checked comes: passed over
+    assert "w5" not in p.orders.book and p.orders.book.swept == 1

@@ -213,7 +213,8 @@ class Dispatcher(FunctionBlock):
         for _ in range(min(ROUTE_BUDGET, len(self._recheck))):
             order_id = self._recheck.popleft()
             self._checked.discard(order_id)
-            fresh.append(self.book.get(order_id))
+            if order_id in self.book:  # else it ended and has left the book since
+                fresh.append(self.book.get(order_id))
         positions: _Positions | None = None  # the vehicles' nodes, read once a scan
         for order in fresh:
             if order.id in self._checked or order.state is not OrderState.DISPATCHABLE:
