@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 from web_controller import ROOT, TOKEN, Controller
 
+from blocks.dispatch.orders import TransportOrder
 from topology import warehouse
 
 CHROMIUM = "/usr/bin/chromium"
@@ -300,3 +301,35 @@ def warehouse_with(n: int) -> str:
     return head + "".join(
         f"[[vehicles]]\nid = {v}\nstart = {s}\n\n" for v, s in enumerate(starts, start=1)
     )
+
+
+def test_the_order_list_shows_the_newest_orders_when_old_ones_have_left_the_book(browser, tmp_path):
+    """1,200 orders added, the first 600 withdrawn and swept from the book (kept 1 s): the
+    page reads the newest orders by position, not the first ones the book still holds."""
+    text = (ROOT / "examples" / "workshop-orders.toml").read_text()
+    text = text.replace("[orders]\n", "[orders]\nkeep_final_s = 1\n")
+    text = text.replace(
+        '"orders/workshop.csv"', f'"{ROOT / "examples" / "orders" / "workshop.csv"}"'
+    )
+    text = text.replace(
+        '"plants/workshop.toml"', f'"{ROOT / "examples" / "plants" / "workshop.toml"}"'
+    )
+    config = tmp_path / "swept.toml"
+    config.write_text(text)
+    with Controller(speed=10, config=config) as ctl:
+        orders = ctl.program.orders
+        for k in range(1200):  # never startable in this test: none ends by itself
+            orders.submit(TransportOrder(f"s{k}", 20, 21, start_s=1e6))
+        for k in range(600):
+            orders.withdraw(f"s{k}")
+        book = orders.book
+        deadline = time.monotonic() + 60
+        while any(f"s{k}" in book for k in range(600)) and time.monotonic() < deadline:
+            time.sleep(0.1)  # the scan sweeps them a simulated second after they end
+        assert not any(f"s{k}" in book for k in range(600))
+        browser.get(ctl.url + "/")
+        wait(browser).until(lambda d: d.find_element(By.ID, "connection").text == "live")
+        first = "#orders tbody tr:first-child td.id"
+        wait(browser).until(lambda d: d.find_element(By.CSS_SELECTOR, first).text == "s1199")
+        assert not errors_logged(browser)
+    shutil.rmtree(tmp_path, ignore_errors=True)
