@@ -254,7 +254,7 @@ def run_size(
         "over_budget": int((control > cycle_time * 1e9).sum()),
         "over_watchdog": int((control > S7_WATCHDOG_S * 1e9).sum()),
         "replans_vh": replans / (vehicles * simulated / 3600) if simulated else math.nan,
-        "tasks": len(program.completed),
+        "tasks": program.completed.total,
         "head_on": program.monitor.head_on,
         "node": program.monitor.node,
         "events": list(program.monitor.events[:5]),

@@ -150,23 +150,36 @@ def run_size(
     mean_d = mean_endpoint_distance(program)
     recorder = ScanRecorder(program)
     sim_s = timesteps * timestep_s()
+    total = round(sim_s / cycle_time)
+    early_at = round(EARLY_TIMESTEPS * timestep_s() / cycle_time)
+    stuck_at = total - round(STUCK_TIMESTEPS * timestep_s() / cycle_time)
+    # the program keeps only its newest task records, so what the table needs of older ones
+    # (tasks done by the early mark, each vehicle's count as the stuck window opens) is
+    # read as the run passes those marks
+    early_tasks: int | None = None
+    rounds_then: dict[int, int] = {}
     gc.collect()
     gc.freeze()  # plant, table and fleet are startup data: keep the collector off them
     begin = time.perf_counter()
     try:
-        cycles = recorder.run(round(sim_s / cycle_time))
+        cycles = 0
+        for mark in sorted({m for m in (early_at, stuck_at, total) if 0 < m <= total}):
+            cycles += recorder.run(mark - cycles)
+            if cycles == early_at:
+                early_tasks = program.completed.total
+            if cycles == stuck_at:
+                rounds_then = {v: s.rounds_done for v, s in program.sequencers.items()}
     finally:
         wall_s = time.perf_counter() - begin
         gc.unfreeze()
     rt = program.rt
     simulated = cycles * cycle_time
     scans, control = recorder.arrays()
-    last: dict[int, float] = dict.fromkeys(program.vehicles, 0.0)
+    last: dict[int, float | None] = dict.fromkeys(program.vehicles)  # among the tasks kept
     for run in program.completed:
         if run.finished_s is not None:
-            last[run.vehicle] = max(last[run.vehicle], run.finished_s)
-    stuck_since = simulated - STUCK_TIMESTEPS * timestep_s()
-    stuck = [v for v, t in last.items() if t < stuck_since] if stuck_since > 0 else []
+            last[run.vehicle] = max(last[run.vehicle] or 0.0, run.finished_s)
+    stuck = [v for v, n in rounds_then.items() if program.sequencers[v].rounds_done == n]
     agvs = {
         v + k * 126: agv
         for k, fleet in enumerate(program.fleets)
@@ -185,7 +198,6 @@ def run_size(
             (v, c.state, c.current, program.sequencers[v].target, c.waiting_for, last[v], physical)
         )
     finished = sorted(r.finished_s for r in program.completed if r.finished_s is not None)
-    early_s = EARLY_TIMESTEPS * timestep_s()
     out = {
         "vehicles": vehicles,
         "seed": seed,
@@ -203,10 +215,8 @@ def run_size(
         "timesteps": simulated / timestep_s(),
         "wall_s": wall_s,
         "setup_s": setup_s,
-        "tasks": len(program.completed),
-        "early": sum(1 for t in finished if t <= early_s) / EARLY_TIMESTEPS
-        if simulated >= early_s
-        else None,
+        "tasks": program.completed.total,
+        "early": early_tasks / EARLY_TIMESTEPS if early_tasks is not None else None,
         "last_task_s": finished[-1] if finished else None,
         "mean_d": mean_d,
         "whole_us": [np.percentile(scans, q) / 1e3 for q in (50, 99)] if len(scans) else [0, 0],
@@ -545,10 +555,10 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
         for e in r["deadlock_events"]:
             console.print(f"  unresolved deadlock with {r['vehicles']} vehicles: {e}")
         for v, state, node, target, waiting_for, last, physical in r["stuck_info"]:
+            done = f"last task done at {last:.0f} s" if last is not None else "no task kept"
             console.print(
                 f"  stuck with {r['vehicles']} vehicles: vehicle {v} state {state} at node {node} "
-                f"target {target} waiting for {waiting_for}, last task done at {last:.0f} s; "
-                f"{physical}"
+                f"target {target} waiting for {waiting_for}, {done}; {physical}"
             )
 
 

@@ -92,7 +92,7 @@ def dashboard(program: FleetProgram, total: int | None, width: int | None = None
     of_total = f"/{total}" if total else ""
     status = (
         f"fleet {program.cfg.source} | {rt.state} | cycle {rt.ticks}{of_total} | "
-        f"{rt.clock_time:.1f} s{pace}\nrecipes {len(program.completed)} | "
+        f"{rt.clock_time:.1f} s{pace}\nrecipes {program.completed.total} | "
         f"deadlocks resolved {program.resolver.resolved} of {program.resolver.detected}"
     )
     if program.orders is not None:

@@ -27,7 +27,7 @@ import can
 
 from blocks.dispatch.executor import OrderRunner
 from blocks.jobs.goals import GoalQueue
-from blocks.jobs.recipe import RecipeRun, RecipeSequencer, StationChooser
+from blocks.jobs.recipe import RUNS_KEPT, RecipeRun, RecipeSequencer, StationChooser
 from blocks.routing.constraints import RoutingConstraints
 from blocks.routing.heuristic import HeuristicTable
 from blocks.traffic.deadlock import DeadlockResolver
@@ -47,6 +47,7 @@ from io_drivers.can_driver import CanDriver, frames_per_tick
 from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
+from plc_runtime.recent import RecentList
 from vehicles.agv import AGV
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
@@ -204,7 +205,7 @@ class FleetProgram:
             starts={v: cfg.starts[v] for v in vehicles if v in cfg.starts},
         )
         self.chooser = StationChooser(plant, cfg.clusters, cfg.strategy, self.table, cfg.seed)
-        self.completed: list[RecipeRun] = []
+        self.completed: RecentList[RecipeRun] = RecentList(RUNS_KEPT)
         self.controls: dict[int, VehicleControl] = {}
         self.sequencers: dict[int, RecipeSequencer] = {}
         # the vehicles a script sends to goals of its own: program.goals[v].send(node, ...)

@@ -82,7 +82,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "wall_time_s": round(wall_s, 3),
         "real_time_factor": round(sim / wall_s, 2) if wall_s > 0 else None,
         "vehicles": vehicles,
-        "recipes_completed": len(program.completed),
+        "recipes_completed": program.completed.total,  # recipes.csv: the newest kept
         "stations_visited": sum(s.stations_visited for s in sequencers.values()),
         "replans": sum(c.replans for c in controls.values()),
         "plans": sum(c.plans for c in controls.values()),
@@ -201,6 +201,8 @@ def faults(program: FleetProgram, drivers: dict[str, Any]) -> dict[str, Any]:
 
 
 def write_csv(program: FleetProgram, path: Path) -> Path:
+    """One row per section of the newest recipe runs the program keeps
+    (``blocks.jobs.recipe.RUNS_KEPT``); the summary's ``recipes_completed`` counts all."""
     with path.open("w", newline="", encoding="utf-8") as f:
         out = csv.writer(f)
         out.writerow(CSV_COLUMNS)
@@ -242,7 +244,7 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
         vehicles[f"AGV {v}"] = (program.recorder.driven[v], planned)
     lifted = sorted(program.events.lifted)
     stats = program.rt.stats.to_dict()
-    done = [f"{len(program.completed)} recipes"] if program.sequencers else []
+    done = [f"{program.completed.total} recipes"] if program.sequencers else []
     if program.orders is not None:
         done.append(f"{program.orders.book.counts()['FINISHED']} orders")
     if program.goals:

@@ -427,7 +427,7 @@ class FleetStatus(FunctionBlock):
                         (c, s, inputs, RECORD * local, outputs, RECORD * local + 6, row)
                     )
         sums = self._mirror_vehicles()
-        self.seen_recipes, self.seen_visits = len(p.completed), sums[-1]
+        self.seen_recipes, self.seen_visits = p.completed.total, sums[-1]
         self.seen_busy_s = sum(p.chooser.busy_s.values())
         self._epoch = self._orders_revision = -1
         self._add_total("fleet.total.starts", 1)
@@ -492,7 +492,7 @@ class FleetStatus(FunctionBlock):
         online, stale, faulted, n_held, waits, replans, visits = sums
         p, fleet = self.program, self._words.fleet
         r = p.resolver
-        counters = (len(p.completed), visits, replans, waits)
+        counters = (p.completed.total, visits, replans, waits)
         counters += (r.detected, r.resolved, r.unresolved, r.pushes)
         first = 2 * COUNTERS[0].word
         if _COUNTERS.unpack_from(fleet, first) != counters:  # they change now and then
@@ -531,7 +531,7 @@ class FleetStatus(FunctionBlock):
             words[i] = min(int(words[i]) + n, MAX_UDINT)
 
     def _count_totals(self, ctx: CycleContext, visits: int) -> None:
-        recipes = len(self.program.completed)
+        recipes = self.program.completed.total
         if recipes != self.seen_recipes or visits != self.seen_visits:
             self._add_total("fleet.total.recipes", recipes - self.seen_recipes)
             self._add_total("fleet.total.station_visits", visits - self.seen_visits)

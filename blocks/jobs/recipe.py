@@ -25,7 +25,13 @@ import numpy as np
 from blocks.routing.heuristic import HeuristicTable
 from blocks.standard import TON
 from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
+from plc_runtime.recent import RecentList
 from topology import Plant
+
+# finished recipe runs kept (recipes.csv, scripts): ~10,000 are days of a busy fleet's
+# work and a few MB; a controller running for months would otherwise grow with every run.
+# How many finished over the whole run is the list's ``total``.
+RUNS_KEPT = 10_000
 
 STRATEGIES = ("random", "round_robin", "least_utilised", "nearest", "occupancy_aware")
 ENTRY, EXIT = 0, 1
@@ -153,7 +159,7 @@ class RecipeSequencer(FunctionBlock):
         processing_s: Mapping[int, float] | float = 3.0,
         rounds: int = 0,
         first_recipe: int = 0,
-        completed: list[RecipeRun] | None = None,
+        completed: RecentList[RecipeRun] | None = None,
     ) -> None:
         super().__init__()
         if not recipes:
@@ -166,7 +172,8 @@ class RecipeSequencer(FunctionBlock):
         self.processing_s = processing_s
         self.rounds = rounds
         self.recipe_index = first_recipe % len(self.recipes)
-        self.completed = completed if completed is not None else []
+        # finished runs, the newest RUNS_KEPT (shared by the fleet's sequencers)
+        self.completed = completed if completed is not None else RecentList(RUNS_KEPT)
         self.timer = TON()
         self.return_lanes = return_lanes(plant)
 

@@ -263,7 +263,7 @@ def light_stats(program: FleetProgram) -> dict[str, Any]:
 def fleet_counters(program: FleetProgram) -> dict[str, Any]:
     fleet: dict[str, Any] = {
         "vehicles": len(program.vehicles),
-        "recipes_completed": len(program.completed),
+        "recipes_completed": program.completed.total,
         "deadlocks_detected": program.resolver.detected,
         "deadlocks_resolved": program.resolver.resolved,
         "blocked_segments": program.status.blocked_segments,

@@ -1,0 +1,85 @@
+"""A controller runs for months: no record appended to once per event may grow with the run
+time. Each keeps its newest entries (``plc_runtime.recent.RecentList``) and an exact count
+of all of them; what the summary, tags, web views and drawing report stays exact.
+
+The capacities are lowered here so a short run passes them; the runs are on the virtual
+clock, scan by scan."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+from fleet_scenarios import ONE_DRILL
+
+import fleet.program
+from fleet.config import parse_config
+from fleet.program import FleetProgram
+from fleet.report import summary, write_csv
+from fleet.web.views import fleet_counters
+from plc_runtime.clock import VirtualClock
+
+# ----- a fleet run: recipe runs ---------------------------
+
+TWO_DRILLS = ONE_DRILL + "\n[[vehicles]]\nid = 2\nstart = 10\n"
+RUN_S = 120.0
+
+
+@dataclass
+class Run:
+    program: FleetProgram
+    csv_rows: list[dict[str, str]]
+    result: dict
+
+
+def drill_run(tmp_path) -> Run:
+    cfg = parse_config(TWO_DRILLS)
+    cfg.watchdog = 5.0  # behaviour, not wall time: a busy machine must not fault a scan
+    program = FleetProgram(cfg, clock=VirtualClock())
+    try:
+        program.rt.start()
+        program.rt.step(round(RUN_S / cfg.cycle_time))
+    finally:
+        program.close()
+    path = write_csv(program, tmp_path / f"recipes-{id(program)}.csv")
+    with path.open(encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    return Run(program, rows, summary(program, 1.0))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> Iterator[tuple[Run, Run]]:
+    """The same run twice: with the capacities of a real controller (nothing dropped in two
+    minutes) and with capacities of a few entries."""
+    tmp = tmp_path_factory.mktemp("bounded")
+    whole = drill_run(tmp)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fleet.program, "RUNS_KEPT", 1)
+        small = drill_run(tmp)
+    yield whole, small
+
+
+def test_the_short_run_passes_the_lowered_capacities(runs):
+    whole, small = runs
+    assert whole.program.completed.total == len(whole.program.completed) >= 3
+    assert len(small.program.completed) < small.program.completed.total
+
+
+def test_recipe_runs_are_counted_exactly_and_the_csv_holds_the_newest(runs):
+    whole, small = runs
+    completed = small.program.completed
+    assert 1 <= len(completed) <= 2
+    total = whole.program.completed.total
+    assert completed.total == total == sum(s.rounds_done for s in small.program.jobs.values())
+    assert [(r.vehicle, r.round) for r in completed] == [
+        (r.vehicle, r.round) for r in whole.program.completed[-len(completed) :]
+    ]
+    assert small.result["recipes_completed"] == total == whole.result["recipes_completed"]
+    assert fleet_counters(small.program)["recipes_completed"] == total
+    image = small.program.rt.image
+    assert image.read("fleet.recipes_completed") == total
+    assert image.read("fleet.total.recipes") == total
+    rounds = {(int(r["vehicle"]), int(r["round"])) for r in small.csv_rows}
+    assert rounds == {(r.vehicle, r.round) for r in completed}
