@@ -21,6 +21,7 @@ or real vehicles; the program talks to them the same way.
 from __future__ import annotations
 
 import weakref
+from collections import Counter
 from collections.abc import Callable, Iterable
 
 import can
@@ -48,6 +49,7 @@ from io_drivers.modbus_vehicles import ModbusVehicleLink
 from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
 from plc_runtime.recent import RecentList
+from topology.model import Plant
 from vehicles.agv import AGV
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
@@ -58,6 +60,9 @@ from .events import EventLog
 from .order_system import OrderSystem, targets
 from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
 
+# the newest nodes each vehicle reported that the recorder keeps: the drawing shows the last
+# 48 segments of each, and a few thousand are hours of driving to look back on in Python
+DRIVEN_NODES_KEPT = 2000
 AREA_BYTES = 1024  # one bus's records: 8 bytes x 127 ids, rounded up
 
 
@@ -133,18 +138,31 @@ class FleetCycle(FunctionBlock):
 
 
 class FleetRecorder(FunctionBlock):
-    """The driven routes (every reported node, in order), for the drawing and the CSV."""
+    """The driven routes, for the drawing: the newest ``DRIVEN_NODES_KEPT`` reported nodes
+    per vehicle (``driven``, in order) and how often each segment was driven over the whole
+    run (``usage``, for the heat map), so neither grows with the run time."""
 
-    def __init__(self, controls: dict[int, VehicleControl]) -> None:
+    def __init__(self, controls: dict[int, VehicleControl], plant: Plant) -> None:
         super().__init__()
         self.controls = controls
-        self.driven: dict[int, list[int]] = {v: [] for v in controls}
+        self.driven: dict[int, RecentList[int]] = {
+            v: RecentList(DRIVEN_NODES_KEPT) for v in controls
+        }
+        # keyed and counted as topology.draw.segment_usage counts a whole path: both
+        # directions together, a step between nodes that share no segment (a position lost
+        # and found again) not counted
+        self._segments = {(min(e.source, e.target), max(e.source, e.target)) for e in plant.edges}
+        self.usage: Counter[tuple[int, int]] = Counter()
 
     def cycle(self, ctx: CycleContext) -> None:
         for v, control in self.controls.items():
             node = control.current
             path = self.driven[v]
             if node is not None and (not path or path[-1] != node):
+                if path:
+                    key = (min(path[-1], node), max(path[-1], node))
+                    if key in self._segments:
+                        self.usage[key] += 1
                 path.append(node)
 
 
@@ -282,7 +300,7 @@ class FleetProgram:
             self.table,
             pushes=self.traffic is None,
         )
-        self.recorder = FleetRecorder(self.controls)
+        self.recorder = FleetRecorder(self.controls, plant)
         self.events = EventLog(
             self.controls,
             self.jobs,

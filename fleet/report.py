@@ -235,8 +235,9 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
     is now (a heat map of segment usage for a large fleet, see ``topology.draw``), the
     blockades in force and those lifted during the run.
 
-    The whole driven route is handed over: the drawing emphasises the newest segments
-    itself, and the heat map counts them all."""
+    The driven routes kept are handed over (the newest ``fleet.program.DRIVEN_NODES_KEPT``
+    nodes of each vehicle), the drawing emphasising the newest segments itself; the heat
+    map draws the recorder's count of every segment driven over the whole run."""
     vehicles = {}
     for v in program.vehicles:
         control = program.controls[v]
@@ -263,6 +264,7 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
         blocked=program.blockades.blocked_segments(),
         lifted=lifted,
         vehicles=vehicles,
+        usage=program.recorder.usage,
     )
 
 

@@ -20,8 +20,9 @@ from fleet.program import FleetProgram
 from fleet.report import summary, write_csv
 from fleet.web.views import fleet_counters
 from plc_runtime.clock import VirtualClock
+from topology.draw import HEATMAP_ABOVE, render, segment_usage
 
-# ----- a fleet run: recipe runs ---------------------------
+# ----- a fleet run: driven routes, segment usage, recipe runs ---------------------------
 
 TWO_DRILLS = ONE_DRILL + "\n[[vehicles]]\nid = 2\nstart = 10\n"
 RUN_S = 120.0
@@ -56,6 +57,7 @@ def runs(tmp_path_factory) -> Iterator[tuple[Run, Run]]:
     tmp = tmp_path_factory.mktemp("bounded")
     whole = drill_run(tmp)
     with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fleet.program, "DRIVEN_NODES_KEPT", 4)
         patch.setattr(fleet.program, "RUNS_KEPT", 1)
         small = drill_run(tmp)
     yield whole, small
@@ -64,7 +66,33 @@ def runs(tmp_path_factory) -> Iterator[tuple[Run, Run]]:
 def test_the_short_run_passes_the_lowered_capacities(runs):
     whole, small = runs
     assert whole.program.completed.total == len(whole.program.completed) >= 3
+    for v in (1, 2):
+        assert len(whole.program.recorder.driven[v]) > 2 * 4
     assert len(small.program.completed) < small.program.completed.total
+
+
+def test_the_recorder_keeps_the_newest_nodes_of_each_vehicle(runs):
+    whole, small = runs
+    for v in (1, 2):
+        full, kept = whole.program.recorder.driven[v], small.program.recorder.driven[v]
+        assert 4 <= len(kept) <= 8
+        assert kept == full[-len(kept) :]
+        assert kept.total == len(full)
+
+
+def test_the_heat_map_counts_every_segment_driven_not_only_the_nodes_kept(runs):
+    whole, small = runs
+    full = [whole.program.recorder.driven[v] for v in (1, 2)]
+    expected = segment_usage(whole.program.cfg.plant, full)
+    assert expected and whole.program.recorder.usage == expected
+    assert small.program.recorder.usage == expected
+    # the drawing takes the count handed over instead of counting the few nodes kept
+    plant = small.program.cfg.plant
+    walks = {f"AGV {k}": (small.program.recorder.driven[1 + k % 2], []) for k in range(21)}
+    assert len(walks) > HEATMAP_ABOVE
+    picture = render(plant, vehicles=walks, usage=small.program.recorder.usage)
+    assert picture.mode == "heatmap" and picture.usage == expected
+    assert render(plant, vehicles=walks).usage != expected  # what the kept nodes alone give
 
 
 def test_recipe_runs_are_counted_exactly_and_the_csv_holds_the_newest(runs):

@@ -236,7 +236,7 @@ def test_the_fleet_report_hands_over_whole_routes_and_lifted_blockades(tmp_path,
     monkeypatch.setattr("topology.draw.draw", lambda plant, path, **kw: calls.append(kw) or path)
     report.write_drawing(program, tmp_path / "routes.png")
     (kwargs,) = calls
-    for v in (1, 2):  # the whole route: the drawing picks the newest segments itself
+    for v in (1, 2):  # the routes kept: the drawing picks the newest segments itself
         assert kwargs["vehicles"][f"AGV {v}"][0] == program.recorder.driven[v]
     assert len(program.recorder.driven[1]) > 3
     texts = legend_texts(render(cfg.plant, **kwargs))

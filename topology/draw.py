@@ -109,13 +109,14 @@ def draw(
     lifted: Sequence[Segment] = (),
     recent: int = 8,
     earlier: int = 40,
+    usage: Mapping[Segment, int] | None = None,
 ) -> Path:
     """Write a PNG of the plant (see ``render`` for the arguments)."""
     out = Path(out)
     if out.suffix.lower() != ".png":
         raise TopologyError("the drawing is a PNG: give a file name ending in .png", str(out))
     with matplotlib.rc_context(LITERAL_TEXT):
-        picture = render(plant, routes, title, blocked, vehicles, lifted, recent, earlier)
+        picture = render(plant, routes, title, blocked, vehicles, lifted, recent, earlier, usage)
         picture.figure.savefig(out, dpi=DPI, bbox_inches="tight", pad_inches=0.1)
     return out
 
@@ -129,6 +130,7 @@ def render(
     lifted: Sequence[Segment] = (),
     recent: int = 8,
     earlier: int = 40,
+    usage: Mapping[Segment, int] | None = None,
 ) -> Picture:
     """Draw the plant into a new figure (not registered with pyplot: nothing to close).
 
@@ -136,11 +138,14 @@ def render(
     ``lifted``: segments closed during the run and open again. ``vehicles``: label ->
     (driven, planned) node lists; the label's last word (its number) is written on the
     vehicle's disc. ``recent`` and ``earlier``: how many driven segments are drawn thick and
-    how many before them fading (the heat map counts every driven segment)."""
+    how many before them fading (the heat map counts every driven segment). ``usage``: the
+    heat map's counts, keyed as ``segment_usage`` keys them, when the caller kept them
+    while the vehicles drove (a long run's driven lists keep only their newest nodes);
+    without it they are counted from the driven lists."""
     if recent < 1 or earlier < 0:
         raise TopologyError(f"recent must be >= 1 and earlier >= 0, got {recent} and {earlier}")
     with matplotlib.rc_context(LITERAL_TEXT):
-        return _render(plant, routes, title, blocked, vehicles, lifted, recent, earlier)
+        return _render(plant, routes, title, blocked, vehicles, lifted, recent, earlier, usage)
 
 
 def _render(
@@ -152,6 +157,7 @@ def _render(
     lifted: Sequence[Segment],
     recent: int,
     earlier: int,
+    counted: Mapping[Segment, int] | None,
 ) -> Picture:
     """``render``'s figure, with every text taken literally (``LITERAL_TEXT``)."""
     vehicles = dict(vehicles or {})
@@ -178,7 +184,10 @@ def _render(
         key.append(_line(RETURN_LANE, "return lane (not routed)", ls="--", lw=1.2))
     usage: dict[Segment, int] = {}
     if mode == "heatmap":
-        usage = segment_usage(plant, (driven for driven, _ in vehicles.values()))
+        if counted is None:
+            usage = segment_usage(plant, (driven for driven, _ in vehicles.values()))
+        else:
+            usage = {segment: n for segment, n in counted.items() if n > 0}
         _draw_usage(fig, ax, geo, usage)
         here = [geo.pos[d[-1]] for d, _ in vehicles.values() if d]
         if here:
