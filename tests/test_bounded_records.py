@@ -15,12 +15,15 @@ import pytest
 from fleet_scenarios import ONE_DRILL
 
 import fleet.program
+import vehicles.agv
 from fleet.config import parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_csv
 from fleet.web.views import fleet_counters
 from plc_runtime.clock import VirtualClock
+from topology import model_plant
 from topology.draw import HEATMAP_ABOVE, render, segment_usage
+from vehicles.agv import AGV
 
 # ----- a fleet run: driven routes, segment usage, recipe runs ---------------------------
 
@@ -111,3 +114,21 @@ def test_recipe_runs_are_counted_exactly_and_the_csv_holds_the_newest(runs):
     assert image.read("fleet.total.recipes") == total
     rounds = {(int(r["vehicle"]), int(r["round"])) for r in small.csv_rows}
     assert rounds == {(r.vehicle, r.round) for r in completed}
+
+
+# ----- the simulator: nodes reached ----------------------------------------
+
+
+def test_a_simulated_vehicle_keeps_its_newest_nodes_reached(monkeypatch):
+    monkeypatch.setattr(vehicles.agv, "DRIVEN_KEPT", 3)
+    plant = model_plant()
+    agv = AGV(1, plant, 6)
+    reached = [6]
+    for _ in range(10):  # along the middle row and back: 6 -> 7 -> 6 -> ...
+        to = 7 if agv.node == 6 else 6
+        assert agv.command((to,))
+        while agv.node != to:
+            agv.step(0.01)
+        reached.append(to)
+    assert agv.driven.total == len(reached) == 11
+    assert 3 <= len(agv.driven) <= 6 and agv.driven == reached[-len(agv.driven) :]

@@ -16,9 +16,15 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from plc_runtime.recent import RecentList
 from topology import Plant
 
 from .battery import Battery
+
+# nodes reached kept per vehicle, the newest: a few thousand are hours of driving for the
+# drawing of driven routes (it shows the last 48 segments); every node of a run of months
+# would grow without bound. ``driven.total`` counts every node reached.
+DRIVEN_KEPT = 2000
 
 
 @dataclass
@@ -65,7 +71,8 @@ class AGV:
         self.fault = False
         self.tag_reads = 0
         self.rejected_commands = 0
-        self.driven: list[int] = [start]  # every node reached, for the drawing of driven routes
+        # the nodes reached, the newest DRIVEN_KEPT, for the drawing of driven routes
+        self.driven: RecentList[int] = RecentList(DRIVEN_KEPT, [start])
         self._lengths = {(e.source, e.target): e for e in plant.edges}
         self._lengths.update({(e.target, e.source): e for e in plant.edges if e.bidirectional})
 

@@ -226,6 +226,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
             "state": a.state,
             "battery": round(a.battery.percent, 2),
             "driven": a.driven,
+            "nodes_reached": a.driven.total,
         }
         for offset, fleet in fleets
         for v, a in fleet.vehicles.items()
