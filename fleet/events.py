@@ -74,7 +74,7 @@ class EventLog(FunctionBlock):
         self.events: deque[Event] = deque(maxlen=capacity)
         self.counts: Counter[str] = Counter()
         self.added = 0  # events of the run so far: event k (from 1) is the k-th added
-        self._deadlocks_seen = 0
+        self._deadlocks_seen = 0  # the resolver's events.total when last read
         self._replans = {v: 0 for v in controls}
         self._states = {v: "offline" for v in controls}
         # vehicles stopped for a route they were not released: since when, and whether told
@@ -211,9 +211,10 @@ class EventLog(FunctionBlock):
         self._stranded = dict(stranded)
 
     def _deadlocks(self, now: float) -> None:
-        new = self.resolver.events[self._deadlocks_seen :]
-        self._deadlocks_seen = len(self.resolver.events)
-        for e in new:
+        records = self.resolver.events  # the newest only: count by its total, not its length
+        unseen = min(records.total - self._deadlocks_seen, len(records))
+        self._deadlocks_seen = records.total
+        for e in records[len(records) - unseen :]:
             ring = " -> ".join(f"agv{v}" for v in e.vehicles)
             if e.backed_off is None:
                 self.add(e.time_s, "livelock", None, f"unresolved: {ring} (nobody can give way)")

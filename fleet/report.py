@@ -98,7 +98,7 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
                 "backed_off": e.backed_off,
                 "to_node": e.to_node,
             }
-            for e in resolver.events[:100]
+            for e in resolver.events[-DEADLOCK_EVENTS_IN_SUMMARY:]
         ],
         "vehicles_pushed": resolver.pushes,
         "traffic": _traffic(program),
@@ -269,6 +269,9 @@ def write_drawing(program: FleetProgram, path: Path) -> Path:
 
 
 EVENTS_IN_SUMMARY = 200  # the newest events; event_counts counts them all
+# the newest deadlock records: on a long run the first ones are old news, and the
+# deadlocks_* counts count them all
+DEADLOCK_EVENTS_IN_SUMMARY = 100
 OUTPUT_FILES = ("summary.json", "recipes.csv", "routes.png", "orders.csv")
 LOCK_FILE = ".plc-runtime.lock"
 

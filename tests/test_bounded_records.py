@@ -12,10 +12,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
-from fleet_scenarios import ONE_DRILL
+from fleet_scenarios import ONE_DRILL, make_config
+from fleet_scenarios import run as run_checked
+from test_fleet_deadlock import corridor
 
+import blocks.traffic.deadlock as deadlock
 import fleet.program
 import vehicles.agv
+from blocks.traffic.deadlock import DeadlockEvent
 from fleet.config import parse_config
 from fleet.program import FleetProgram
 from fleet.report import summary, write_csv
@@ -114,6 +118,43 @@ def test_recipe_runs_are_counted_exactly_and_the_csv_holds_the_newest(runs):
     assert image.read("fleet.total.recipes") == total
     rounds = {(int(r["vehicle"]), int(r["round"])) for r in small.csv_rows}
     assert rounds == {(r.vehicle, r.round) for r in completed}
+
+
+# ----- deadlock records --------------------------------------------------------------------
+
+
+def test_deadlock_records_are_kept_newest_and_every_one_is_logged_once(monkeypatch):
+    """The corridor without a siding: eight back-offs and one livelock in 90 s."""
+    monkeypatch.setattr(deadlock, "EVENTS_KEPT", 2)
+    cfg = make_config(
+        corridor(False),
+        {1: 1, 2: 5},
+        {"to-east": [3], "to-west": [2]},
+        {2: [1], 3: [5]},
+        vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
+        rounds=1,
+    )
+    p = FleetProgram(cfg)
+    try:
+        run_checked(p, 90)
+    finally:
+        p.close()
+    records = p.resolver.events
+    assert records.total > 2 * 2 and 2 <= len(records) <= 4
+    logged = p.events.counts["deadlock"] + p.events.counts["livelock"]
+    assert logged == records.total
+    assert records.total == p.resolver.resolved + p.resolver.unresolved
+
+
+def test_the_summary_shows_the_newest_100_deadlock_records():
+    cfg = parse_config(ONE_DRILL)
+    p = FleetProgram(cfg, clock=VirtualClock())
+    p.close()
+    for k in range(150):  # as the resolver appends them, oldest first
+        p.resolver.events.append(DeadlockEvent(float(k), (1, 2), 2, 5))
+    shown = summary(p, 1.0)["deadlock_events"]
+    assert len(shown) == 100
+    assert [e["time_s"] for e in shown] == [float(k) for k in range(50, 150)]
 
 
 # ----- the simulator: nodes reached ----------------------------------------

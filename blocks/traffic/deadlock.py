@@ -57,6 +57,7 @@ from dataclasses import dataclass
 from blocks.routing.constraints import RoutingConstraints
 from blocks.routing.heuristic import HeuristicTable
 from plc_runtime import CycleContext, FunctionBlock, Output
+from plc_runtime.recent import RecentList
 from topology import Plant
 
 from .reservation import OUT_OF_SERVICE, ReservationMatrix
@@ -66,6 +67,10 @@ MAX_BACK_OFFS = 8  # back-offs for one cycle without progress: then it is a live
 RETRY_S = 1.0  # a cycle nobody could leave is tried again this often
 RETRY_NS = round(RETRY_S * 1e9)
 MAX_CHAIN = 64  # standing vehicles one start may push in a row (bounds the scan's work)
+# deadlock records kept, the newest: ~1,000 are far more than anyone reads back (the summary
+# shows 100) and a fleet that deadlocks now and then for months would otherwise grow with
+# each one; detected/resolved/unresolved and ``events.total`` count them all
+EVENTS_KEPT = 1000
 
 
 class _Ranks(dict[int, tuple]):
@@ -118,7 +123,7 @@ class DeadlockResolver(FunctionBlock):
         self.priority = priority  # smaller is more urgent
         self.table = table
         self._ids: list[int] = plant.ids.tolist()  # node id of each index, read per vehicle
-        self.events: list[DeadlockEvent] = []
+        self.events: RecentList[DeadlockEvent] = RecentList(EVENTS_KEPT)
         # unresolved cycles already reported, with their members' progress at the time: not
         # reported again until one of them reaches a new recipe step or backs off
         self._stuck: dict[frozenset[int], tuple] = {}
