@@ -19,6 +19,7 @@ from test_fleet_deadlock import corridor
 import blocks.traffic.deadlock as deadlock
 import fleet.program
 import vehicles.agv
+import vehicles.monitor
 from blocks.traffic.deadlock import DeadlockEvent
 from fleet.config import parse_config
 from fleet.program import FleetProgram
@@ -28,6 +29,8 @@ from plc_runtime.clock import VirtualClock
 from topology import model_plant
 from topology.draw import HEATMAP_ABOVE, render, segment_usage
 from vehicles.agv import AGV
+from vehicles.fleet import Fleet
+from vehicles.monitor import ConflictMonitor
 
 # ----- a fleet run: driven routes, segment usage, recipe runs ---------------------------
 
@@ -157,7 +160,7 @@ def test_the_summary_shows_the_newest_100_deadlock_records():
     assert [e["time_s"] for e in shown] == [float(k) for k in range(50, 150)]
 
 
-# ----- the simulator: nodes reached ----------------------------------------
+# ----- the simulator: nodes reached, conflicts seen ----------------------------------------
 
 
 def test_a_simulated_vehicle_keeps_its_newest_nodes_reached(monkeypatch):
@@ -173,3 +176,18 @@ def test_a_simulated_vehicle_keeps_its_newest_nodes_reached(monkeypatch):
         reached.append(to)
     assert agv.driven.total == len(reached) == 11
     assert 3 <= len(agv.driven) <= 6 and agv.driven == reached[-len(agv.driven) :]
+
+
+def test_the_conflict_monitor_keeps_its_newest_conflicts_and_counts_all(monkeypatch):
+    monkeypatch.setattr(vehicles.monitor, "EVENTS_KEPT", 2)
+    simulated = Fleet(model_plant(), {1: 0, 2: 10})
+    monitor = ConflictMonitor(simulated)
+    second = simulated.vehicles[2]
+    for _ in range(7):  # vehicle 2 put onto vehicle 1's node and back: a new conflict each time
+        second.node = 0
+        monitor.check()
+        second.node = 10
+        monitor.check()
+    assert monitor.node == monitor.events.total == 7
+    assert 2 <= len(monitor.events) <= 4
+    assert all(e.kind == "node" and e.vehicles == (1, 2) for e in monitor.events)

@@ -20,7 +20,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from plc_runtime.recent import RecentList
+
 from .fleet import Fleet
+
+# conflicts kept, the newest: ~1,000 are far more than anyone reads back, and a monitor
+# watching for months would otherwise grow with each one; head_on, node and area count them
+# all, as does ``events.total``
+EVENTS_KEPT = 1000
 
 
 @dataclass(frozen=True)
@@ -40,7 +47,7 @@ class ConflictMonitor:
     ) -> None:
         self.fleets = [fleets] if isinstance(fleets, Fleet) else list(fleets)
         self.offsets = list(id_offsets) if id_offsets is not None else [0] * len(self.fleets)
-        self.events: list[Conflict] = []
+        self.events: RecentList[Conflict] = RecentList(EVENTS_KEPT)
         self.head_on = 0
         self.node = 0
         self.area = 0
