@@ -134,6 +134,9 @@ class Dispatcher(FunctionBlock):
         self._supply: Counter[int] = Counter()  # dhht: orders per Get station so far
         self._supply_counted = 0  # of the book's orders, in the order added
         self._round = None
+        # the running round's pool (id -> order): an order of it that has ended and left the
+        # book since, or whose id a new order has taken, is passed over when it is applied
+        self._pooled: dict[str, TransportOrder] = {}
         self._working: StationSchedule | None = None
         self.refused_reason: str | None = None  # why the first refused assignment was refused
         self._round_limit = PLUGGED_ROUND_MIN  # a plugged strategy's evaluations in a round
@@ -401,6 +404,7 @@ class Dispatcher(FunctionBlock):
         if not vehicles or not orders:
             self._working = None
             return
+        self._pooled = {o.id: o for o in orders}
         plugged = plugged_strategy(self.strategy)
         if plugged is not None:
             self._round_limit = max(
@@ -459,8 +463,10 @@ class Dispatcher(FunctionBlock):
         """A plugged strategy's round that cannot be applied: refused, with the reason."""
         self._refuse(why)
         self._round = self._working = None
+        self._pooled = {}
 
     def _apply(self, ctx: CycleContext, assignments: list[Assignment]) -> None:
+        pooled, self._pooled = self._pooled, {}
         if self._working is not None:
             self.schedule, self._working = self._working, None
         if not isinstance(assignments, list | tuple):
@@ -468,6 +474,8 @@ class Dispatcher(FunctionBlock):
             return
         given: set[str] = set()
         for a in assignments:
+            if self._left(a, pooled):
+                continue  # it ended meanwhile, as an order still in the book may have
             if (why := self._malformed(a)) is not None:
                 self._refuse(why)
                 continue
@@ -496,6 +504,18 @@ class Dispatcher(FunctionBlock):
                 self._origin[order.id] = runner.active.put
             runner.take(ctx, order)
             self.assignments += 1
+
+    def _left(self, a: object, pooled: Mapping[str, TransportOrder]) -> bool:
+        """Whether ``a`` gives out an order of the round's pool that has left the book since
+        the round began (it ended, and was swept), or whose id names another order now (a
+        new one took it once the old one had left): neither is the strategy's mistake, and
+        the new order was never weighed by the round."""
+        if not isinstance(a, Assignment) or not isinstance(a.order, TransportOrder):
+            return False
+        oid = a.order.id
+        if not isinstance(oid, str) or (order := pooled.get(oid)) is None:
+            return False
+        return oid not in self.book or self.book.get(oid) is not order
 
     def _malformed(self, a: object) -> str | None:
         """Why ``a`` is no assignment this dispatcher could apply at all, or None. A plugged

@@ -1,0 +1,66 @@
+"""Orders that leave the book (``OrderBook.sweep``) while something still refers to them:
+an allocation round that evaluated one, dhht's supply counts, the live feed, and the
+summary's totals. Each run twice on the virtual clock, keeping final orders for no time
+and for ever, must come out the same."""
+
+from __future__ import annotations
+
+import math
+
+from test_orders_program import config, run, start
+
+from blocks.dispatch.orders import OrderState, TransportOrder
+from fleet.report import summary
+
+S = OrderState
+SUMMED = ("orders", "mean_order_time_s", "station_wait_s", "makespan_s", "station_utilisation")
+
+
+def _round_with_a_withdrawal(keep_final_s: float, tmp_path, made, again: bool = False):
+    """Three vehicles, four orders, a round of one evaluation a scan: the most urgent order
+    is withdrawn while the round runs (and, with ``again``, its id is used by a new order
+    once it has left the book). Returns the program once the round has ended."""
+    cfg = config("id,get,put,start_s\n", tmp_path)
+    cfg.orders.keep_final_s = keep_final_s
+    cfg.dispatch.budget = 1
+    p = start(cfg, made)
+    run(p, 2)
+    for k in range(4):
+        p.orders.submit(TransportOrder(f"o{k}", 20 + k, 29 - k, priority=10 if k == 0 else 0))
+    d = p.orders.dispatcher
+    assert p.rt.run_until(lambda: d._round is not None, max_cycles=100)
+    p.orders.withdraw("o0")
+    run(p, 0.1)
+    assert d._round is not None  # (the round is still being evaluated)
+    if again:
+        assert "o0" not in p.orders.book
+        p.orders.submit(TransportOrder("o0", 26, 21))
+        run(p, 0.05)
+    assert p.rt.run_until(lambda: d._round is None, max_cycles=100)
+    return p
+
+
+def test_an_order_withdrawn_and_swept_while_a_round_runs_is_no_refusal(tmp_path, made):
+    """A built-in strategy's round that gives out an order withdrawn meanwhile is not
+    wrong: the withdrawn order is passed over whether it is still in the book or has left
+    it, and the summary's dispatch counts are the same either way."""
+    kept = _round_with_a_withdrawal(math.inf, tmp_path, made)
+    run(kept, 60)
+    kept_dispatch = summary(kept, 1.0)["dispatch"]
+    kept.close()
+    swept = _round_with_a_withdrawal(0.0, tmp_path, made)
+    assert swept.orders.book.swept == 1
+    assert swept.orders.dispatcher.refused == 0, swept.orders.dispatcher.refused_reason
+    run(swept, 60)
+    assert summary(swept, 1.0)["dispatch"] == kept_dispatch
+
+
+def test_a_round_does_not_give_out_a_new_order_under_the_id_of_one_it_evaluated(tmp_path, made):
+    """The round evaluated o0 (20 -> 29, priority 10); o0 is withdrawn and leaves the book,
+    and a new order takes its id (26 -> 21, priority 0) before the round ends. The round's
+    assignment of the old o0 is not an assignment of the new one: no round has weighed it."""
+    p = _round_with_a_withdrawal(0.0, tmp_path, made, again=True)
+    new = p.orders.book.get("o0")
+    assert (new.get, new.put) == (26, 21)
+    assert new.state is S.DISPATCHABLE and new.assigned is None, new.history
+    assert p.orders.dispatcher.refused == 0
