@@ -64,3 +64,42 @@ def test_a_round_does_not_give_out_a_new_order_under_the_id_of_one_it_evaluated(
     assert (new.get, new.put) == (26, 21)
     assert new.state is S.DISPATCHABLE and new.assigned is None, new.history
     assert p.orders.dispatcher.refused == 0
+
+
+def _dhht_run(keep_final_s: float, tmp_path, made):
+    """dhht with one vehicle: an order from each of two stations, then 60 orders at the
+    first withdrawn as they come (no round sees them waiting: none wait), then one more
+    at each station. dhht weighs a station by its supply, the orders it has had."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    cfg.orders.keep_final_s = keep_final_s
+    cfg.dispatch.strategy = "dhht"
+    cfg.dispatch.capacity_per_h = 100_000.0  # (the supply, not the capacity, bounds it)
+    p = start(cfg, made)
+    run(p, 1)
+    r = p.orders.runners[1]
+    a, b = (29, 27), (21, 24)
+    for name, (get, put) in (("a1", a), ("b1", b)):
+        p.orders.submit(TransportOrder(name, get, put))
+        run(p, 0.1)
+        assert p.rt.run_until(lambda: r.active is None and r.next is None, max_cycles=20000)
+    for k in range(60):
+        p.orders.submit(TransportOrder(f"w{k}", *a))
+        p.orders.withdraw(f"w{k}")
+    run(p, 2)
+    p.orders.submit(TransportOrder("a2", *a))
+    p.orders.submit(TransportOrder("b2", *b))
+    run(p, 0.2)
+    first = r.active.id
+    supply = dict(p.orders.dispatcher._supply)
+    run(p, 300)
+    return first, supply, summary(p, 1.0), p
+
+
+def test_dhht_counts_the_supply_of_orders_that_left_the_book_before_a_round(tmp_path, made):
+    first_kept, supply_kept, kept, p = _dhht_run(math.inf, tmp_path, made)
+    p.close()
+    first_swept, supply_swept, swept, _ = _dhht_run(0.0, tmp_path, made)
+    assert supply_swept == supply_kept
+    assert first_swept == first_kept
+    for key in SUMMED:
+        assert swept[key] == kept[key], key

@@ -164,6 +164,8 @@ class Dispatcher(FunctionBlock):
         # below would hand it back to the pool from its final state
         for runner in self.runners.values():
             runner.withdrawn(ctx)
+        if self.strategy == "dhht":
+            self._count_supply()
         self._check_routes(ctx)
         self._index_changes(ctx)
         self._urgent.advance(ctx.time, STARTABLE_BUDGET)
@@ -567,13 +569,20 @@ class Dispatcher(FunctionBlock):
             est.record_dwell(order.put, "Put", duration)
             self._origin.pop(order.id, None)
 
-    def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:
-        """Each Get station's supply rate: the orders it has had so far per hour. The count
-        is kept up to date with the orders added since the last round (by position, which
-        never changes), so a round costs the new orders, not the run's whole book."""
+    def _count_supply(self) -> None:
+        """Count the orders added since the last scan per Get station (by position, which
+        never changes), so that the count costs the new orders, not the run's whole book.
+        Every scan, not only when a round starts: an order added and ended while no round
+        starts (withdrawn, unroutable, while no vehicle is free) may have left the book
+        (``OrderBook.sweep``) by the next round, and it counts all the same. (The intake
+        adds orders earlier in the scan, and sweeps none before the next one.)"""
         for order in self.book.page(self._supply_counted, self.book.added - self._supply_counted):
             self._supply[order.get] += 1
         self._supply_counted = self.book.added
+
+    def _dhht_stats(self, ctx: CycleContext) -> dict[int, StationStats]:
+        """Each Get station's supply rate: the orders it has had so far per hour."""
+        self._count_supply()
         hours = max(ctx.time / 3600.0, 1.0 / 60.0)
         for station, n in self._supply.items():
             s = self.stats.setdefault(station, StationStats(pickups_s=[]))
