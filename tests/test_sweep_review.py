@@ -11,6 +11,7 @@ from test_orders_program import config, run, start
 
 from blocks.dispatch.orders import OrderState, TransportOrder
 from fleet.report import summary
+from fleet.web.feed import LiveFeed
 
 S = OrderState
 SUMMED = ("orders", "mean_order_time_s", "station_wait_s", "makespan_s", "station_utilisation")
@@ -103,3 +104,24 @@ def test_dhht_counts_the_supply_of_orders_that_left_the_book_before_a_round(tmp_
     assert first_swept == first_kept
     for key in SUMMED:
         assert swept[key] == kept[key], key
+
+
+def test_the_live_feed_tells_the_final_state_of_an_order_that_left_the_book(tmp_path, made):
+    """The operator page learns an order's changes from the feed's snapshots: one that
+    ended and left the book between two snapshots must still arrive in its final state,
+    or the page shows it running for ever."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),))
+    cfg.orders.keep_final_s = 0.0
+    p = start(cfg, made)
+    feed = LiveFeed(p)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    run(p, 1)
+    seen = {o.id: o.state for o in feed._snapshot()["orders"]["changed"]}
+    assert seen == {"A": S.BEING_PROCESSED}
+    runner = p.orders.runners[1]
+    assert p.rt.run_until(lambda: runner.active is None, max_cycles=20000)
+    run(p, 0.1)
+    assert "A" not in p.orders.book  # finished, and swept
+    changed = feed._snapshot()["orders"]["changed"]
+    assert [(o.id, o.state) for o in changed] == [("A", S.FINISHED)]

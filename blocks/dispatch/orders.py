@@ -324,9 +324,10 @@ class OrderBook:
         # orders per state, kept on every transition: read every refresh of a live view
         self._counts: dict[str, int] = {state.value: 0 for state in OrderState}
         # the ids of the orders that changed state, newest last: live views read what changed
-        # since they last looked (``changed_since``) instead of the whole book
+        # since they last looked (``changed_since``) instead of the whole book; the orders
+        # themselves, so that one swept since can still be told in its final state
         self.revision = 0  # transitions so far
-        self._changed: deque[tuple[int, str]] = deque(maxlen=CHANGE_LOG)
+        self._changed: deque[tuple[int, TransportOrder]] = deque(maxlen=CHANGE_LOG)
 
     # ----- the pool ------------------------------------------------------------------------
     def add(
@@ -433,16 +434,24 @@ class OrderBook:
         """Orders per state, every state named (zeros included), for reports."""
         return dict(self._counts)
 
-    def changed_since(self, revision: int) -> list[TransportOrder] | None:
+    def changed_since(self, revision: int, swept: bool = False) -> list[TransportOrder] | None:
         """The orders that changed state after ``revision`` (each once, in the order of their
-        last change), or None if more changed than the journal remembers."""
+        last change), or None if more changed than the journal remembers. Only orders in the
+        book, unless ``swept``: then also those that have left it since (final, in the state
+        a live view must still be told), each before a new order that took its id."""
         if revision >= self.revision:
             return []
         if self.revision - revision > len(self._changed):
             return None
-        newest_first = dict.fromkeys(oid for rev, oid in reversed(self._changed) if rev > revision)
-        # an order swept since is no longer in the book; an id used again names the new order
-        return [self._orders[oid] for oid in reversed(newest_first) if oid in self._orders]
+        newest_first: dict[int, TransportOrder] = {}
+        for rev, order in reversed(self._changed):
+            if rev <= revision:
+                break
+            newest_first.setdefault(id(order), order)
+        changed = reversed(newest_first.values())
+        if swept:
+            return list(changed)
+        return [o for o in changed if self._orders.get(o.id) is o]
 
     # ----- the life cycle ------------------------------------------------------------------
     def transition(
@@ -466,7 +475,7 @@ class OrderBook:
         order.state = state
         order.reason = reason
         self.revision += 1
-        self._changed.append((self.revision, order.id))
+        self._changed.append((self.revision, order))
         order.history.append((now_s, state))
         if state is OrderState.DISPATCHABLE:
             self._dispatchable[order.id] = order

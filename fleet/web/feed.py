@@ -104,7 +104,8 @@ class LiveFeed:
         }
         if p.orders is not None:
             book = p.orders.book
-            changed = book.changed_since(self._revision)
+            # (an order that ended and left the book since is told in its final state)
+            changed = book.changed_since(self._revision, swept=True)
             self._revision = book.revision
             resync = changed is None or len(changed) > MAX_CHANGED
             snap["orders"] = {
