@@ -35,33 +35,53 @@ def waiting_s(order: TransportOrder) -> float:
     return total
 
 
+# every finite float is a whole multiple of 2**-1074: summed as whole numbers of it, times
+# add up exactly, so a total does not depend on the order its times were added in
+EXACT = 1074
+
+
+def exact(seconds: float) -> int:
+    """``seconds`` as a whole number of 2**-1074 s (exact, for sums)."""
+    n, d = seconds.as_integer_ratio()
+    return n << (EXACT + 1 - d.bit_length())
+
+
+def seconds(total: int, count: int = 1) -> float:
+    """An exact sum (:func:`exact`) divided by ``count``, as the nearest float."""
+    return total / (count << EXACT)
+
+
 @dataclass
 class OrderTotals:
     """What the summary reports of a set of orders, summed, so that orders that have left
     the book (``OrderBook.sweep``) still count: a month-long run's summary covers the month
-    while its book holds only the last day."""
+    while its book holds only the last day. Times are summed exactly (:func:`exact`): a
+    float sum depends on the order of its terms, and the orders that left the book are
+    summed in the order they left it, so the rounded means would depend on when orders
+    left (and a run that swept its orders would report other means than one that kept
+    them)."""
 
     finished: int = 0
     timed: int = 0  # finished orders with an execution time
-    execution_s: float = 0.0
-    waiting_s: float = 0.0
+    execution: int = 0  # their execution times, exact
+    waiting: int = 0  # the finished orders' station waits, exact
     makespan_s: float | None = None
-    station_use: dict[int, tuple[int, float]] = field(default_factory=dict)
+    station_use: dict[int, tuple[int, int]] = field(default_factory=dict)  # visits, exact s
 
     def add(self, orders: Iterable[TransportOrder]) -> OrderTotals:
         for order in orders:
             for name, station in (("Get", order.get), ("Put", order.put)):
                 times = order.sections.get(name)
                 if times is not None and len(times) == 2:
-                    visits, busy = self.station_use.get(station, (0, 0.0))
-                    self.station_use[station] = (visits + 1, busy + times[1] - times[0])
+                    visits, busy = self.station_use.get(station, (0, 0))
+                    self.station_use[station] = (visits + 1, busy + exact(times[1] - times[0]))
             if order.state is not OrderState.FINISHED:
                 continue
             self.finished += 1
-            self.waiting_s += waiting_s(order)
+            self.waiting += exact(waiting_s(order))
             if (t := execution_s(order)) is not None:
                 self.timed += 1
-                self.execution_s += t
+                self.execution += exact(t)
             end = order.finished_s
             if end is not None and (self.makespan_s is None or end > self.makespan_s):
                 self.makespan_s = end
@@ -71,13 +91,13 @@ class OrderTotals:
         out = OrderTotals(
             self.finished + other.finished,
             self.timed + other.timed,
-            self.execution_s + other.execution_s,
-            self.waiting_s + other.waiting_s,
+            self.execution + other.execution,
+            self.waiting + other.waiting,
             max((t for t in (self.makespan_s, other.makespan_s) if t is not None), default=None),
             dict(self.station_use),
         )
         for station, (visits, busy) in other.station_use.items():
-            v, b = out.station_use.get(station, (0, 0.0))
+            v, b = out.station_use.get(station, (0, 0))
             out.station_use[station] = (v + visits, b + busy)
         return out
 
@@ -90,7 +110,10 @@ def run_totals(system: OrderSystem) -> OrderTotals:
 def station_use(system: OrderSystem) -> dict[int, tuple[int, float]]:
     """Per station: the transport orders' finished visits (Get and Put dwells) and the
     seconds they took, for the summary's ``station_utilisation``."""
-    return run_totals(system).station_use
+    return {
+        station: (visits, seconds(busy))
+        for station, (visits, busy) in run_totals(system).station_use.items()
+    }
 
 
 def order_summary(system: OrderSystem) -> dict[str, Any]:
@@ -101,8 +124,12 @@ def order_summary(system: OrderSystem) -> dict[str, Any]:
         "orders": system.book.counts(),
         "orders_pending_release": len(system.intake.pending),
         "orders_swept": system.book.swept,
-        "mean_order_time_s": round(totals.execution_s / totals.timed, 3) if totals.timed else None,
-        "station_wait_s": round(totals.waiting_s / totals.finished, 3) if totals.finished else None,
+        "mean_order_time_s": (
+            round(seconds(totals.execution, totals.timed), 3) if totals.timed else None
+        ),
+        "station_wait_s": (
+            round(seconds(totals.waiting, totals.finished), 3) if totals.finished else None
+        ),
         "makespan_s": round(totals.makespan_s, 3) if totals.makespan_s is not None else None,
         "dispatch": {
             "strategy": d.strategy,

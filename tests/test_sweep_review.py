@@ -6,10 +6,12 @@ and for ever, must come out the same."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 from test_orders_program import config, run, start
 
-from blocks.dispatch.orders import OrderState, TransportOrder
+from blocks.dispatch.orders import OrderBook, OrderState, TransportOrder
+from fleet.order_report import OrderTotals, order_summary
 from fleet.report import summary
 from fleet.web.feed import LiveFeed
 
@@ -125,3 +127,69 @@ def test_the_live_feed_tells_the_final_state_of_an_order_that_left_the_book(tmp_
     assert "A" not in p.orders.book  # finished, and swept
     changed = feed._snapshot()["orders"]["changed"]
     assert [(o.id, o.state) for o in changed] == [("A", S.FINISHED)]
+
+
+# finished orders (Get start, Put end) whose mean execution time, 102.8875 s, lies on a
+# rounding boundary of the summary's three decimals: summed in another order, the float
+# sum differs in its last bit, and the rounded mean with it
+TIMES = [
+    (10.05, 17.75),
+    (6.3, 71.3),
+    (14.35, 75.4),
+    (15.95, 111.75),
+    (12.3, 126.35),
+    (3.15, 143.3),
+    (1.05, 166.1),
+    (3.5, 177.8),
+]
+
+
+def _finished_book() -> tuple[OrderBook, list[TransportOrder]]:
+    book = OrderBook({20: "in", 21: "out"}, keep_final_s=0.0)
+    orders = []
+    for k, (get, put) in enumerate(TIMES):
+        o = book.add(TransportOrder(f"o{k}", 20, 21), 0.0)
+        book.transition(o, S.BEING_PROCESSED, get)
+        book.start_section(o, "Get", get)
+        book.end_section(o, "Get", get)
+        book.start_section(o, "Put_Queue", get)
+        book.end_section(o, "Put_Queue", put)
+        book.start_section(o, "Put", put)
+        book.end_section(o, "Put", put)
+        book.transition(o, S.FINISHED, put)
+        orders.append(o)
+    return book, orders
+
+
+def _system(book: OrderBook, swept: OrderTotals) -> SimpleNamespace:
+    dispatcher = SimpleNamespace(
+        strategy="two_stage",
+        rounds=0,
+        evaluations=0,
+        assignments=0,
+        reassigned=0,
+        deviations=0,
+        cut_off=0,
+        refused=0,
+        refused_reason=None,
+    )
+    return SimpleNamespace(
+        book=book,
+        swept=swept,
+        intake=SimpleNamespace(pending={}),
+        runners={},
+        dispatcher=dispatcher,
+    )
+
+
+def test_the_summarys_means_do_not_depend_on_which_orders_left_the_book():
+    kept_book, _ = _finished_book()
+    kept = order_summary(_system(kept_book, OrderTotals()))  # type: ignore[arg-type]
+    swept_book, _ = _finished_book()
+    totals = OrderTotals()
+    swept_book.keep_final_s = 160.0
+    totals.add(swept_book.sweep(300.0, 100))  # the first five ended 160 s ago or more
+    assert len(swept_book) == 3
+    swept = order_summary(_system(swept_book, totals))  # type: ignore[arg-type]
+    for key in ("mean_order_time_s", "station_wait_s", "makespan_s"):
+        assert swept[key] == kept[key], key
