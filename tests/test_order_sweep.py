@@ -81,7 +81,7 @@ def test_an_id_can_be_used_again_only_once_its_order_has_left_the_book():
 
 
 def test_a_bad_keep_time_is_refused():
-    for bad in (-1.0, math.nan, "1"):
+    for bad in (-1.0, math.nan, "1", True):
         with pytest.raises(ValueError, match="keep_final_s"):
             OrderBook({20: "in", 21: "out"}, keep_final_s=bad)
     assert OrderBook({20: "in"}).keep_final_s == KEEP_FINAL_S
@@ -193,3 +193,22 @@ def test_an_order_that_leaves_the_book_while_waiting_to_be_checked_again_is_pass
     p.orders.withdraw("w5")  # the last one to be checked again
     run(p, 1.0)  # withdrawn, swept, and then its turn to be checked comes: passed over
     assert "w5" not in p.orders.book and p.orders.book.swept == 1
+
+
+def test_the_dispatcher_forgets_orders_that_ended_without_their_put(tmp_path, made):
+    """Where each order was taken is kept for the orders the vehicles hold only: those
+    withdrawn while held do not stay in it for the rest of the run."""
+    rows = "".join(f"w{k},{20 + k % 10},{29 - k % 10},{k * 5}\n" for k in range(12))
+    p = start(config("id,get,put,start_s\n" + rows, tmp_path), made)
+    withdrawn = set()
+    for _ in range(60):
+        run(p, 2.0)
+        for runner in p.orders.runners.values():
+            for order in (runner.active, runner.next):
+                if order is not None and len(withdrawn) < 6 and order.id not in withdrawn:
+                    p.orders.withdraw(order.id)
+                    withdrawn.add(order.id)
+    assert len(withdrawn) == 6
+    d = p.orders.dispatcher
+    held = {o.id for r in p.orders.runners.values() for o in (r.active, r.next) if o}
+    assert set(d._origin) <= held and {oid for oid, _ in d._deviated} <= held

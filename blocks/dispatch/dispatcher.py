@@ -506,6 +506,15 @@ class Dispatcher(FunctionBlock):
                 self._origin[order.id] = runner.active.put
             runner.take(ctx, order)
             self.assignments += 1
+        self._forget_ended()
+
+    def _forget_ended(self) -> None:
+        """Keep where orders were taken and which sections deviated only for the orders the
+        vehicles hold now: an order that ended otherwise than by its Put (withdrawn,
+        failed, given back) would stay in them for the rest of a months-long run."""
+        held = {o.id for r in self.runners.values() for o in (r.active, r.next) if o is not None}
+        self._origin = {oid: node for oid, node in self._origin.items() if oid in held}
+        self._deviated = {key for key in self._deviated if key[0] in held}
 
     def _left(self, a: object, pooled: Mapping[str, TransportOrder]) -> bool:
         """Whether ``a`` gives out an order of the round's pool that has left the book since

@@ -306,7 +306,9 @@ class OrderBook:
         self.stations = dict(stations)
         self.vehicles = None if vehicles is None else frozenset(vehicles)
         self.recipe_vehicles = frozenset(recipe_vehicles)
-        if not (isinstance(keep_final_s, int | float) and keep_final_s >= 0):
+        if isinstance(keep_final_s, bool) or not (
+            isinstance(keep_final_s, int | float) and keep_final_s >= 0
+        ):
             raise ValueError(f"keep_final_s must be a number of seconds >= 0, got {keep_final_s!r}")
         self.keep_final_s = float(keep_final_s)
         self._orders: dict[str, TransportOrder] = {}
