@@ -14,7 +14,7 @@ per append but cannot be sliced), and it never holds more than ``2 * capacity`` 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import TypeVar
+from typing import SupportsIndex, TypeVar
 
 T = TypeVar("T")
 
@@ -23,8 +23,11 @@ class RecentList(list[T]):
     """The newest entries appended (at least ``capacity`` of them, at most twice that), and
     ``total``: how many were ever appended, trimmed or not.
 
-    Only ``append`` and ``extend`` add entries: a record is written at its end; changing an
-    entry in place (``rec[i] = x``) is allowed, inserting elsewhere is not counted."""
+    Only ``append``, ``extend`` and ``+=`` add entries: a record is written at its end.
+    Changing entries in place (``rec[i] = x``, a slice assigned as many) is allowed; adding
+    them any other way (``insert``, a slice assigned more, ``*=``) is a TypeError, as it
+    would be neither counted nor trimmed. A copy (``copy``, ``deepcopy``, ``pickle``) keeps
+    the entries, ``capacity`` and ``total``."""
 
     def __init__(self, capacity: int, entries: Iterable[T] = ()) -> None:
         if capacity < 1:
@@ -56,6 +59,32 @@ class RecentList(list[T]):
         self.extend(entries)
         return self
 
+    def insert(self, index: SupportsIndex, entry: T) -> None:
+        raise TypeError("a RecentList is written at its end: append or extend")
+
+    def __setitem__(self, index, value) -> None:  # type: ignore[override]
+        if isinstance(index, slice):
+            value = list(value)
+            if len(range(*index.indices(len(self)))) != len(value):
+                raise TypeError("a RecentList is written at its end: append or extend")
+        super().__setitem__(index, value)
+
+    def __imul__(self, n: SupportsIndex) -> RecentList[T]:  # type: ignore[override]
+        raise TypeError("a RecentList is written at its end: append or extend")
+
+    def __reduce__(self):
+        # list's own reduction appends the entries to a copy not yet initialised (pickle)
+        # or after its total was copied (copy): counted twice, or no total to count in
+        return (_restore, (type(self), self.capacity, list(self), self.total))
+
     def _trim(self) -> None:
         """Keep the newest ``capacity`` entries."""
         del self[: len(self) - self.capacity]
+
+
+def _restore(cls: type[RecentList], capacity: int, entries: list, total: int) -> RecentList:
+    """A copy of a ``RecentList`` (``RecentList.__reduce__``)."""
+    kept = cls(capacity)
+    list.extend(kept, entries)
+    kept.total = total
+    return kept
