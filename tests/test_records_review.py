@@ -5,11 +5,16 @@ trimmed."""
 from __future__ import annotations
 
 import copy
+import json
 import pickle
 
 import pytest
 
+import vehicles.monitor
+from fleet.cli import main
+from fleet.config import DEFAULT_CONFIG
 from plc_runtime.recent import RecentList
+from vehicles.monitor import ConflictMonitor
 
 
 def trimmed() -> RecentList[int]:
@@ -54,3 +59,31 @@ def test_changing_entries_in_place_is_still_allowed():
     kept[0] = 70
     kept[1:3] = [80, 90]
     assert kept == [70, 80, 90] and kept.total == 10
+
+
+def test_the_vehicle_process_monitor_report_shows_the_newest_conflicts(tmp_path, monkeypatch):
+    """``vehicles --monitor-out``: once the monitor trimmed its conflicts, the report's
+    events are the newest ones, not whichever happened to be the oldest kept."""
+    from ports import free_base_port
+
+    monkeypatch.setattr(vehicles.monitor, "EVENTS_KEPT", 100)
+
+    class Busy(ConflictMonitor):
+        """250 node conflicts at the first step: 149 of them kept (trimmed to 100 at the
+        201st), the oldest kept being the 102nd."""
+
+        def check(self) -> None:
+            while self.node < 250:
+                self.node += 1
+                conflict = vehicles.monitor.Conflict(float(self.node), "node", (1,), (1, 2))
+                self.events.append(conflict)
+
+    monkeypatch.setattr(vehicles.monitor, "ConflictMonitor", Busy)
+    report = tmp_path / "m.json"
+    port = str(free_base_port(4))
+    args = ["vehicles", "--config", str(DEFAULT_CONFIG), "--modbus-base-port", port]
+    assert main([*args, "--duration", "0.3", "--monitor-out", str(report)]) == 0
+    out = json.loads(report.read_text())
+    assert out["node_conflicts"] == 250
+    times = [e["time_s"] for e in out["events"]]
+    assert times == [float(k) for k in range(151, 251)]  # the newest 100, oldest first

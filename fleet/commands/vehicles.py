@@ -27,6 +27,8 @@ MIN_PERIOD_S, MAX_PERIOD_S = 1e-4, 1.0
 # The line a starting ``run --realtime`` waits for on the vehicle process's stderr. Matched
 # whole, at a line's start: an error text such as "address already in use" must not pass.
 READY_LINE = re.compile(r"^plc-runtime: \d+ vehicles ready, ", re.MULTILINE)
+# conflicts in the --monitor-out report: the newest (the monitor keeps only its newest)
+MONITOR_EVENTS_REPORTED = 100
 
 
 def add_parsers(sub: argparse._SubParsersAction, positive: Callable[..., Any]) -> None:
@@ -211,7 +213,7 @@ def vehicles_command(args: argparse.Namespace) -> int:
             "node_conflicts": m.node,
             "area_conflicts": m.area,
             "faults_injected": {k: sum(f.counters[k] for _, f in fleets) for k in INJECTED},
-            "events": [e.__dict__ for e in m.events[:100]],
+            "events": [e.__dict__ for e in m.events[-MONITOR_EVENTS_REPORTED:]],
         }
         try:
             with open(args.monitor_out, "w", encoding="utf-8") as f:
