@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import json
 import pickle
+from pathlib import Path
 
 import pytest
 
@@ -87,3 +88,10 @@ def test_the_vehicle_process_monitor_report_shows_the_newest_conflicts(tmp_path,
     assert out["node_conflicts"] == 250
     times = [e["time_s"] for e in out["events"]]
     assert times == [float(k) for k in range(151, 251)]  # the newest 100, oldest first
+
+
+def test_the_documented_examples_count_recipes_by_their_total():
+    """``program.completed`` keeps the newest runs: its length is not the recipes done."""
+    root = Path(__file__).resolve().parent.parent
+    for page in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        assert "len(program.completed)" not in page.read_text(encoding="utf-8"), page.name
