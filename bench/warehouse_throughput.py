@@ -225,7 +225,8 @@ def run_size(
         else [0, 0],
         "head_on": program.monitor.head_on,
         "node": program.monitor.node,
-        "events": list(program.monitor.events),
+        "events": list(program.monitor.events),  # the newest the monitor keeps
+        "conflicts": program.monitor.events.total,
         "deadlocks": (
             program.resolver.detected,
             program.resolver.resolved,
@@ -548,9 +549,9 @@ def report(plant_name, rows, timesteps, rate, args, begin) -> None:
     for r in rows:
         for e in r["events"][:10]:
             console.print(f"  conflict with {r['vehicles']} vehicles: {e}")
-        if len(r["events"]) > 10:
+        if r["conflicts"] > 10:
             console.print(
-                f"  ... {len(r['events']) - 10} more conflicts with {r['vehicles']} vehicles"
+                f"  ... {r['conflicts'] - 10} more conflicts with {r['vehicles']} vehicles"
             )
         for e in r["deadlock_events"]:
             console.print(f"  unresolved deadlock with {r['vehicles']} vehicles: {e}")

@@ -95,3 +95,29 @@ def test_the_documented_examples_count_recipes_by_their_total():
     root = Path(__file__).resolve().parent.parent
     for page in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
         assert "len(program.completed)" not in page.read_text(encoding="utf-8"), page.name
+
+
+class ManyConflicts(ConflictMonitor):
+    """250 node conflicts at the first check: with 100 kept, 149 of them are held (trimmed
+    to 100 at the 201st), the oldest held being the 102nd."""
+
+    def check(self) -> None:
+        while self.node < 250:
+            self.node += 1
+            conflict = vehicles.monitor.Conflict(float(self.node), "node", (1,), (1, 2))
+            self.events.append(conflict)
+
+
+def test_the_warehouse_bench_counts_the_conflicts_it_does_not_print(monkeypatch, capsys):
+    import fleet.program
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent.parent / "bench"))
+    import warehouse_throughput
+
+    monkeypatch.setattr(vehicles.monitor, "EVENTS_KEPT", 100)
+    monkeypatch.setattr(fleet.program, "ConflictMonitor", ManyConflicts)
+    argv = ["warehouse_throughput.py", "--plant", "kiva", "--sizes", "3", "--timesteps", "15"]
+    monkeypatch.setattr("sys.argv", [*argv, "--bound-timesteps", "15"])
+    warehouse_throughput.main()
+    out = capsys.readouterr().out
+    assert "... 240 more conflicts with 3 vehicles" in out
