@@ -121,3 +121,17 @@ def test_the_warehouse_bench_counts_the_conflicts_it_does_not_print(monkeypatch,
     warehouse_throughput.main()
     out = capsys.readouterr().out
     assert "... 240 more conflicts with 3 vehicles" in out
+
+
+def test_the_simulated_vehicles_json_says_how_many_nodes_driven_holds():
+    """``vehicles --json``: ``driven`` holds the newest DRIVEN_KEPT nodes at least and twice
+    that at most (``RecentList``), which is what the README tells a script to expect."""
+    from topology import model_plant
+    from vehicles.agv import AGV, DRIVEN_KEPT
+
+    agv = AGV(1, model_plant(), 6)
+    for k in range(int(1.5 * DRIVEN_KEPT)):  # as AGV.step records a node reached
+        agv.driven.append(7 if k % 2 == 0 else 6)
+    assert DRIVEN_KEPT < len(agv.driven) <= 2 * DRIVEN_KEPT
+    readme = " ".join((Path(__file__).resolve().parent.parent / "README.md").read_text().split())
+    assert f"the newest {DRIVEN_KEPT} at least ({2 * DRIVEN_KEPT} at most)" in readme
