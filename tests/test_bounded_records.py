@@ -12,9 +12,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
-from fleet_scenarios import ONE_DRILL, make_config
+from fleet_scenarios import ONE_DRILL
 from fleet_scenarios import run as run_checked
-from test_fleet_deadlock import corridor
+from test_fleet_deadlock import head_on_config
 
 import blocks.traffic.deadlock as deadlock
 import fleet.program
@@ -129,15 +129,7 @@ def test_recipe_runs_are_counted_exactly_and_the_csv_holds_the_newest(runs):
 def test_deadlock_records_are_kept_newest_and_every_one_is_logged_once(monkeypatch):
     """The corridor without a siding: eight back-offs and one livelock in 90 s."""
     monkeypatch.setattr(deadlock, "EVENTS_KEPT", 2)
-    cfg = make_config(
-        corridor(False),
-        {1: 1, 2: 5},
-        {"to-east": [3], "to-west": [2]},
-        {2: [1], 3: [5]},
-        vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
-        rounds=1,
-    )
-    p = FleetProgram(cfg)
+    p = FleetProgram(head_on_config(False))
     try:
         run_checked(p, 90)
     finally:

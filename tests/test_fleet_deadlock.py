@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 from fleet_scenarios import make_config, run
 
+from fleet.config import FleetConfig
 from fleet.program import FleetProgram
 from fleet.report import summary
 from topology import Edge, Node, Plant
@@ -23,20 +24,24 @@ def corridor(siding: bool) -> Plant:
     return Plant.build(nodes, edges, name="corridor", functions={2: "west", 3: "east"})
 
 
+def head_on_config(siding: bool) -> FleetConfig:
+    """Two vehicles at the corridor's ends, each sent to the other's end once."""
+    return make_config(
+        corridor(siding),
+        {1: 1, 2: 5},
+        {"to-east": [3], "to-west": [2]},
+        {2: [1], 3: [5]},
+        vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
+        rounds=1,
+    )
+
+
 @pytest.fixture
 def head_on():
     made = []
 
     def build(siding: bool) -> FleetProgram:
-        cfg = make_config(
-            corridor(siding),
-            {1: 1, 2: 5},
-            {"to-east": [3], "to-west": [2]},
-            {2: [1], 3: [5]},
-            vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
-            rounds=1,
-        )
-        p = FleetProgram(cfg)
+        p = FleetProgram(head_on_config(siding))
         made.append(p)
         return p
 

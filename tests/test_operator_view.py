@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from fleet_scenarios import make_config, run
 from rich.console import Console
-from test_fleet_deadlock import corridor
+from test_fleet_deadlock import head_on_config
 
 from fleet import liveness
 from fleet.cli import main
@@ -93,15 +93,7 @@ def test_a_vehicle_silent_from_the_start_is_an_event_and_so_is_its_first_status(
 
 def test_deadlocks_and_unbreakable_cycles_are_events(programs):
     for siding, kind in ((True, "deadlock"), (False, "livelock")):
-        cfg = make_config(
-            corridor(siding),
-            {1: 1, 2: 5},
-            {"to-east": [3], "to-west": [2]},
-            {2: [1], 3: [5]},
-            vehicle_recipes={1: ["to-east"], 2: ["to-west"]},
-            rounds=1,
-        )
-        p = FleetProgram(cfg)
+        p = FleetProgram(head_on_config(siding))
         try:
             run(p, 90)
             assert kind in kinds(p)
