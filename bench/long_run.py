@@ -3,8 +3,9 @@
 A controller on a plant runs for months. Whatever it keeps per order, per task or per
 node driven must leave again, or its memory grows until the machine runs out. This bench
 runs the sample distribution centre (``examples/distribution-centre.toml``, 17 shuttles,
-the seed's 420 orders an hour, its generator stretched over the whole run) on the virtual
-clock for ``--hours`` simulated hours, twice: final orders kept for ever (the baseline:
+its generator stretched over the whole run at ``--scale`` times the seed's 420 orders an
+hour: 0.5 by default, a load the fleet keeps up with, so that open orders do not pile up)
+on the virtual clock for ``--hours`` simulated hours, twice: final orders kept for ever (the baseline:
 every order of the run stays in the book) and kept ``--keep-s`` seconds after they end
 (``[orders] keep_final_s``; the default keeps them a day, too long to show in a short run).
 
@@ -15,6 +16,7 @@ per simulated hour over the second half of the run, each run's and the baseline'
 their ratio.
 
     .venv/bin/python bench/long_run.py [--hours 4] [--keep-s 1800] [--every-s 1800]
+        [--scale 0.5]
 
 ``--quick``: 0.1 simulated hours, orders kept 120 s, a line every 120 s.
 """
@@ -47,9 +49,11 @@ class Sample:
     mib: float
 
 
-def run(hours: float, keep_s: float, every_s: float) -> list[Sample]:
+def run(hours: float, keep_s: float, every_s: float, scale: float) -> list[Sample]:
     cfg = load_config(CONFIG)
-    cfg.orders.generator = dataclasses.replace(cfg.orders.generator, duration_s=hours * 3600)
+    cfg.orders.generator = dataclasses.replace(
+        cfg.orders.generator, duration_s=hours * 3600, scale=scale
+    )
     cfg.orders.keep_final_s = keep_s
     cfg.watchdog = 10.0  # tracemalloc slows every scan: the watchdog is not what is measured
     program = FleetProgram(cfg)
@@ -90,17 +94,19 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=4.0)
     ap.add_argument("--keep-s", type=float, default=1800.0)
     ap.add_argument("--every-s", type=float, default=1800.0)
+    ap.add_argument("--scale", type=float, default=0.5, help="x the seed's order rates")
     ap.add_argument("--quick", action="store_true", help="0.1 h, kept 120 s, a line each 120 s")
     args = ap.parse_args()
     if args.quick:
         args.hours, args.keep_s, args.every_s = 0.1, 120.0, 120.0
     begin = time.perf_counter()
     runs = {
-        "for ever (baseline)": run(args.hours, math.inf, args.every_s),
-        f"{args.keep_s:g} s": run(args.hours, args.keep_s, args.every_s),
+        "for ever (baseline)": run(args.hours, math.inf, args.every_s, args.scale),
+        f"{args.keep_s:g} s": run(args.hours, args.keep_s, args.every_s, args.scale),
     }
     print(
-        f"distribution centre, 17 shuttles, {args.hours:g} simulated h; memory: Python "
+        f"distribution centre, 17 shuttles, {args.scale:g} x the seed's order rates, "
+        f"{args.hours:g} simulated h; memory: Python "
         "objects allocated since the start and still held (tracemalloc)\n"
     )
     print("| final orders kept | simulated h | orders finished | orders in the book | MiB held |")
