@@ -18,6 +18,11 @@ their ratio.
     .venv/bin/python bench/long_run.py [--hours 4] [--keep-s 1800] [--every-s 1800]
         [--scale 0.5]
 
+``--sites N``: also where the memory that grew over the second half of the kept run was
+allocated, the N sites that grew most, each as its innermost frames in the project (what
+allocated it, not what holds it: a record of node ids shows as the code that decoded the
+ids). Tracing the frames makes the run about twice as slow.
+
 ``--quick``: 0.1 simulated hours, orders kept 120 s, a line every 120 s.
 """
 
@@ -39,6 +44,8 @@ from fleet.config import load_config  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
 
 CONFIG = ROOT / "examples" / "distribution-centre.toml"
+FRAMES = 10  # frames traced per allocation with --sites: enough to reach the project's code
+SHOWN_FRAMES = 3  # of those, the innermost ones in the project, printed per site
 
 
 @dataclasses.dataclass
@@ -49,7 +56,16 @@ class Sample:
     mib: float
 
 
-def run(hours: float, keep_s: float, every_s: float, scale: float) -> list[Sample]:
+@dataclasses.dataclass
+class Site:
+    frames: str  # "file:line <- file:line ...", innermost first
+    grown_kib: float
+    blocks: int
+
+
+def run(
+    hours: float, keep_s: float, every_s: float, scale: float, sites: int = 0
+) -> tuple[list[Sample], list[Site]]:
     cfg = load_config(CONFIG)
     cfg.orders.generator = dataclasses.replace(
         cfg.orders.generator, duration_s=hours * 3600, scale=scale
@@ -58,10 +74,14 @@ def run(hours: float, keep_s: float, every_s: float, scale: float) -> list[Sampl
     cfg.watchdog = 10.0  # tracemalloc slows every scan: the watchdog is not what is measured
     program = FleetProgram(cfg)
     samples = []
+    halfway = None
+    grown: list[Site] = []
+    # the sample growth_per_hour measures from, so that the sites grew over the same span
+    half_index = half_start(math.ceil(hours * 3600 / every_s - 1e-9))
     try:
         program.rt.start()
         gc.collect()
-        tracemalloc.start()
+        tracemalloc.start(FRAMES if sites else 1)
         base = tracemalloc.get_traced_memory()[0]
         done = 0.0
         while done < hours * 3600 - 1e-9:
@@ -74,18 +94,38 @@ def run(hours: float, keep_s: float, every_s: float, scale: float) -> list[Sampl
             book = program.orders.book
             held = (tracemalloc.get_traced_memory()[0] - base) / 2**20
             samples.append(Sample(done / 3600, book.counts()["FINISHED"], len(book), held))
+            if sites and len(samples) - 1 == half_index:
+                halfway = tracemalloc.take_snapshot()
+        if sites and halfway is not None:
+            grown = grown_sites(halfway, tracemalloc.take_snapshot(), sites)
     finally:
         tracemalloc.stop()
         program.close()
-    return samples
+    return samples, grown
+
+
+def grown_sites(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int) -> list[Site]:
+    """The ``n`` allocation sites whose held memory grew most between the snapshots, each
+    named by its innermost frames in the project's source (outside it, a site is only a
+    library's line)."""
+    out = []
+    for stat in after.compare_to(before, "traceback")[:n]:
+        ours = [f for f in stat.traceback if f.filename.startswith(str(ROOT))]
+        names = [f"{Path(f.filename).relative_to(ROOT)}:{f.lineno}" for f in ours]
+        frames = " <- ".join(names[-SHOWN_FRAMES:][::-1]) or "(outside the project)"
+        out.append(Site(frames, stat.size_diff / 1024, stat.count_diff))
+    return out
+
+
+def half_start(n: int) -> int:
+    """Of ``n`` samples, the one the second half is measured from (the first half fills the
+    book): the middle one, or the one before the last if that leaves a single sample."""
+    return max(min(n // 2, n - 2), 0)
 
 
 def growth_per_hour(samples: list[Sample]) -> float:
-    """MiB per simulated hour over the second half of the run (the first fills the book)."""
-    half = samples[len(samples) // 2 :]
-    if len(half) < 2:
-        half = samples[-2:]
-    first, last = half[0], half[-1]
+    """MiB per simulated hour over the second half of the run."""
+    first, last = samples[half_start(len(samples))], samples[-1]
     return (last.mib - first.mib) / max(last.hours - first.hours, 1e-9)
 
 
@@ -95,15 +135,17 @@ def main() -> None:
     ap.add_argument("--keep-s", type=float, default=1800.0)
     ap.add_argument("--every-s", type=float, default=1800.0)
     ap.add_argument("--scale", type=float, default=0.5, help="x the seed's order rates")
+    ap.add_argument(
+        "--sites", type=int, default=0, help="print the N allocation sites that grew most"
+    )
     ap.add_argument("--quick", action="store_true", help="0.1 h, kept 120 s, a line each 120 s")
     args = ap.parse_args()
     if args.quick:
         args.hours, args.keep_s, args.every_s = 0.1, 120.0, 120.0
     begin = time.perf_counter()
-    runs = {
-        "for ever (baseline)": run(args.hours, math.inf, args.every_s, args.scale),
-        f"{args.keep_s:g} s": run(args.hours, args.keep_s, args.every_s, args.scale),
-    }
+    baseline, _ = run(args.hours, math.inf, args.every_s, args.scale)
+    kept, sites = run(args.hours, args.keep_s, args.every_s, args.scale, args.sites)
+    runs = {"for ever (baseline)": baseline, f"{args.keep_s:g} s": kept}
     print(
         f"distribution centre, 17 shuttles, {args.scale:g} x the seed's order rates, "
         f"{args.hours:g} simulated h; memory: Python "
@@ -114,13 +156,19 @@ def main() -> None:
     for name, samples in runs.items():
         for s in samples:
             print(f"| {name} | {s.hours:.2f} | {s.finished} | {s.in_book} | {s.mib:.2f} |")
-    (base_name, base), (name, kept) = runs.items()
-    base_rate, rate = growth_per_hour(base), growth_per_hour(kept)
+    base_rate, rate = growth_per_hour(baseline), growth_per_hour(kept)
     print("\n| final orders kept | MiB per simulated h (second half) | / baseline |")
     print("|---|---:|---:|")
-    print(f"| {base_name} | {base_rate:.3f} | 1.00 |")
+    print(f"| for ever (baseline) | {base_rate:.3f} | 1.00 |")
     ratio = rate / base_rate if base_rate > 0 else math.nan
-    print(f"| {name} | {rate:.3f} | {ratio:.2f} |")
+    print(f"| {args.keep_s:g} s | {rate:.3f} | {ratio:.2f} |")
+    if sites:
+        print(f"\nWhere the kept run's memory grew over its second half, the {len(sites)} sites")
+        print("that grew most (innermost frames in the project first):\n")
+        print("| allocated at | KiB grown | blocks grown |")
+        print("|---|---:|---:|")
+        for site in sites:
+            print(f"| {site.frames} | {site.grown_kib:.1f} | {site.blocks} |")
     print(f"\nwall time {time.perf_counter() - begin:.0f} s")
 
 

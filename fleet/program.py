@@ -153,12 +153,16 @@ class FleetRecorder(FunctionBlock):
         # and found again) not counted
         self._segments = {(min(e.source, e.target), max(e.source, e.target)) for e in plant.edges}
         self.usage: Counter[tuple[int, int]] = Counter()
+        # the plant's own int per node: every entry of a record shares one object per node
+        # instead of holding the int decoded from a status frame (28 bytes each)
+        self._ids = {n.id: n.id for n in plant.nodes}
 
     def cycle(self, ctx: CycleContext) -> None:
         for v, control in self.controls.items():
             node = control.current
             path = self.driven[v]
             if node is not None and (not path or path[-1] != node):
+                node = self._ids.get(node, node)
                 if path:
                     key = (min(path[-1], node), max(path[-1], node))
                     if key in self._segments:

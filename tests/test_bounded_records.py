@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterator
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import pytest
 from fleet_scenarios import ONE_DRILL
@@ -28,6 +29,7 @@ from fleet.web.views import fleet_counters
 from plc_runtime.clock import VirtualClock
 from topology import model_plant
 from topology.draw import HEATMAP_ABOVE, render, segment_usage
+from topology.model import Edge, Node, Plant
 from vehicles.agv import AGV
 from vehicles.fleet import Fleet
 from vehicles.monitor import ConflictMonitor
@@ -183,3 +185,42 @@ def test_the_conflict_monitor_keeps_its_newest_conflicts_and_counts_all(monkeypa
     assert monitor.node == monitor.events.total == 7
     assert 2 <= len(monitor.events) <= 4
     assert all(e.kind == "node" and e.vehicles == (1, 2) for e in monitor.events)
+
+
+# ----- what an entry holds: the plant's int for its node, not one of its own -------------
+
+
+def far_ids_plant() -> Plant:
+    """Three nodes in a row with ids past the ints Python shares (-5..256)."""
+    ids = (1000, 1001, 1002)
+    nodes = [Node(n, x=float(k)) for k, n in enumerate(ids)]
+    return Plant.build(nodes, [Edge(1000, 1001, 1.0), Edge(1001, 1002, 1.0)])
+
+
+def fresh(node: int) -> int:
+    """An int equal to ``node`` but a new object, as one decoded from a frame is."""
+    return int(str(node))
+
+
+def test_a_simulated_vehicles_nodes_reached_share_the_plants_ints():
+    plant = far_ids_plant()
+    agv = AGV(1, plant, plant.nodes[0].id)
+    for to in (1001, 1002, 1001, 1000):
+        assert agv.command((fresh(to),))
+        while agv.node != to:
+            agv.step(0.01)
+    assert list(agv.driven) == [1000, 1001, 1002, 1001, 1000]
+    assert all(n is plant.node(n).id for n in agv.driven)
+
+
+def test_the_recorders_driven_nodes_share_the_plants_ints():
+    plant = far_ids_plant()
+    control = SimpleNamespace(current=None)
+    recorder = fleet.program.FleetRecorder({1: control}, plant)  # type: ignore[dict-item]
+    for node in (1000, 1001, 1002, 1001):
+        control.current = fresh(node)
+        recorder.cycle(None)  # type: ignore[arg-type]  # the recorder reads no context
+        recorder.cycle(None)  # type: ignore[arg-type]  # standing still adds no entry
+    assert list(recorder.driven[1]) == [1000, 1001, 1002, 1001]
+    assert all(n is plant.node(n).id for n in recorder.driven[1])
+    assert recorder.usage == {(1000, 1001): 1, (1001, 1002): 2}

@@ -224,7 +224,9 @@ class AGV:
         carry = self.progress - self.length
         self.node, self.target = self.target, None
         self.tag_reads += 1
-        self.driven.append(self.node)
+        # the plant's own int for the node: every entry then shares one object per node
+        # instead of holding an int of its own (28 bytes each) decoded from a route command
+        self.driven.append(self.plant.node(self.node).id)
         if self.route and self.go and self._turn_time(self.node, self.route[0]) == 0:
             self._set_off()  # straight on: no stop at this node
             self.progress = min(carry, self.length)
