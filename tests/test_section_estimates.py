@@ -140,6 +140,36 @@ def test_memory_per_key_is_bounded():
     assert len(e.dwell_samples(1, "Put")) == 50
 
 
+def test_the_keys_kept_are_the_most_recently_recorded():
+    """Travel is learned from wherever a vehicle took an order: on a large plant nearly
+    every (node, station) pair could become a key. Past ``keys`` of them, the one recorded
+    longest ago is forgotten and priced by the fallback again."""
+    e = estimates(keys=2)
+    e.record_travel(1, 2, 50.0)
+    e.record_travel(2, 3, 30.0)
+    e.record_travel(1, 2, 52.0)  # (1, 2) recorded again: now (2, 3) is the oldest
+    e.record_dwell(5, "Get", 9.0)  # a third key: (2, 3) goes
+    assert e.travel_samples(2, 3) == ()
+    assert e.travel(2, 3) == pytest.approx(15.0 / e.mean_speed)  # the fallback again
+    assert e.travel_samples(1, 2) == (50.0, 52.0) and e.travel(1, 2) == 51.0
+    assert e.dwell(5, "Get") == 9.0
+    e.record_travel(2, 3, 33.0)  # driven anew: learned from its new sample alone
+    assert e.travel(2, 3) == 33.0 and e.travel_samples(1, 2) == ()
+    assert e.dwell_samples(5, "Get") == (9.0,)
+
+
+def test_an_outlier_counts_as_a_record_of_its_key():
+    """A key whose samples are refused as outliers is still driven: it is not the one to
+    forget."""
+    e = estimates(keys=2)
+    for seconds in (10.0, 10.0, 10.0):
+        e.record_travel(1, 2, seconds)
+    e.record_travel(2, 3, 30.0)
+    assert not e.record_travel(1, 2, 100.0)  # refused, but (2, 3) is now the oldest
+    e.record_travel(2, 1, 40.0)
+    assert e.travel_samples(1, 2) == (10.0, 10.0, 10.0) and e.travel_samples(2, 3) == ()
+
+
 @pytest.mark.parametrize(
     ("now", "expected"),
     [(229.0, False), (230.0, False), (231.0, True), (100.0, False), (-31.0, True)],
@@ -186,6 +216,8 @@ def test_bad_samples_and_queries_are_rejected(call, message):
         ({"method": "mode"}, "method must be 'median' or 'mean', got 'mode'"),
         ({"window": 0}, "window must be an integer >= 1, got 0"),
         ({"window": 2.5}, "window must be an integer"),
+        ({"keys": 0}, "keys must be an integer >= 1, got 0"),
+        ({"keys": True}, "keys must be an integer >= 1, got True"),
         ({"distance": 20.0}, "distance must be callable"),
         ({"mean_speed": 0.0}, "mean_speed must be > 0 m/s, got 0"),
         ({"mean_speed": -1.0}, "mean_speed must be a finite number >= 0"),

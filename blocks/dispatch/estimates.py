@@ -21,7 +21,12 @@ A vehicle stuck behind a blockade records a travel time that says nothing about 
 so a sample above ``outlier`` x the current estimate is ignored (and counted in
 ``ignored``) -- but only once a key has 3 samples, so the first ones can establish an
 estimate even if the fallback was far off. Only the last ``window`` samples of a key count:
-memory stays bounded over a long run, and the estimates follow a plant that changes.
+memory stays bounded over a long run, and the estimates follow a plant that changes. The
+keys are bounded too: travel is learned from wherever a vehicle took an order, so a large
+plant could hold a key for nearly every (node, station) pair. Only the ``keys`` most
+recently recorded keys are kept (``KEYS_KEPT`` by default, more than a plant of a few
+hundred nodes ever fills); a key not recorded for longer is priced by the fallback again
+until it is driven anew.
 
 :meth:`SectionEstimates.deviates` is the seed's re-planning trigger: a section deviates when
 ``|(now - planned start) / estimated duration| > 1 + threshold`` (30 % by default).
@@ -40,6 +45,7 @@ from .arguments import finite_number
 
 KINDS = ("Get", "Put")
 MIN_SAMPLES_FOR_OUTLIERS = 3
+KEYS_KEPT = 10_000  # keys with samples kept, the most recently recorded ones
 
 
 def _number(where: str, name: str, value: float, minimum: float = -math.inf) -> float:
@@ -61,6 +67,7 @@ class SectionEstimates:
         outlier: float = 1.5,
         method: Literal["median", "mean"] = "median",
         window: int = 50,
+        keys: int = KEYS_KEPT,
     ) -> None:
         if not callable(distance):
             raise ValueError("SectionEstimates: distance must be callable (a, b) -> metres")
@@ -75,11 +82,16 @@ class SectionEstimates:
             raise ValueError(f"SectionEstimates: method must be 'median' or 'mean', got {method!r}")
         if isinstance(window, bool) or not isinstance(window, int) or window < 1:
             raise ValueError(f"SectionEstimates: window must be an integer >= 1, got {window!r}")
+        if isinstance(keys, bool) or not isinstance(keys, int) or keys < 1:
+            raise ValueError(f"SectionEstimates: keys must be an integer >= 1, got {keys!r}")
         self.distance = distance
         self.outlier = float(outlier)
         self.method = method
         self.window = window
+        self.keys = keys
         self.ignored = 0  # samples dropped by the outlier rule
+        # per key, the newest samples; the dict's order is the keys' last record, oldest
+        # first: what is forgotten first once ``keys`` are held
         self._samples: dict[Hashable, deque[float]] = {}
         self._learned: dict[Hashable, float] = {}  # cached estimate per key with samples
         self._trips: deque[tuple[float, float]] = deque(maxlen=window)  # (metres, seconds)
@@ -120,9 +132,13 @@ class SectionEstimates:
         return tuple(self._samples.get((_kind("dwell_samples", kind), station), ()))
 
     def _record(self, key: Hashable, seconds: float) -> bool:
-        samples = self._samples.get(key)
+        samples = self._samples.pop(key, None)
         if samples is None:
-            samples = self._samples[key] = deque(maxlen=self.window)
+            samples = deque(maxlen=self.window)
+            if len(self._samples) >= self.keys:
+                oldest = next(iter(self._samples))
+                del self._samples[oldest], self._learned[oldest]
+        self._samples[key] = samples  # the newest record last
         if len(samples) >= MIN_SAMPLES_FOR_OUTLIERS and seconds > self.outlier * self._learned[key]:
             self.ignored += 1
             return False
