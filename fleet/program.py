@@ -21,7 +21,6 @@ or real vehicles; the program talks to them the same way.
 from __future__ import annotations
 
 import weakref
-from collections import Counter
 from collections.abc import Callable, Iterable
 
 import can
@@ -50,6 +49,7 @@ from plc_runtime import CycleContext, FunctionBlock, Output, Runtime
 from plc_runtime.clock import VirtualClock, WallClock
 from plc_runtime.recent import RecentList
 from topology.model import Plant
+from topology.usage import SegmentUsage
 from vehicles.agv import AGV
 from vehicles.cosim import CoSimulation
 from vehicles.fleet import Fleet
@@ -148,11 +148,8 @@ class FleetRecorder(FunctionBlock):
         self.driven: dict[int, RecentList[int]] = {
             v: RecentList(DRIVEN_NODES_KEPT) for v in controls
         }
-        # keyed and counted as topology.draw.segment_usage counts a whole path: both
-        # directions together, a step between nodes that share no segment (a position lost
-        # and found again) not counted
-        self._segments = {(min(e.source, e.target), max(e.source, e.target)) for e in plant.edges}
-        self.usage: Counter[tuple[int, int]] = Counter()
+        self._usage = SegmentUsage(plant)
+        self.usage = self._usage.counts
         # the plant's own int per node: every entry of a record shares one object per node
         # instead of holding the int decoded from a status frame (28 bytes each)
         self._ids = {n.id: n.id for n in plant.nodes}
@@ -164,9 +161,7 @@ class FleetRecorder(FunctionBlock):
             if node is not None and (not path or path[-1] != node):
                 node = self._ids.get(node, node)
                 if path:
-                    key = (min(path[-1], node), max(path[-1], node))
-                    if key in self._segments:
-                        self.usage[key] += 1
+                    self._usage.step(path[-1], node)
                 path.append(node)
 
 

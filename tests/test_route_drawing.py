@@ -17,6 +17,7 @@ from fleet.program import FleetProgram
 from plc_runtime.clock import VirtualClock
 from topology import TopologyError, grid, model_plant, warehouse
 from topology.draw import HEATMAP_ABOVE, draw, render, vehicle_colours
+from topology.usage import SegmentUsage, segment_usage
 
 # model plant: 0 entry, 23 wash (left edge), 1..5 top crossings, 15..18 top stations,
 # 6..9 middle crossings, 10..14 bottom crossings, 19..22 bottom stations, 24 exit;
@@ -150,6 +151,19 @@ def counted_here(plant, walks) -> Counter:
             if a != b and frozenset((a, b)) in segments:
                 counts[(min(a, b), max(a, b))] += 1
     return counts
+
+
+@pytest.mark.parametrize("plant", [model_plant(), grid(9, 7, 0.15, seed=3)], ids=lambda p: p.name)
+def test_counting_step_by_step_gives_the_heat_maps_counts(plant):
+    """A controller keeps only its vehicles' newest nodes and counts each step as driven;
+    the drawing counts whole paths. Standing still, jumps and both directions alike."""
+    walks = random_walks(plant, 5, steps=60, seed=11)
+    usage = SegmentUsage(plant)
+    for path, _planned in walks.values():
+        for a, b in zip(path, path[1:], strict=False):
+            usage.step(a, b)
+    assert usage.counts == counted_here(plant, walks) != {}
+    assert segment_usage(plant, (path for path, _ in walks.values())) == usage.counts
 
 
 @pytest.mark.parametrize("plant", [model_plant(), grid(9, 7, 0.15, seed=3)], ids=lambda p: p.name)

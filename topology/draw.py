@@ -19,8 +19,7 @@ fills the picture instead of floating in white margins.
 
 from __future__ import annotations
 
-from collections import Counter
-from collections.abc import Container, Iterable, Mapping, Sequence
+from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from matplotlib.path import Path as PolyPath
 
 from .errors import TopologyError
 from .model import Plant
+from .usage import Segment, segment_key, segment_usage
 
 HEATMAP_ABOVE = 20  # more vehicles than this: a segment-usage heat map instead of routes
 LABEL_LIMIT = 400  # more nodes than this: no node ids, no transit dots
@@ -64,7 +64,6 @@ ROLE_STYLE = {
 }
 
 Point = tuple[float, float]
-Segment = tuple[int, int]
 Colour = str | tuple[float, float, float, float]
 Vehicles = Mapping[str, tuple[Sequence[int], Sequence[int]]]
 
@@ -221,18 +220,6 @@ def _render(
     return Picture(fig, ax, mode, usage)
 
 
-def segment_usage(plant: Plant, paths: Iterable[Sequence[int]]) -> dict[Segment, int]:
-    """Times each plant segment was driven, both directions together, keyed (lower id, higher
-    id). A step between nodes that share no segment (a position lost and found again) is not
-    a segment driven, and is not counted."""
-    segments = {_key(e.source, e.target) for e in plant.edges}
-    counts: Counter[Segment] = Counter()
-    for path in paths:
-        for a, b in _steps(path, segments):
-            counts[_key(a, b)] += 1
-    return dict(counts)
-
-
 def vehicle_colours(count: int) -> list[str]:
     """``count`` distinct colours: tab10 up to ten, then tab20's dark shades before its
     light ones (up to twenty); beyond that, evenly spaced hues (only routes need those)."""
@@ -257,7 +244,7 @@ class _Geometry:
         self.pos: dict[int, Point] = {n.id: (n.x, -n.y) for n in plant.nodes}  # files: y down
         self.around: dict[Segment, Segment | None] = {}
         for e in plant.edges:
-            key = _key(e.source, e.target)
+            key = segment_key(e.source, e.target)
             if e.routable:
                 self.around[key] = None
             else:
@@ -286,14 +273,14 @@ class _Geometry:
 
     def line(self, a: int, b: int, shift: float = 0.0) -> list[Point]:
         """The points a step a -> b is drawn through, ``shift`` sideways (a vehicle's lane)."""
-        if self.around[_key(a, b)]:
+        if self.around[segment_key(a, b)]:
             return self.detour(a, b, shift)
         return list(_offset(self.pos[a], self.pos[b], shift))
 
     def detour(self, a: int, b: int, shift: float = 0.0) -> list[Point]:
         """The way round of segment a-b, from a to b: the same way whichever direction it
         is driven, laid out from the direction of its non-routable edge."""
-        edge = self.around[_key(a, b)] or (a, b)
+        edge = self.around[segment_key(a, b)] or (a, b)
         way = self._round(*edge, shift)
         return way if edge == (a, b) else way[::-1]
 
@@ -349,7 +336,7 @@ def _draw_lanes(ax: Axes, geo: _Geometry) -> None:
     straight = []
     for e in geo.plant.edges:
         a, b = geo.pos[e.source], geo.pos[e.target]
-        if geo.around[_key(e.source, e.target)]:
+        if geo.around[segment_key(e.source, e.target)]:
             ax.add_patch(_polyline(geo.detour(e.source, e.target), RETURN_LANE, 1.2, "--", True))
             continue
         straight.append((a, b))
@@ -403,8 +390,8 @@ def _draw_blockades(
     """Draw the closed (black) and reopened (grey) segments, each with a cross, and return
     their legend entries. A fleet's picture names the blockades in its key even when none
     is in force, so a reader knows that none was left out."""
-    closed = sorted({_key(a, b) for a, b in blocked})
-    reopened = sorted({_key(a, b) for a, b in lifted} - set(closed))
+    closed = sorted({segment_key(a, b) for a, b in blocked})
+    reopened = sorted({segment_key(a, b) for a, b in lifted} - set(closed))
     handles = []
     for segments, colour, text in (
         (closed, BLOCKADE, "blocked segment"),
@@ -446,11 +433,11 @@ def _draw_vehicles(
         shift = (k - (len(vehicles) - 1) / 2) * spacing
         steps = _steps(driven, geo.around)
         strong = steps[-recent:]
-        seen = {_key(a, b) for a, b in strong}
+        seen = {segment_key(a, b) for a, b in strong}
         faint = []  # newest first, each segment once (overlaps would add up to opaque)
         for a, b in reversed(steps[-recent - earlier : -recent] if earlier else []):
-            if _key(a, b) not in seen:
-                seen.add(_key(a, b))
+            if segment_key(a, b) not in seen:
+                seen.add(segment_key(a, b))
                 faint.append((a, b))
         faint.reverse()
         ages = [to_rgba(colour, 0.1 + 0.3 * (i + 1) / len(faint)) for i in range(len(faint))]
@@ -477,7 +464,9 @@ def _draw_vehicles(
 def _steps(path: Sequence[int], segments: Container[Segment]) -> list[Segment]:
     """The steps of a path that are plant segments (see ``segment_usage``)."""
     return [
-        (a, b) for a, b in zip(path, path[1:], strict=False) if a != b and _key(a, b) in segments
+        (a, b)
+        for a, b in zip(path, path[1:], strict=False)
+        if a != b and segment_key(a, b) in segments
     ]
 
 
@@ -538,10 +527,6 @@ def _draw_usage(fig: Figure, ax: Axes, geo: _Geometry, usage: Mapping[Segment, i
 
 
 # ----- small drawing helpers ---------------------------------------------------------
-def _key(a: int, b: int) -> Segment:
-    return (min(a, b), max(a, b))
-
-
 def _offset(a: Point, b: Point, shift: float) -> tuple[Point, Point]:
     """The segment a-b moved ``shift`` sideways, to the same side whichever way it runs
     (the normal taken from its lower-left end)."""
