@@ -16,7 +16,7 @@ per simulated hour over the second half of the run, each run's and the baseline'
 their ratio.
 
     .venv/bin/python bench/long_run.py [--hours 4] [--keep-s 1800] [--every-s 1800]
-        [--scale 0.5]
+        [--scale 0.5] [--sites N]
 
 ``--sites N``: also where the memory that grew over the second half of the kept run was
 allocated, the N sites that grew most, each as its innermost frames in the project (what
@@ -76,25 +76,25 @@ def run(
     samples = []
     halfway = None
     grown: list[Site] = []
+    total_s = hours * 3600
+    count = max(math.ceil(total_s / every_s - 1e-9), 1)  # samples: one per --every-s
     # the sample growth_per_hour measures from, so that the sites grew over the same span
-    half_index = half_start(math.ceil(hours * 3600 / every_s - 1e-9))
+    half_index = half_start(count)
     try:
         program.rt.start()
         gc.collect()
         tracemalloc.start(FRAMES if sites else 1)
         base = tracemalloc.get_traced_memory()[0]
-        done = 0.0
-        while done < hours * 3600 - 1e-9:
-            step = min(every_s, hours * 3600 - done)
-            program.rt.run(duration=step)
-            done += step
+        for k in range(count):
+            done = min((k + 1) * every_s, total_s)
+            program.rt.run(duration=done - min(k * every_s, total_s))
             if program.rt.state != "RUN":
                 raise SystemExit(f"the run stopped at {done:.0f} s: {program.rt.fault_reason}")
             gc.collect()
             book = program.orders.book
             held = (tracemalloc.get_traced_memory()[0] - base) / 2**20
             samples.append(Sample(done / 3600, book.counts()["FINISHED"], len(book), held))
-            if sites and len(samples) - 1 == half_index:
+            if sites and k == half_index:
                 halfway = tracemalloc.take_snapshot()
         if sites and halfway is not None:
             grown = grown_sites(halfway, tracemalloc.take_snapshot(), sites)
@@ -104,13 +104,21 @@ def run(
     return samples, grown
 
 
+def _ours(filename: str) -> bool:
+    """A file of the project's own source (its virtual environment's libraries are not)."""
+    path = Path(filename)
+    return path.is_relative_to(ROOT) and not path.is_relative_to(ROOT / ".venv")
+
+
 def grown_sites(before: tracemalloc.Snapshot, after: tracemalloc.Snapshot, n: int) -> list[Site]:
     """The ``n`` allocation sites whose held memory grew most between the snapshots, each
     named by its innermost frames in the project's source (outside it, a site is only a
     library's line)."""
     out = []
-    for stat in after.compare_to(before, "traceback")[:n]:
-        ours = [f for f in stat.traceback if f.filename.startswith(str(ROOT))]
+    # compare_to orders by the size of the change, shrinking sites too: only growth counts
+    stats = sorted(after.compare_to(before, "traceback"), key=lambda st: -st.size_diff)
+    for stat in [st for st in stats if st.size_diff > 0][:n]:
+        ours = [f for f in stat.traceback if _ours(f.filename)]
         names = [f"{Path(f.filename).relative_to(ROOT)}:{f.lineno}" for f in ours]
         frames = " <- ".join(names[-SHOWN_FRAMES:][::-1]) or "(outside the project)"
         out.append(Site(frames, stat.size_diff / 1024, stat.count_diff))
@@ -129,6 +137,13 @@ def growth_per_hour(samples: list[Sample]) -> float:
     return (last.mib - first.mib) / max(last.hours - first.hours, 1e-9)
 
 
+def count_of_sites(text: str) -> int:
+    n = int(text)
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"a number of sites >= 0, got {n}")
+    return n
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=4.0)
@@ -136,7 +151,10 @@ def main() -> None:
     ap.add_argument("--every-s", type=float, default=1800.0)
     ap.add_argument("--scale", type=float, default=0.5, help="x the seed's order rates")
     ap.add_argument(
-        "--sites", type=int, default=0, help="print the N allocation sites that grew most"
+        "--sites",
+        type=count_of_sites,
+        default=0,
+        help="print the N allocation sites that grew most",
     )
     ap.add_argument("--quick", action="store_true", help="0.1 h, kept 120 s, a line each 120 s")
     args = ap.parse_args()
