@@ -150,16 +150,17 @@ class FleetRecorder(FunctionBlock):
         }
         self._usage = SegmentUsage(plant)
         self.usage = self._usage.counts
-        # the plant's own int per node: every entry of a record shares one object per node
-        # instead of holding the int decoded from a status frame (28 bytes each)
-        self._ids = {n.id: n.id for n in plant.nodes}
+        self.plant = plant
 
     def cycle(self, ctx: CycleContext) -> None:
         for v, control in self.controls.items():
             node = control.current
             path = self.driven[v]
             if node is not None and (not path or path[-1] != node):
-                node = self._ids.get(node, node)
+                # the plant's own int for the node (a control's position is always a plant
+                # node): every entry shares one object per node instead of holding the int
+                # decoded from a status frame (28 bytes each)
+                node = self.plant.node(node).id
                 if path:
                     self._usage.step(path[-1], node)
                 path.append(node)
