@@ -16,7 +16,11 @@ per simulated hour over the second half of the run, each run's and the baseline'
 their ratio.
 
     .venv/bin/python bench/long_run.py [--hours 4] [--keep-s 1800] [--every-s 1800]
-        [--scale 0.5] [--sites N]
+        [--scale 0.5] [--sites N] [--jobs 2]
+
+Each sample is also printed on stderr as it is measured, so a run of many hours shows its
+course (and what it measured if it is stopped). ``--jobs 2`` runs the baseline and the kept
+run in two processes at once, for half the wall time on two cores; the results are the same.
 
 ``--sites N``: also where the memory that grew over the second half of the kept run was
 allocated, the N sites that grew most, each as its innermost frames in the project (what
@@ -32,6 +36,7 @@ import argparse
 import dataclasses
 import gc
 import math
+import multiprocessing
 import sys
 import time
 import tracemalloc
@@ -56,6 +61,16 @@ class Sample:
     mib: float
 
 
+def show(name: str, s: Sample) -> None:
+    """One sample on stderr, as it is measured."""
+    print(
+        f"[{name}] {s.hours:.2f} h: {s.finished} finished, {s.in_book} in the book, "
+        f"{s.mib:.2f} MiB",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 @dataclasses.dataclass
 class Site:
     frames: str  # "file:line <- file:line ...", innermost first
@@ -64,7 +79,7 @@ class Site:
 
 
 def run(
-    hours: float, keep_s: float, every_s: float, scale: float, sites: int = 0
+    name: str, hours: float, keep_s: float, every_s: float, scale: float, sites: int = 0
 ) -> tuple[list[Sample], list[Site]]:
     cfg = load_config(CONFIG)
     cfg.orders.generator = dataclasses.replace(
@@ -94,6 +109,7 @@ def run(
             book = program.orders.book
             held = (tracemalloc.get_traced_memory()[0] - base) / 2**20
             samples.append(Sample(done / 3600, book.counts()["FINISHED"], len(book), held))
+            show(name, samples[-1])
             if sites and k == half_index:
                 halfway = tracemalloc.take_snapshot()
         if sites and halfway is not None:
@@ -102,6 +118,51 @@ def run(
         tracemalloc.stop()
         program.close()
     return samples, grown
+
+
+def _child(conn, args: tuple) -> None:
+    """One run in a forked process: its samples and sites back as plain tuples, or the
+    reason it stopped."""
+    try:
+        samples, sites = run(*args)
+        conn.send(
+            ([dataclasses.astuple(s) for s in samples], [dataclasses.astuple(s) for s in sites])
+        )
+    except BaseException as exc:  # noqa: BLE001 - any failure goes back to the parent
+        conn.send(str(exc) or type(exc).__name__)
+    finally:
+        conn.close()
+
+
+def run_all(runs: list[tuple], jobs: int) -> list[tuple[list[Sample], list[Site]]]:
+    """The runs (``run``'s arguments each), one after another or ``jobs`` at a time in
+    forked processes; the results in the order given either way."""
+    if jobs <= 1:
+        return [run(*args) for args in runs]
+    ctx = multiprocessing.get_context("fork")
+    out: list = []
+    for first in range(0, len(runs), jobs):
+        started = []
+        for args in runs[first : first + jobs]:
+            parent, child = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_child, args=(child, args))
+            proc.start()
+            child.close()
+            started.append((proc, parent))
+        for proc, parent in started:
+            try:
+                got = parent.recv()
+            except EOFError:
+                got = "the run's process ended without a result"
+            proc.join()
+            if isinstance(got, str):
+                for other, _ in started:
+                    other.kill()
+                    other.join()
+                raise SystemExit(got)
+            samples, sites = got
+            out.append(([Sample(*s) for s in samples], [Site(*s) for s in sites]))
+    return out
 
 
 def _ours(filename: str) -> bool:
@@ -131,10 +192,21 @@ def half_start(n: int) -> int:
     return max(min(n // 2, n - 2), 0)
 
 
+def interval_growth(before: Sample, after: Sample) -> float:
+    """MiB per simulated hour between two samples: where the curve levels off, about 0."""
+    return (after.mib - before.mib) / max(after.hours - before.hours, 1e-9)
+
+
 def growth_per_hour(samples: list[Sample]) -> float:
     """MiB per simulated hour over the second half of the run."""
-    first, last = samples[half_start(len(samples))], samples[-1]
-    return (last.mib - first.mib) / max(last.hours - first.hours, 1e-9)
+    return interval_growth(samples[half_start(len(samples))], samples[-1])
+
+
+def count_of_jobs(text: str) -> int:
+    n = int(text)
+    if n not in (1, 2):
+        raise argparse.ArgumentTypeError(f"1 or 2 processes (one per run), got {n}")
+    return n
 
 
 def count_of_sites(text: str) -> int:
@@ -156,24 +228,40 @@ def main() -> None:
         default=0,
         help="print the N allocation sites that grew most",
     )
+    ap.add_argument(
+        "--jobs",
+        type=count_of_jobs,
+        default=1,
+        help="2: the baseline and the kept run in two processes at once",
+    )
     ap.add_argument("--quick", action="store_true", help="0.1 h, kept 120 s, a line each 120 s")
     args = ap.parse_args()
     if args.quick:
         args.hours, args.keep_s, args.every_s = 0.1, 120.0, 120.0
     begin = time.perf_counter()
-    baseline, _ = run(args.hours, math.inf, args.every_s, args.scale)
-    kept, sites = run(args.hours, args.keep_s, args.every_s, args.scale, args.sites)
-    runs = {"for ever (baseline)": baseline, f"{args.keep_s:g} s": kept}
+    names = ["for ever (baseline)", f"{args.keep_s:g} s"]
+    (baseline, _), (kept, sites) = run_all(
+        [
+            (names[0], args.hours, math.inf, args.every_s, args.scale),
+            (names[1], args.hours, args.keep_s, args.every_s, args.scale, args.sites),
+        ],
+        args.jobs,
+    )
+    runs = dict(zip(names, [baseline, kept], strict=True))
     print(
         f"distribution centre, 17 shuttles, {args.scale:g} x the seed's order rates, "
         f"{args.hours:g} simulated h; memory: Python "
         "objects allocated since the start and still held (tracemalloc)\n"
     )
-    print("| final orders kept | simulated h | orders finished | orders in the book | MiB held |")
-    print("|---|---:|---:|---:|---:|")
+    print(
+        "| final orders kept | simulated h | orders finished | orders in the book | MiB held "
+        "| MiB per h since the sample before |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
     for name, samples in runs.items():
-        for s in samples:
-            print(f"| {name} | {s.hours:.2f} | {s.finished} | {s.in_book} | {s.mib:.2f} |")
+        for before, s in zip([None, *samples[:-1]], samples, strict=True):
+            rate = "" if before is None else f"{interval_growth(before, s):+.3f}"
+            print(f"| {name} | {s.hours:.2f} | {s.finished} | {s.in_book} | {s.mib:.2f} | {rate} |")
     base_rate, rate = growth_per_hour(baseline), growth_per_hour(kept)
     print("\n| final orders kept | MiB per simulated h (second half) | / baseline |")
     print("|---|---:|---:|")
