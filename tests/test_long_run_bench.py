@@ -66,7 +66,7 @@ def test_the_sites_grew_over_the_span_the_growth_is_measured_over(monkeypatch, h
     monkeypatch.setitem(names, "tracemalloc", tracer)
     monkeypatch.setitem(names, "gc", SimpleNamespace(collect=lambda: None))
     monkeypatch.setitem(names, "grown_sites", lambda before, after, n: [(before, after)])
-    samples, [(before, after)] = long_run["run"](hours, 120.0, every_s, 0.5, sites=3)
+    samples, [(before, after)] = long_run["run"]("kept", hours, 120.0, every_s, 0.5, sites=3)
     assert len(samples) == math.ceil(hours * 3600 / every_s - 1e-9)
     assert samples[-1].hours * 3600 == pytest.approx(hours * 3600) == after
     start = samples[long_run["half_start"](len(samples))]
@@ -99,3 +99,55 @@ def test_a_negative_number_of_sites_is_refused():
     with pytest.raises(argparse.ArgumentTypeError, match="a number of sites >= 0, got -1"):
         long_run["count_of_sites"]("-1")
     assert long_run["count_of_sites"]("0") == 0
+
+
+class Filling(StandIn):
+    """A stand-in whose book fills with the simulated time, so that runs differ."""
+
+    def run(self, duration: float) -> None:
+        super().run(duration)
+        self.orders.book.extend([None] * int(duration // 60))
+
+
+def patch_program(monkeypatch, program) -> None:
+    names = long_run["run"].__globals__
+    monkeypatch.setitem(names, "FleetProgram", program)
+
+
+def test_two_processes_give_the_results_of_one_in_the_order_given(monkeypatch):
+    patch_program(monkeypatch, Filling)
+    runs = [("a", 0.2, math.inf, 240.0, 0.5), ("b", 0.1, 120.0, 120.0, 0.5)]
+    one = long_run["run_all"](runs, 1)
+    two = long_run["run_all"](runs, 2)
+    assert two == one
+    assert [len(samples) for samples, _ in two] == [3, 3]
+    assert [s.in_book for s in two[0][0]] == [4, 8, 12]
+
+
+class Stopping(StandIn):
+    def run(self, duration: float) -> None:
+        self.rt.state = "STOP"
+        self.rt.fault_reason = "watchdog"
+
+
+def test_a_run_that_stops_in_its_process_stops_the_bench_with_its_reason(monkeypatch):
+    patch_program(monkeypatch, Stopping)
+    runs = [("a", 0.1, math.inf, 120.0, 0.5), ("b", 0.1, 120.0, 120.0, 0.5)]
+    with pytest.raises(SystemExit, match="the run stopped at 120 s: watchdog"):
+        long_run["run_all"](runs, 2)
+
+
+def test_the_growth_between_samples_and_over_the_second_half():
+    Sample = long_run["Sample"]
+    mib = [1.0, 1.5, 1.5, 2.5]
+    samples = [Sample(h + 1.0, 0, 0, m) for h, m in enumerate(mib)]
+    assert long_run["interval_growth"](samples[0], samples[1]) == pytest.approx(0.5)
+    assert long_run["interval_growth"](samples[1], samples[2]) == 0.0
+    # the second half of four samples is from the third to the last
+    assert long_run["growth_per_hour"](samples) == pytest.approx(1.0)
+
+
+def test_only_one_or_two_processes():
+    with pytest.raises(argparse.ArgumentTypeError, match="1 or 2 processes"):
+        long_run["count_of_jobs"]("3")
+    assert long_run["count_of_jobs"]("2") == 2
