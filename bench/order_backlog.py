@@ -23,7 +23,12 @@ released. Measured, in wall time:
 * every pool a round takes, from the index (ours) and, at the same moment on the same
   book, as the plain definition gives it: sort the waiting orders (the startable ones for
   dhht) by urgency and take the first ``pool_limit`` (the baseline). The two must be the
-  same orders in the same order; the bench stops if they differ.
+  same orders in the same order; the bench stops if they differ;
+* the sweep of final orders out of a book of N (every other order final, the oldest
+  first, ``SWEEP_BUDGET`` a call, as a scan sweeps): microseconds per order taken out of
+  the book, against the same book keeping its positions in a plain sorted list (the
+  baseline: each order taken out moves every later position). Both must sweep the same
+  orders and leave the same pages; the bench stops if they do not.
 
     .venv/bin/python bench/order_backlog.py [--orders 1000 10000 100000]
         [--strategies two_stage dhht] [--after-s 300] [--python-gc] [--quick]
@@ -34,6 +39,7 @@ released. Measured, in wall time:
 from __future__ import annotations
 
 import argparse
+import bisect
 import gc
 import heapq
 import random
@@ -49,10 +55,10 @@ sys.path.insert(0, str(ROOT))
 
 from blocks.dispatch.dispatcher import Dispatcher  # noqa: E402
 from blocks.dispatch.order_file import write_orders  # noqa: E402
-from blocks.dispatch.orders import TransportOrder  # noqa: E402
+from blocks.dispatch.orders import OrderBook, TransportOrder  # noqa: E402
 from blocks.dispatch.urgent_orders import urgency  # noqa: E402
 from fleet.config import load_config  # noqa: E402
-from fleet.order_system import RELEASE_BUDGET, order_stations  # noqa: E402
+from fleet.order_system import RELEASE_BUDGET, SWEEP_BUDGET, order_stations  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
 from plc_runtime.cli import positive  # noqa: E402
 
@@ -192,6 +198,61 @@ def _scans(program: FleetProgram, n: int, after_s: float, baseline: list[float])
     return release, after, faults
 
 
+class ListPositions(list):
+    """The baseline's positions: a plain ascending list, as the book kept them before, with
+    the calls the book makes of its sorted list."""
+
+    def add(self, position: int) -> None:
+        self.insert(bisect.bisect_right(self, position), position)
+
+    def remove(self, position: int) -> None:
+        del self[bisect.bisect_left(self, position)]
+
+    def bisect_left(self, position: int) -> int:
+        return bisect.bisect_left(self, position)
+
+    def islice(self, start: int, stop: int) -> list[int]:
+        return self[start:stop]
+
+
+@dataclass
+class SweepResult:
+    orders: int
+    swept: int
+    ours_us: float  # per order taken out
+    list_us: float
+
+
+def swept_book(n: int, positions: type | None) -> tuple[OrderBook, float]:
+    """A book of ``n`` orders, every other one withdrawn (final) at 0 s, swept at
+    ``keep_final_s``, ``SWEEP_BUDGET`` a call; the wall seconds the sweeps took."""
+    book = OrderBook({1: "a", 2: "b"}, keep_final_s=60.0)
+    if positions is not None:
+        book._positions = positions()
+    for k in range(n):
+        book.add(TransportOrder(f"o{k}", 1, 2, 0.0, 3600.0), 0.0)
+        if k % 2 == 0:
+            book.withdraw(f"o{k}", 0.0)
+    took = 0.0
+    while True:
+        begin = time.perf_counter()
+        out = book.sweep(60.0, SWEEP_BUDGET)
+        took += time.perf_counter() - begin
+        if not out:
+            return book, took
+
+
+def sweep_costs(n: int) -> SweepResult:
+    ours, ours_s = swept_book(n, None)
+    plain, list_s = swept_book(n, ListPositions)
+    if ours.swept != plain.swept or any(
+        [o.id for o in ours.page(k, 100)] != [o.id for o in plain.page(k, 100)]
+        for k in range(0, n, max(n // 50, 1))
+    ):
+        raise SystemExit(f"order_backlog.py: the sweeps of {n:,} orders differ")
+    return SweepResult(n, ours.swept, ours_s / ours.swept * 1e6, list_s / plain.swept * 1e6)
+
+
 def quantiles(values: list[float]) -> str:
     if not values:
         return "-"
@@ -242,6 +303,32 @@ def report(results: list[Result]) -> None:
     print(f"release budget: {RELEASE_BUDGET} orders a scan; every pool matched the sort's")
 
 
+SWEEP_COLUMNS = (
+    "orders in the book",
+    "swept",
+    "us per order swept: ours",
+    "plain sorted list",
+    "ours / plain",
+)
+
+
+def report_sweeps(results: list[SweepResult]) -> None:
+    print()
+    print(f"Sweeping final orders out of the book, {SWEEP_BUDGET} a call (wall us per order)")
+    print()
+    print("| " + " | ".join(SWEEP_COLUMNS) + " |")
+    print("|" + "|".join("---:" for _ in SWEEP_COLUMNS) + "|")
+    for r in results:
+        cells = (
+            f"{r.orders:,}",
+            f"{r.swept:,}",
+            f"{r.ours_us:.2f}",
+            f"{r.list_us:.2f}",
+            f"{r.ours_us / r.list_us:.2f}",
+        )
+        print("| " + " | ".join(cells) + " |")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--orders", type=positive(int), nargs="+", default=[1_000, 10_000, 100_000])
@@ -270,6 +357,7 @@ def main(argv: list[str] | None = None) -> int:
             results.append(run(n, strategy, args.after_s, args.python_gc))
             print(f"  {n:,} orders, {strategy}: done", flush=True)
     report(results)
+    report_sweeps([sweep_costs(n) for n in args.orders])
     print(f"wall time {time.perf_counter() - begin:.0f} s")
     faulted = [f"{r.orders:,} orders, {r.strategy}: {r.fault_reason}" for r in results if r.faults]
     if faulted:  # a faulted run measured nothing: not a result to record

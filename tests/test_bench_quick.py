@@ -127,6 +127,15 @@ def test_order_backlog_runs_its_rounds_without_a_fault():
     # a wall-clock ratio: measured, printed, never asserted beyond being one
     ratio = float(row[columns.index("sort / ours")])
     assert math.isfinite(ratio) and ratio >= 0, row
+    # then the sweep of the book's final orders, against a plain sorted list
+    rest = result.stdout[result.stdout.index("Sweeping final orders") :]
+    columns, body, header = table(rest)
+    assert header in DOCS, "order_backlog.py's sweep table differs from docs/benchmarks.md"
+    (row,) = body
+    assert row[columns.index("orders in the book")] == "1,000", row
+    assert row[columns.index("swept")] == "500", row
+    ratio = float(row[columns.index("ours / plain")])
+    assert math.isfinite(ratio) and ratio > 0, row
 
 
 def test_warehouse_throughput_json_is_one_object_per_plant_and_fleet_size():

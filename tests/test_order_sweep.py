@@ -9,6 +9,8 @@ import math
 from types import SimpleNamespace
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_orders_program import WORKSHOP, config, run, start
 
 from blocks.dispatch.orders import KEEP_FINAL_S, OrderBook, OrderError, OrderState, TransportOrder
@@ -65,6 +67,48 @@ def test_positions_never_change_so_pages_do_not_shift_when_orders_leave():
     assert book.page(6, 5) == []
     late = book.add(TransportOrder("late", 21, 20), 2.0)
     assert late.position == 6 and [o.id for o in book.page(5, 9)] == ["o5", "late"]
+
+
+# a step of the book's life: add an order, end the k-th open one, sweep with a budget, or
+# let time pass
+STEPS = st.one_of(
+    st.tuples(st.just("add"), st.integers(0, 3)),
+    st.tuples(st.just("end"), st.integers(0, 50)),
+    st.tuples(st.just("sweep"), st.integers(0, 7)),
+    st.tuples(st.just("wait"), st.integers(1, 30)),
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(STEPS, max_size=120), st.integers(0, 40), st.integers(1, 12))
+def test_pages_are_the_books_orders_by_position_after_any_adds_and_sweeps(steps, offset, limit):
+    """A model of the book (every order added, in order, less those swept) against its
+    pages: the positions survive any mix of adds, ends and sweeps, ids used again
+    included."""
+    book = OrderBook({20: "in", 21: "out"}, keep_final_s=10.0)
+    model: list[TransportOrder] = []  # in the book, by position
+    now, made = 0.0, 0
+    for kind, n in steps:
+        if kind == "add":
+            for _ in range(n):
+                oid = f"o{made % 17}"  # an id used again once its order has left the book
+                oid = f"n{made}" if oid in book else oid
+                model.append(book.add(TransportOrder(oid, 20, 21, 0.0, math.inf), now))
+                made += 1
+        elif kind == "end":
+            open_ = [o for o in model if not o.state.final]
+            if open_:
+                book.withdraw(open_[n % len(open_)].id, now)
+        elif kind == "sweep":
+            gone = book.sweep(now, n)
+            assert len(gone) <= n
+            model = [o for o in model if all(o is not g for g in gone)]
+        else:
+            now += n
+        assert len(book) == len(model)
+    expected = [o for o in model if o.position >= offset][:limit]
+    assert book.page(offset, limit) == expected
+    assert book.page(0, len(model)) == model
 
 
 def test_an_id_can_be_used_again_only_once_its_order_has_left_the_book():

@@ -26,13 +26,13 @@ transition is time-stamped in the order's ``history`` with the time the caller p
 from __future__ import annotations
 
 import math
-from bisect import bisect_left
 from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+from sortedcontainers import SortedList
 
 from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
@@ -315,8 +315,10 @@ class OrderBook:
         self.added = 0  # orders ever added: the next order's position
         self.swept = 0  # final orders that have left the book
         # the positions of the orders in the book, ascending, and the order at each: a page
-        # is a slice from a bisection, so it costs the orders it holds, whatever the offset
-        self._positions: list[int] = []
+        # is a slice from a bisection, so it costs the orders it holds, whatever the offset;
+        # sorted in blocks, so the sweep takes an order out in log time, not by moving every
+        # later position of a long run's book
+        self._positions: SortedList = SortedList()
         self._at: dict[int, TransportOrder] = {}
         # (time it became final, id), oldest first: what the sweep removes next
         self._final: deque[tuple[float, str]] = deque()
@@ -360,7 +362,7 @@ class OrderBook:
         _check_time(order, now_s)
         self._orders[oid] = order
         order.position = self.added
-        self._positions.append(self.added)
+        self._positions.add(self.added)
         self._at[self.added] = order
         self.added += 1
         self._counts[order.state.value] += 1
@@ -405,8 +407,8 @@ class OrderBook:
         long run's book costs a scan no more than the first one."""
         if offset < 0 or limit < 0:
             raise ValueError(f"a page needs offset >= 0 and limit >= 0, got {offset}, {limit}")
-        first = bisect_left(self._positions, offset)
-        return [self._at[p] for p in self._positions[first : first + limit]]
+        first = self._positions.bisect_left(offset)
+        return [self._at[p] for p in self._positions.islice(first, first + limit)]
 
     def sweep(self, now_s: float, budget: int) -> list[TransportOrder]:
         """Remove at most ``budget`` orders that have been final for ``keep_final_s`` by
@@ -417,7 +419,7 @@ class OrderBook:
         while self._final and len(out) < budget and self._final[0][0] <= until:
             _, oid = self._final.popleft()
             order = self._orders.pop(oid)
-            del self._positions[bisect_left(self._positions, order.position)]
+            self._positions.remove(order.position)
             del self._at[order.position]
             self.swept += 1
             out.append(order)
