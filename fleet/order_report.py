@@ -107,17 +107,18 @@ def run_totals(system: OrderSystem) -> OrderTotals:
     return OrderTotals().add(system.book).merged(system.swept)
 
 
-def station_use(system: OrderSystem) -> dict[int, tuple[int, float]]:
+def station_use(totals: OrderTotals) -> dict[int, tuple[int, float]]:
     """Per station: the transport orders' finished visits (Get and Put dwells) and the
     seconds they took, for the summary's ``station_utilisation``."""
     return {
-        station: (visits, seconds(busy))
-        for station, (visits, busy) in run_totals(system).station_use.items()
+        station: (visits, seconds(busy)) for station, (visits, busy) in totals.station_use.items()
     }
 
 
-def order_summary(system: OrderSystem) -> dict[str, Any]:
-    totals = run_totals(system)
+def order_summary(system: OrderSystem, totals: OrderTotals | None = None) -> dict[str, Any]:
+    """The summary's order keys; ``totals``: the run's (``run_totals``), if the caller has
+    them already (they cost a pass over the book)."""
+    totals = run_totals(system) if totals is None else totals
     runners = system.runners.values()
     d = system.dispatcher
     return {

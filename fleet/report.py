@@ -23,7 +23,7 @@ from plc_runtime.cli import clock_kind, clock_speed
 from plc_runtime.errors import ConfigError
 from plc_runtime.files import lock_file, release_lock, same_path
 
-from .order_report import order_summary, station_use, write_orders_csv
+from .order_report import OrderTotals, order_summary, run_totals, station_use, write_orders_csv
 from .program import FleetProgram
 
 CSV_COLUMNS = (
@@ -48,6 +48,8 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
     controls, sequencers = program.controls, program.jobs
     monitor = program.monitor
     resolver = program.resolver
+    # every order of the run, swept ones included: one pass over the book for both uses
+    totals = run_totals(program.orders) if program.orders else None
     vehicles = {
         str(row["vehicle"]): {
             **{
@@ -118,12 +120,12 @@ def summary(program: FleetProgram, wall_s: float, state: str | None = None) -> d
         "faults": faults(program, stats.get("drivers", {})),
         "events": [e.to_dict() for e in program.events.recent(EVENTS_IN_SUMMARY)],
         "event_counts": dict(sorted(program.events.counts.items())),
-        "station_utilisation": _utilisation(program, sim),
+        "station_utilisation": _utilisation(program, sim, totals),
         "heuristic_table": {
             "build_ms": round(program.table.build_time_s * 1e3, 3),
             "bytes": program.table.nbytes,
         },
-        **(order_summary(program.orders) if program.orders else {}),
+        **(order_summary(program.orders, totals) if program.orders else {}),
         **(
             {"goals_reached": sum(g.rounds_done for g in program.goals.values())}
             if program.goals
@@ -149,13 +151,15 @@ INJECTED = ("dropped", "corrupted", "spoofed", "delays")
 DETECTED = ("crc_errors", "malformed", "repeated", "out_of_sequence", "resyncs", "unconfirmed")
 
 
-def _utilisation(program: FleetProgram, sim: float) -> dict[str, dict[str, float | int]]:
+def _utilisation(
+    program: FleetProgram, sim: float, totals: OrderTotals | None
+) -> dict[str, dict[str, float | int]]:
     """Per station: recipe assignments, and the visits and busy time of recipes and
-    transport orders together."""
+    transport orders together (``totals``: the run's orders', if it has any)."""
     out = program.chooser.utilisation(sim)
-    if program.orders is None:
+    if totals is None:
         return out
-    for station, (visits, busy) in station_use(program.orders).items():
+    for station, (visits, busy) in station_use(totals).items():
         row = out.setdefault(
             str(station), {"assigned": 0, "visits": 0, "busy_s": 0.0, "utilisation": 0.0}
         )
