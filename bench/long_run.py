@@ -46,6 +46,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from fleet.config import load_config  # noqa: E402
+from fleet.order_report import energy_summary  # noqa: E402
 from fleet.program import FleetProgram  # noqa: E402
 
 CONFIG = ROOT / "examples" / "distribution-centre.toml"
@@ -80,7 +81,7 @@ class Site:
 
 def run(
     name: str, hours: float, keep_s: float, every_s: float, scale: float, sites: int = 0
-) -> tuple[list[Sample], list[Site]]:
+) -> tuple[list[Sample], list[Site], dict]:
     cfg = load_config(CONFIG)
     cfg.orders.generator = dataclasses.replace(
         cfg.orders.generator, duration_s=hours * 3600, scale=scale
@@ -114,19 +115,25 @@ def run(
                 halfway = tracemalloc.take_snapshot()
         if sites and halfway is not None:
             grown = grown_sites(halfway, tracemalloc.take_snapshot(), sites)
+        chargers = len(cfg.plant.with_role("charger"))
+        energy = energy_summary(program.orders.runners.values(), chargers)
     finally:
         tracemalloc.stop()
         program.close()
-    return samples, grown
+    return samples, grown, energy
 
 
 def _child(conn, args: tuple) -> None:
-    """One run in a forked process: its samples and sites back as plain tuples, or the
-    reason it stopped."""
+    """One run in a forked process: its samples and sites back as plain tuples, with its
+    batteries' energy balance, or the reason it stopped."""
     try:
-        samples, sites = run(*args)
+        samples, sites, energy = run(*args)
         conn.send(
-            ([dataclasses.astuple(s) for s in samples], [dataclasses.astuple(s) for s in sites])
+            (
+                [dataclasses.astuple(s) for s in samples],
+                [dataclasses.astuple(s) for s in sites],
+                energy,
+            )
         )
     except BaseException as exc:  # noqa: BLE001 - any failure goes back to the parent
         conn.send(str(exc) or type(exc).__name__)
@@ -134,7 +141,7 @@ def _child(conn, args: tuple) -> None:
         conn.close()
 
 
-def run_all(runs: list[tuple], jobs: int) -> list[tuple[list[Sample], list[Site]]]:
+def run_all(runs: list[tuple], jobs: int) -> list[tuple[list[Sample], list[Site], dict]]:
     """The runs (``run``'s arguments each), one after another or ``jobs`` at a time in
     forked processes; the results in the order given either way."""
     if jobs <= 1:
@@ -160,8 +167,8 @@ def run_all(runs: list[tuple], jobs: int) -> list[tuple[list[Sample], list[Site]
                     other.kill()
                     other.join()
                 raise SystemExit(got)
-            samples, sites = got
-            out.append(([Sample(*s) for s in samples], [Site(*s) for s in sites]))
+            samples, sites, energy = got
+            out.append(([Sample(*s) for s in samples], [Site(*s) for s in sites], energy))
     return out
 
 
@@ -240,7 +247,7 @@ def main() -> None:
         args.hours, args.keep_s, args.every_s = 0.1, 120.0, 120.0
     begin = time.perf_counter()
     names = ["for ever (baseline)", f"{args.keep_s:g} s"]
-    (baseline, _), (kept, sites) = run_all(
+    (baseline, _, energy), (kept, sites, _) = run_all(
         [
             (names[0], args.hours, math.inf, args.every_s, args.scale),
             (names[1], args.hours, args.keep_s, args.every_s, args.scale, args.sites),
@@ -268,6 +275,12 @@ def main() -> None:
     print(f"| for ever (baseline) | {base_rate:.3f} | 1.00 |")
     ratio = rate / base_rate if base_rate > 0 else math.nan
     print(f"| {args.keep_s:g} s | {rate:.3f} | {ratio:.2f} |")
+    print(
+        "\nThe batteries (the baseline run): % of the capacity per hour lost off the chargers "
+        f"(per vehicle) {energy['drain_pct_per_h']}, gained on a charger "
+        f"{energy['charge_pct_per_h']}; chargers the fleet's work needs, sustained, "
+        f"{energy['chargers_needed']} of the plant's {energy['chargers']}"
+    )
     if sites:
         print(f"\nWhere the kept run's memory grew over its second half, the {len(sites)} sites")
         print("that grew most (innermost frames in the project first):\n")

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from blocks.dispatch.energy import EnergyBalance
+from blocks.dispatch.executor import OrderRunner
 from blocks.dispatch.order_file import write_history
 from blocks.dispatch.orders import OrderState, TransportOrder
 
@@ -147,7 +149,24 @@ def order_summary(system: OrderSystem, totals: OrderTotals | None = None) -> dic
             "visits": sum(r.charges for r in runners),
             "time_s": round(sum(r.charging_s for r in runners), 3),
             "min_battery": min((r.min_battery for r in runners), default=None),
+            **energy_summary(runners, len(system.cfg.plant.with_role("charger"))),
         },
+    }
+
+
+def energy_summary(runners: Iterable[OrderRunner], chargers: int) -> dict[str, Any]:
+    """The fleet's energy balance: % of the capacity per hour lost off the chargers (per
+    vehicle) and gained on one, the chargers its work needs sustained, and the plant's."""
+    balance = EnergyBalance.of(r.meter for r in runners)
+
+    def rounded(value: float | None) -> float | None:
+        return None if value is None else round(value, 2)
+
+    return {
+        "drain_pct_per_h": rounded(balance.drain_per_h),
+        "charge_pct_per_h": rounded(balance.charge_per_h),
+        "chargers_needed": rounded(balance.chargers_needed),
+        "chargers": chargers,
     }
 
 

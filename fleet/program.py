@@ -119,14 +119,16 @@ class FleetCycle(FunctionBlock):
             )
         for seq, control in self.pairs:
             if isinstance(seq, OrderRunner):
+                battery = self.battery(control.vehicle)
                 seq(
                     ctx,
                     arrived=control.arrived,
                     current=control.current,
                     frontier=control.frontier,
-                    battery=self.battery(control.vehicle),
+                    battery=battery,
                     in_service=control.state not in OUT_OF_SERVICE,
                 )
+                seq.meter(ctx, battery=battery, on_charger=seq.phase == "charging")
             else:
                 seq(ctx, arrived=control.arrived, current=control.current)
             control(

@@ -31,7 +31,7 @@ class StandIn:
 
     def __init__(self, cfg) -> None:
         StandIn.now_s = 0.0
-        self.orders = SimpleNamespace(book=Book())
+        self.orders = SimpleNamespace(book=Book(), runners={})
         self.rt = SimpleNamespace(start=lambda: None, state="RUN", fault_reason=None, run=self.run)
 
     def run(self, duration: float) -> None:
@@ -66,7 +66,7 @@ def test_the_sites_grew_over_the_span_the_growth_is_measured_over(monkeypatch, h
     monkeypatch.setitem(names, "tracemalloc", tracer)
     monkeypatch.setitem(names, "gc", SimpleNamespace(collect=lambda: None))
     monkeypatch.setitem(names, "grown_sites", lambda before, after, n: [(before, after)])
-    samples, [(before, after)] = long_run["run"]("kept", hours, 120.0, every_s, 0.5, sites=3)
+    samples, [(before, after)], _ = long_run["run"]("kept", hours, 120.0, every_s, 0.5, sites=3)
     assert len(samples) == math.ceil(hours * 3600 / every_s - 1e-9)
     assert samples[-1].hours * 3600 == pytest.approx(hours * 3600) == after
     start = samples[long_run["half_start"](len(samples))]
@@ -120,7 +120,9 @@ def test_two_processes_give_the_results_of_one_in_the_order_given(monkeypatch):
     one = long_run["run_all"](runs, 1)
     two = long_run["run_all"](runs, 2)
     assert two == one
-    assert [len(samples) for samples, _ in two] == [3, 3]
+    assert [len(samples) for samples, _, _ in two] == [3, 3]
+    # no vehicle took orders: nothing measured of the batteries, and the plant's chargers
+    assert two[0][2]["chargers_needed"] is None and two[0][2]["chargers"] == 4
     assert [s.in_book for s in two[0][0]] == [4, 8, 12]
 
 

@@ -46,6 +46,7 @@ from plc_runtime import CycleContext, FunctionBlock, Input, Output, Static
 from topology import Plant
 
 from .charging import ChargePolicy
+from .energy import EnergyMeter
 from .orders import OrderBook, OrderState, TransportOrder
 
 PHASES = (
@@ -238,6 +239,8 @@ class OrderRunner(FunctionBlock):
         self.plant = plant
         self.book = book
         self.claims = claims
+        # the vehicle's energy over the run, from the same readings: what charging costs
+        self.meter = EnergyMeter()
         self.charging = charging
         self.distance = distance
         self.dwell_s = {"Get": get_s, "Put": put_s}
