@@ -27,7 +27,9 @@ Experiments (the seed's, ``docs/benchmarks.md`` "Order allocation"):
    so this leaves the fleet the slack the seed's had, some 70 % busy), with the vehicles
    starting part-charged (a seeded spread of 36-70 %) and the charging policy on, against
    the same run with batteries off (full, no policy): orders finished, throughput lost,
-   charger use, the lowest charge.
+   charger use, the lowest charge. ``--top-up-below P``: idle vehicles charge by choice
+   only below P % (the rule before was below ``sufficient``, 60), for a baseline of the
+   policy over runs long enough for the batteries to run down (``--battery-s 14400``).
 
 5. ``arrival``: 17 vehicles, each strategy, the generator's arrival for ``--arrival-s``
    seconds (each order known ``lead_s`` before its start, as the seed's warehouse system
@@ -42,7 +44,7 @@ order time (the seed: 38 s).
 
     .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery arrival]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
-        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5]
+        [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--top-up-below P]
         [--arrival-s 3600] [--loads 0.5 0.75 1] [--json FILE]
         [--report FILE ...] [--quick]
 
@@ -101,6 +103,7 @@ class Case:
     max_s: float = 4000.0
     deadlines: bool = True  # pool runs: keep the generator's latest delivery times
     traffic: str = "reactive"  # the fleet's traffic mode
+    top_up_below: float | None = None  # battery runs: idle vehicles charge below it (None: full)
 
 
 @dataclass
@@ -150,6 +153,8 @@ def run_case(case: Case) -> Result:
     if case.battery:
         rng = random.Random(case.seed)
         cfg.battery.start = {v: rng.uniform(36.0, 70.0) for v in sorted(cfg.starts)}
+        if case.top_up_below is not None:
+            cfg.battery.top_up_below = case.top_up_below
     else:
         cfg.battery.enabled = False
     with tempfile.TemporaryDirectory() as tmp:
@@ -237,6 +242,7 @@ def cases(args: argparse.Namespace) -> list[Case]:
                 arrival_s=args.battery_s,
                 load=args.battery_load,
                 traffic=tr,
+                top_up_below=args.top_up_below,
             )
             for on in (False, True)
             for s in seeds
@@ -371,7 +377,8 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
     if "battery" in args.experiments:
         t = Table(
             title=f"4. Batteries: two_stage, 17 vehicles, {args.battery_s:.0f} s of arrivals at "
-            f"{args.battery_load:g} x the seed's rates"
+            f"{args.battery_load:g} x the seed's rates, idle vehicles topping up below "
+            + ("full" if args.top_up_below is None else f"{args.top_up_below:g} %")
         )
         for c in (
             "batteries",
@@ -469,6 +476,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-s", type=float, default=4000.0, help="simulated time cap per run")
     parser.add_argument("--battery-s", type=float, default=3600.0)
     parser.add_argument("--battery-load", type=float, default=0.5, help="x the seed's rates")
+    parser.add_argument(
+        "--top-up-below",
+        type=float,
+        default=None,
+        help="battery runs: idle vehicles charge by choice below this %% (default: full)",
+    )
     parser.add_argument(
         "--arrival-s",
         type=float,

@@ -68,11 +68,14 @@ class BatteryConfig:
     sufficient: float = 60.0
     full: float = 95.0
     top_up: bool = True
+    top_up_below: float | None = None  # None: full
     start: dict[int, float] = field(default_factory=dict)  # vehicle -> start charge %
 
     def policy(self) -> ChargePolicy:
         levels = (self.critical, self.good, self.sufficient, self.full)
-        return ChargePolicy(*levels, enabled=self.enabled, top_up=self.top_up)
+        return ChargePolicy(
+            *levels, enabled=self.enabled, top_up=self.top_up, top_up_below=self.top_up_below
+        )
 
 
 def parse_orders(reader: TableReader, base: Path, plant: Plant) -> OrdersConfig:
@@ -215,6 +218,7 @@ def parse_battery(r: TableReader) -> BatteryConfig:
         sufficient=r.number("sufficient", 60.0, 0.0, 100.0),
         full=r.number("full", 95.0, 0.0, 100.0),
         top_up=r.get("top_up", bool, True),
+        top_up_below=r.get("top_up_below", float, None),
     )
     r.finish()
     try:

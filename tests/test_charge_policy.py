@@ -1,8 +1,9 @@
 """The charging policy: its thresholds, the seed's rule, and idle vehicles topping up.
 
 Unit tests of ChargePolicy, then the fleet program on the sample distribution centre (four
-chargers): idle vehicles below ``sufficient`` charge while a charger is to spare, leave one
-free for a vehicle that must charge, and take an order off the charger at once."""
+chargers): idle vehicles below ``top_up_below`` (``full`` by default) charge while a charger
+is to spare, leave one free for a vehicle that must charge, and take an order off the
+charger at once."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from blocks.dispatch.charging import ChargePolicy
 from blocks.dispatch.orders import OrderState
 from fleet.config import first_vehicles, load_config
 from fleet.program import FleetProgram
+from plc_runtime.errors import ConfigError
 
 DISTRIBUTION_CENTRE = (
     Path(__file__).resolve().parent.parent / "examples" / "distribution-centre.toml"
@@ -38,19 +40,50 @@ def test_the_seeds_rule_with_the_learned_use_per_order():
     assert not policy.may_take(14.0)  # below critical nothing, whatever the use
 
 
-def test_idle_vehicles_top_up_below_sufficient():
+def test_idle_vehicles_top_up_below_full_unless_told_otherwise():
     policy = ChargePolicy()
-    assert policy.tops_up(59.9) and not policy.tops_up(60.0)
+    assert policy.tops_up(94.9) and not policy.tops_up(95.0)
+    assert policy.charged(95.0) and not policy.charged(94.9)
+    below = ChargePolicy(top_up_below=60.0)
+    assert below.tops_up(59.9) and not below.tops_up(60.0)
+    assert ChargePolicy(full=90.0).top_up_below == 90.0
     assert not ChargePolicy(top_up=False).tops_up(10.0)
     assert not ChargePolicy(enabled=False).tops_up(10.0)
-    assert policy.charged(95.0) and not policy.charged(94.9)
+
+
+@pytest.mark.parametrize("value", [-1.0, 95.5])
+def test_topping_up_past_full_is_refused(value):
+    """Past ``full`` a vehicle would leave the charger full and come back to it at once."""
+    with pytest.raises(ValueError, match=r"top_up_below must be in 0..full \(95\)"):
+        ChargePolicy(top_up_below=value)
+
+
+def test_top_up_below_in_the_file_and_its_errors(tmp_path):
+    plant = DISTRIBUTION_CENTRE.parent / "plants" / "distribution-centre.toml"
+    text = (
+        DISTRIBUTION_CENTRE.read_text(encoding="utf-8")
+        .replace('"plants/distribution-centre.toml"', f'"{plant}"')
+        .replace("[battery]\n", "[battery]\ntop_up_below = 70\n")
+    )
+    path = tmp_path / "dc.toml"
+    path.write_text(text, encoding="utf-8")
+    assert load_config(path).battery.policy().top_up_below == 70.0
+    path.write_text(text.replace("top_up_below = 70", "top_up_below = 99"), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"battery: top_up_below must be in 0..full"):
+        load_config(path)
 
 
 @pytest.fixture
 def program():
     made: list[FleetProgram] = []
 
-    def build(vehicles: int, charge: float, tmp_path: Path, top_up: bool = True) -> FleetProgram:
+    def build(
+        vehicles: int,
+        charge: float,
+        tmp_path: Path,
+        top_up: bool = True,
+        top_up_below: float | None = None,
+    ) -> FleetProgram:
         cfg = load_config(DISTRIBUTION_CENTRE)
         first_vehicles(cfg, vehicles)
         cfg.watchdog = 5.0
@@ -59,6 +92,7 @@ def program():
         cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
         cfg.battery.start = {v: charge for v in cfg.starts}
         cfg.battery.top_up = top_up
+        cfg.battery.top_up_below = top_up_below
         p = FleetProgram(cfg)
         made.append(p)
         p.rt.start()
@@ -104,6 +138,19 @@ def test_a_vehicle_topping_up_takes_an_order_off_the_charger(program, tmp_path):
     assert p.rt.run_until(lambda: order.assigned == 1, max_cycles=round(10 / 0.05))
     assert p.rt.run_until(lambda: order.state is OrderState.FINISHED, max_cycles=round(600 / 0.05))
     assert runner.charges == 1
+
+
+def test_an_idle_vehicle_above_sufficient_tops_up_to_full_unless_told_otherwise(program, tmp_path):
+    """The chargers' idle hours are energy the fleet needs once its batteries have run
+    down: an idle vehicle at 80 % charges too, and leaves the charger full."""
+    p = program(1, 80.0, tmp_path)
+    runner = p.orders.runners[1]
+    run(p, 250.0)
+    assert runner.phase == "charging" and runner.topping_up
+    p.close()  # (one runtime at a time: the watchdog's interrupt is the process's)
+    low = program(1, 80.0, tmp_path, top_up_below=60.0)
+    run(low, 250.0)
+    assert low.orders.runners[1].phase == "parked"
 
 
 def test_without_top_up_idle_vehicles_park(program, tmp_path):

@@ -17,10 +17,14 @@ re-registers when the charge is sufficient. Consumption is learned from what the
 report, so the controller needs no model of their drives.
 
 Idle vehicles top up (openTCS's "recharge idle vehicles"): with ``top_up`` on, a vehicle that
-has no order and is below ``sufficient`` charges instead of parking, while one charger stays
-free for a vehicle that must charge. Such a vehicle is charging by choice, not by need, so it
-stays available: it takes an order by the plain ``good`` rule, off the charger at once. A
-fleet that charges in its idle minutes seldom has to stop working to charge.
+has no order and is below ``top_up_below`` (``full`` unless set) charges instead of parking,
+while one charger stays free for a vehicle that must charge. Such a vehicle is charging by
+choice, not by need, so it stays available: it takes an order by the plain ``good`` rule,
+off the charger at once. A fleet that charges in its idle minutes seldom has to stop working
+to charge. Topping up from any charge below ``full``, not only once a vehicle is below
+``sufficient``, matters once the batteries the fleet started with have run down: the
+chargers' idle hours before that are energy the fleet needs later, and vehicles that charged
+at different times no longer all need a charger at once.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ class ChargePolicy:
     window: int = 50  # orders the mean consumption is taken over
     enabled: bool = True
     top_up: bool = True
+    top_up_below: float | None = None  # an idle vehicle charges by choice below it; None: full
     _uses: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -46,6 +51,13 @@ class ChargePolicy:
             raise ValueError(
                 "battery thresholds must satisfy 0 <= critical <= good <= sufficient <= full "
                 f"<= 100, got {levels}"
+            )
+        if self.top_up_below is None:
+            self.top_up_below = self.full
+        if not 0.0 <= self.top_up_below <= self.full:
+            # above full a vehicle would leave the charger full and come back at once
+            raise ValueError(
+                f"top_up_below must be in 0..full ({self.full:g}), got {self.top_up_below:g}"
             )
 
     @property
@@ -77,7 +89,7 @@ class ChargePolicy:
 
     def tops_up(self, battery: float) -> bool:
         """Without an order: may the vehicle charge by choice (a charger free to spare)?"""
-        return self.enabled and self.top_up and battery < self.sufficient
+        return self.enabled and self.top_up and battery < self.top_up_below
 
     def charged(self, battery: float) -> bool:
         """Charging without an order: may it leave the charger?"""
