@@ -22,9 +22,9 @@ test: $(STAMP)
 # for the fleet ones (docs/benchmarks.md, "Running them"); each script prints its own wall
 # time at the end.
 bench: $(STAMP)
-	@echo "make bench: about 298 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
+	@echo "make bench: about 262 minutes in all on 2 otherwise idle vCPUs, much longer on a busy machine"
 	@echo "  (minutes: step_rate 0.5, scan_jitter 2, heuristic_table 3, astar_step 1, io_throughput 1,"
-	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 75, order_backlog 1.5, long_run 65, time_windows 0.1, windowed_search 0.1, lorr 25, web_load 5). make bench-quick runs them all reduced in about 6 minutes."
+	@echo "  fleet_scale 10, warehouse_throughput 80 (both plants) + 26 (both traffic modes, delays), allocation 75, order_backlog 1.5, long_run 32 (two processes), time_windows 0.1, windowed_search 0.1, lorr 25, web_load 5). make bench-quick runs them all reduced in about 6 minutes."
 	$(BIN)/python bench/step_rate.py
 	$(BIN)/python bench/scan_jitter.py
 	$(BIN)/python bench/heuristic_table.py
@@ -36,7 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/warehouse_throughput.py --plant kiva --sizes 60 --timesteps 300 --traffic reactive time_windows --delay-rate 0 0.001 0.01
 	$(BIN)/python bench/allocation.py
 	$(BIN)/python bench/order_backlog.py
-	$(BIN)/python bench/long_run.py
+	$(BIN)/python bench/long_run.py --jobs 2
 	$(BIN)/python bench/time_windows.py
 	$(BIN)/python bench/windowed_search.py
 	$(BIN)/python bench/lorr.py
