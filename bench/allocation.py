@@ -70,6 +70,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from blocks.dispatch.charging import ChargePolicy  # noqa: E402
 from blocks.dispatch.generator import generate_orders  # noqa: E402
 from blocks.dispatch.order_file import write_orders  # noqa: E402
 from blocks.dispatch.orders import OrderState, TransportOrder  # noqa: E402
@@ -103,7 +104,7 @@ class Case:
     max_s: float = 4000.0
     deadlines: bool = True  # pool runs: keep the generator's latest delivery times
     traffic: str = "reactive"  # the fleet's traffic mode
-    top_up_below: float | None = None  # battery runs: idle vehicles charge below it (None: full)
+    top_up_below: float | None = None  # battery runs: idle vehicles charge below it (None: default)
 
 
 @dataclass
@@ -378,7 +379,7 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
         t = Table(
             title=f"4. Batteries: two_stage, 17 vehicles, {args.battery_s:.0f} s of arrivals at "
             f"{args.battery_load:g} x the seed's rates, idle vehicles topping up below "
-            + ("full" if args.top_up_below is None else f"{args.top_up_below:g} %")
+            + f"{ChargePolicy().top_up_below if args.top_up_below is None else args.top_up_below:g} %"
         )
         for c in (
             "batteries",
@@ -480,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
         "--top-up-below",
         type=float,
         default=None,
-        help="battery runs: idle vehicles charge by choice below this %% (default: full)",
+        help="battery runs: idle vehicles charge by choice below this %% (default: 10 below full)",
     )
     parser.add_argument(
         "--arrival-s",

@@ -68,7 +68,7 @@ class BatteryConfig:
     sufficient: float = 60.0
     full: float = 95.0
     top_up: bool = True
-    top_up_below: float | None = None  # None: full
+    top_up_below: float | None = None  # None: ChargePolicy's default, 10 below full
     start: dict[int, float] = field(default_factory=dict)  # vehicle -> start charge %
 
     def policy(self) -> ChargePolicy:

@@ -40,13 +40,15 @@ def test_the_seeds_rule_with_the_learned_use_per_order():
     assert not policy.may_take(14.0)  # below critical nothing, whatever the use
 
 
-def test_idle_vehicles_top_up_below_full_unless_told_otherwise():
+def test_idle_vehicles_top_up_ten_points_below_full_unless_told_otherwise():
     policy = ChargePolicy()
-    assert policy.tops_up(94.9) and not policy.tops_up(95.0)
+    assert policy.tops_up(84.9) and not policy.tops_up(85.0)
     assert policy.charged(95.0) and not policy.charged(94.9)
     below = ChargePolicy(top_up_below=60.0)
     assert below.tops_up(59.9) and not below.tops_up(60.0)
-    assert ChargePolicy(full=90.0).top_up_below == 90.0
+    assert ChargePolicy(top_up_below=95.0).tops_up(94.9)
+    assert ChargePolicy(full=90.0).top_up_below == 80.0
+    assert ChargePolicy(sufficient=88.0, full=90.0).top_up_below == 88.0  # never below it
     assert not ChargePolicy(top_up=False).tops_up(10.0)
     assert not ChargePolicy(enabled=False).tops_up(10.0)
 
@@ -142,12 +144,17 @@ def test_a_vehicle_topping_up_takes_an_order_off_the_charger(program, tmp_path):
 
 def test_an_idle_vehicle_above_sufficient_tops_up_to_full_unless_told_otherwise(program, tmp_path):
     """The chargers' idle hours are energy the fleet needs once its batteries have run
-    down: an idle vehicle at 80 % charges too, and leaves the charger full."""
+    down: an idle vehicle at 80 % charges too, and leaves the charger full; one at 90 %
+    parks (it would lose that much parking after a charge)."""
     p = program(1, 80.0, tmp_path)
     runner = p.orders.runners[1]
     run(p, 250.0)
     assert runner.phase == "charging" and runner.topping_up
     p.close()  # (one runtime at a time: the watchdog's interrupt is the process's)
+    full = program(1, 90.0, tmp_path)
+    run(full, 250.0)
+    assert full.orders.runners[1].phase == "parked"
+    full.close()
     low = program(1, 80.0, tmp_path, top_up_below=60.0)
     run(low, 250.0)
     assert low.orders.runners[1].phase == "parked"
