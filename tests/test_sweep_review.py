@@ -179,6 +179,7 @@ def _system(book: OrderBook, swept: OrderTotals) -> SimpleNamespace:
         intake=SimpleNamespace(pending={}),
         runners={},
         dispatcher=dispatcher,
+        cfg=SimpleNamespace(plant=SimpleNamespace(with_role=lambda role: [])),
     )
 
 
