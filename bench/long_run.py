@@ -115,8 +115,7 @@ def run(
                 halfway = tracemalloc.take_snapshot()
         if sites and halfway is not None:
             grown = grown_sites(halfway, tracemalloc.take_snapshot(), sites)
-        chargers = len(cfg.plant.with_role("charger"))
-        energy = energy_summary(program.orders.runners.values(), chargers)
+        energy = energy_summary(program.orders)
     finally:
         tracemalloc.stop()
         program.close()

@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from blocks.dispatch.energy import EnergyBalance
-from blocks.dispatch.executor import OrderRunner
 from blocks.dispatch.order_file import write_history
 from blocks.dispatch.orders import OrderState, TransportOrder
 
@@ -149,15 +148,15 @@ def order_summary(system: OrderSystem, totals: OrderTotals | None = None) -> dic
             "visits": sum(r.charges for r in runners),
             "time_s": round(sum(r.charging_s for r in runners), 3),
             "min_battery": min((r.min_battery for r in runners), default=None),
-            **energy_summary(runners, len(system.cfg.plant.with_role("charger"))),
+            **energy_summary(system),
         },
     }
 
 
-def energy_summary(runners: Iterable[OrderRunner], chargers: int) -> dict[str, Any]:
+def energy_summary(system: OrderSystem) -> dict[str, Any]:
     """The fleet's energy balance: % of the capacity per hour lost off the chargers (per
     vehicle) and gained on one, the chargers its work needs sustained, and the plant's."""
-    balance = EnergyBalance.of(r.meter for r in runners)
+    balance = EnergyBalance.of(r.meter for r in system.runners.values())
 
     def rounded(value: float | None) -> float | None:
         return None if value is None else round(value, 2)
@@ -166,7 +165,7 @@ def energy_summary(runners: Iterable[OrderRunner], chargers: int) -> dict[str, A
         "drain_pct_per_h": rounded(balance.drain_per_h),
         "charge_pct_per_h": rounded(balance.charge_per_h),
         "chargers_needed": rounded(balance.chargers_needed),
-        "chargers": chargers,
+        "chargers": len(system.cfg.plant.with_role("charger")),
     }
 
 

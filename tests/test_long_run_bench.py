@@ -31,7 +31,7 @@ class StandIn:
 
     def __init__(self, cfg) -> None:
         StandIn.now_s = 0.0
-        self.orders = SimpleNamespace(book=Book(), runners={})
+        self.orders = SimpleNamespace(book=Book(), runners={}, cfg=cfg)
         self.rt = SimpleNamespace(start=lambda: None, state="RUN", fault_reason=None, run=self.run)
 
     def run(self, duration: float) -> None:

@@ -17,10 +17,10 @@ re-registers when the charge is sufficient. Consumption is learned from what the
 report, so the controller needs no model of their drives.
 
 Idle vehicles top up (openTCS's "recharge idle vehicles"): with ``top_up`` on, a vehicle that
-has no order and is below ``top_up_below`` charges instead of parking,
-while one charger stays free for a vehicle that must charge. Such a vehicle is charging by
-choice, not by need, so it stays available: it takes an order by the plain ``good`` rule,
-off the charger at once. A fleet that charges in its idle minutes seldom has to stop working
+has no order and is below ``top_up_below`` charges instead of parking, while one charger
+stays free for a vehicle that must charge. Such a vehicle is charging by choice, not by
+need, so it stays available: it takes an order by the plain ``good`` rule, off the charger
+at once. A fleet that charges in its idle minutes seldom has to stop working
 to charge. Topping up from well above ``sufficient`` matters once the batteries the fleet
 started with have run down: the chargers' idle hours before that are energy the fleet needs
 later, and vehicles that charged at different times no longer all need a charger at once.
