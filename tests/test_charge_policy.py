@@ -81,7 +81,7 @@ def program():
 
     def build(
         vehicles: int,
-        charge: float,
+        charge: float | list[float],
         tmp_path: Path,
         top_up: bool = True,
         top_up_below: float | None = None,
@@ -92,7 +92,8 @@ def program():
         orders = tmp_path / "orders.csv"
         orders.write_text("id,get,put,start_s\nlate,31,41,300\n", encoding="utf-8")
         cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
-        cfg.battery.start = {v: charge for v in cfg.starts}
+        charges = charge if isinstance(charge, list) else [charge] * vehicles
+        cfg.battery.start = dict(zip(sorted(cfg.starts), charges, strict=True))
         cfg.battery.top_up = top_up
         cfg.battery.top_up_below = top_up_below
         p = FleetProgram(cfg)
@@ -128,6 +129,33 @@ def test_idle_vehicles_top_up_and_leave_one_charger_free(program, tmp_path):
     held = {place for place, v in p.orders.claims.holder.items() if v in charging}
     assert held == {runners[v].current for v in charging}
     assert set(p.cfg.plant.with_role("charger")) - held  # (a charger is free)
+
+
+def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, tmp_path):
+    """Four chargers: three vehicles at 50 % top up, leaving one charger free; two more,
+    parked at 90 %, then drop to 20 % and must charge. The first takes the free charger,
+    the second finds every charger taken: one vehicle topping up, and only one, gives its
+    charger up and backs out of the charger's spur while the other waits to drive in."""
+    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    runners = p.orders.runners
+    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+    run(p, 120.0)
+    assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
+    for v in must:
+        battery = p.fleet.vehicles[v].battery
+        battery.charge_as = 0.2 * battery.params.capacity_as
+    run(p, 170.0)  # (the file's order comes at 300 s)
+    for v in must:
+        assert runners[v].phase == "charging" and not runners[v].topping_up, v
+    still = [v for v in by_choice if runners[v].phase == "charging" and runners[v].topping_up]
+    assert len(still) == 2
+    (gave_up,) = set(by_choice) - set(still)
+    assert runners[gave_up].phase == "parked" and runners[gave_up].charges == 1
+    assert runners[gave_up].battery < 60  # it left before it was charged: it was asked to
+    claims = p.orders.claims
+    assert {claims.holder[c] for c in p.cfg.plant.with_role("charger")} == {*must, *still}
+    assert claims.offered == {runners[v].current: v for v in still}
+    assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
 
 
 def test_a_vehicle_topping_up_takes_an_order_off_the_charger(program, tmp_path):

@@ -47,3 +47,18 @@ def test_a_holder_that_leaves_after_a_take_over_holds_up_nobody():
     claims.leave(40, 1)  # 1 is out of the area
     claims.release(40, 3)
     assert claims.claim(40, 2)  # not stuck behind 1
+
+
+def test_a_place_is_open_to_the_first_in_its_queue_once_nobody_holds_or_stands_on_it():
+    standing: dict[int, int] = {}
+    claims = Claims(lambda place, vehicle: standing.get(place) not in (None, vehicle))
+    assert claims.open_to(50, 1) and claims.open_to(50, 2)  # nobody holds or wants it
+    assert claims.claim(50, 1)
+    assert not claims.claim(50, 2) and not claims.claim(50, 3)
+    assert not claims.open_to(50, 2)  # 1 holds it
+    claims.release(50, 1)
+    standing[50] = 1  # released, but 1 still stands on it
+    assert not claims.open_to(50, 2)
+    del standing[50]
+    assert claims.open_to(50, 2) and not claims.open_to(50, 3)  # 2 asked first
+    assert not claims.free(50, 2)  # (free: nobody waits for it at all)

@@ -506,6 +506,19 @@ BACKED_INTO_AN_AREA = (
     800,
 )
 
+# Three vehicles top up (below 60 %, ten below this file's ``full``) and set off for three
+# of the four chargers; four must charge (31 %: an order would take them below ``good``).
+# The first takes the fourth charger, the other three find every charger taken, and each
+# vehicle topping up gives its charger up to one of them (tests/test_charge_policy.py
+# has one backing out of a charger's spur for it).
+CHARGERS_GIVEN_UP = (
+    [(21, 53, 150, 1), (61, 42, 160, 0), (52, 22, 170, 2), (33, 51, 180, 0)],
+    [(301, 55.0), (302, 55.0), (303, 55.0), (304, 31.0), (305, 31.0), (306, 31.0), (307, 31.0)],
+    "two_stage",
+    (0.02, 0.02, 0.01),
+    5,
+)
+
 
 def full_fleet() -> tuple:
     """The seed's fleet on its plant, where the random examples' 3-8 vehicles leave room:
@@ -527,6 +540,7 @@ def full_fleet() -> tuple:
 @SETTINGS
 @example(scenario=EARLY_PICKUP)
 @example(scenario=FIRST_INFO_LOST)
+@example(scenario=CHARGERS_GIVEN_UP)
 @example(scenario=full_fleet())
 @given(scenario=scenarios(*DC_CHOICES))
 def test_every_order_finishes_once_safely_in_the_distribution_centre(
@@ -545,6 +559,7 @@ def test_every_order_finishes_once_safely_on_a_342_node_grid(scenario, sites, tm
 # The same claims with time-window traffic, which plans every single-vehicle area as one
 # resource: a vehicle's plan enters an area only when nobody else's is in any of its nodes.
 @SETTINGS
+@example(scenario=CHARGERS_GIVEN_UP)
 @example(scenario=full_fleet())
 @given(scenario=scenarios(*DC_CHOICES))
 def test_time_windows_finish_every_order_once_safely_in_the_distribution_centre(

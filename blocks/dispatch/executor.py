@@ -28,8 +28,9 @@ over (:meth:`Claims.take_over`) and is served there: the holder cannot get past 
 station spur never meets the next one in it. Routing and traffic (VehicleControl and the
 reservations) decide how it drives; this block only sets the target and the hold. Without
 an order a vehicle charges when its ChargePolicy says it must, tops up when it is below
-``sufficient`` and a charger is to spare (still available for orders), and otherwise parks at
-a free parking position, out of the others' way.
+``top_up_below`` and a charger is to spare (still available for orders, and giving the
+charger up as soon as a vehicle that must charge finds every charger taken), and otherwise
+parks at a free parking position, out of the others' way.
 
 A load stays on board when its order ends without its Put (withdrawn, or failed: a
 blockade cut the Put station off, the vehicle was out of service too long). The vehicle
@@ -103,6 +104,10 @@ class Claims:
         self.occupied = occupied or (lambda _place, _vehicle: None)
         # vehicles out of service long enough to have given their orders up
         self.out_of_service: set[int] = set()
+        # charger -> the vehicle on it that would give it up: charging there by choice
+        # (topping up while idle), or leaving it. A vehicle that must charge and finds every
+        # charger taken queues for one of these.
+        self.offered: dict[int, int] = {}
 
     def stuck(self, place: int) -> bool:
         """Whether ``place`` is claimed, or stood on, by a vehicle that has been out of
@@ -146,6 +151,16 @@ class Claims:
         if holder is not None:
             queue.insert(0, holder)
         self.holder[place] = vehicle
+
+    def open_to(self, place: int, vehicle: int) -> bool:
+        """Whether ``vehicle`` would get ``place`` if it claimed it now: nobody holds it,
+        nobody asked for it before ``vehicle``, and no other vehicle is on it."""
+        queue = self.waiting.get(place)
+        return (
+            place not in self.holder
+            and (not queue or queue[0] == vehicle)
+            and not self.occupied(place, vehicle)
+        )
 
     def free(self, place: int, vehicle: int) -> bool:
         """Nobody holds or waits for ``place``, and no vehicle but ``vehicle`` is on it."""
@@ -391,6 +406,26 @@ class OrderRunner(FunctionBlock):
 
     # ----- the scan --------------------------------------------------------------------------
     def cycle(self, ctx: CycleContext) -> None:
+        self._scan(ctx)
+        self._offer_charger()
+
+    def _offer_charger(self) -> None:
+        """Tell the claims whether the vehicle would give its charger up: it is on it (or
+        bound for it) by choice, or it is leaving it. A vehicle that must charge may then
+        queue for that charger."""
+        offered = self.claims.offered
+        if self.topping_up and self.place in self.chargers and self._holds(self.place):
+            mine = self.place
+        elif self.vacating in self.chargers and self._holds(self.vacating):
+            mine = self.vacating
+        else:
+            mine = None
+        for c in [c for c, v in offered.items() if v == self.vehicle and c != mine]:
+            del offered[c]
+        if mine is not None:
+            offered[mine] = self.vehicle
+
+    def _scan(self, ctx: CycleContext) -> None:
         if self.current is None:
             return
         if self.in_service:
@@ -616,8 +651,15 @@ class OrderRunner(FunctionBlock):
             else:
                 if self.topping_up and self.charging.must_charge(battery):
                     self.topping_up = False  # (its orders turned out to need more)
-                self._charge(ctx)
-                return
+                asked = self.place in self.chargers and self.claims.waiting.get(self.place)
+                if not (self.topping_up and asked):
+                    self._charge(ctx)
+                    return
+                # one that must charge waits for this charger: charging by choice, it gives
+                # the charger up (it stays available for orders, and parks)
+                self._forget()
+                self.place, self.hold, self.phase = None, False, "idle"
+                self.topping_up = False
         if self.charging.must_charge(battery) and self.chargers:
             self.topping_up = False
             self._charge(ctx)
@@ -690,22 +732,46 @@ class OrderRunner(FunctionBlock):
             self.place = None
         if self.place not in self.chargers or not self._holds(self.place):
             # (one it holds already counts: it may stand on it, back from an outage)
+            # (one it queued for counts once the vehicle charging there by choice has left)
             free = [
                 c
                 for c in self.chargers
-                if (self._holds(c) or self.claims.free(c, self.vehicle)) and self._reachable(c)
+                if (self._holds(c) or self.claims.open_to(c, self.vehicle)) and self._reachable(c)
             ]
             if not free:
+                if not self.topping_up:
+                    self._ask_for_charger()
                 self._await_charger()
                 return
             self.place = min(free, key=lambda c: self.distance(self.current, c))
-            self._forget()
+            self._forget(self.place)  # (keeps its place in that charger's queue)
             self.claims.claim(self.place, self.vehicle)
             self.phase, self.target, self.hold = "to_charger", self.place, False
         if self.phase == "to_charger" and self.arrived and self.current == self.place:
             self.phase, self.hold = "charging", True
             self.charges += 1
             self.charging_since = ctx.time
+
+    def _ask_for_charger(self) -> None:
+        """Every charger is taken, and this vehicle must charge: it queues for a charger
+        whose vehicle would give it up (the nearest no one else waits for), and a vehicle
+        there by choice gives it up. Topping up must never keep a vehicle that needs the
+        charge from it."""
+        claims = self.claims
+        for c in self.chargers:
+            if self.vehicle not in claims.waiting.get(c, ()):
+                continue
+            holder = claims.holder.get(c)
+            if holder is None or claims.offered.get(c) == holder:
+                return  # it asked already, and the charger is being given up for it
+            claims.leave(c, self.vehicle)  # its vehicle has come to need the charge itself
+        offered = [
+            c
+            for c, v in claims.offered.items()
+            if claims.holder.get(c) == v and not claims.waiting.get(c) and self._reachable(c)
+        ]
+        if offered:
+            claims.claim(min(offered, key=lambda c: self.distance(self.current, c)), self.vehicle)
 
     def _await_charger(self) -> None:
         """Every charger is taken: the vehicle waits for one, holding none, on a parking
