@@ -158,6 +158,30 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
 
 
+def test_a_charger_held_by_a_vehicle_out_of_service_is_not_asked_for(program, tmp_path):
+    """As above, but the two vehicles topping up nearest to the second vehicle that must
+    charge fail on their chargers and are given up: it asks the third, not one of theirs
+    (they may never move)."""
+    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    runners = p.orders.runners
+    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+    run(p, 100.0)
+    assert all(runners[v].phase == "charging" for v in by_choice)
+    asking = runners[must[1]]
+    nearest = sorted(by_choice, key=lambda v: asking.distance(asking.current, runners[v].current))
+    for v in nearest[:2]:
+        p.fleet.vehicles[v].fault = True
+    run(p, 65.0)  # (out of service for 60 s, a vehicle gives up)
+    assert p.orders.claims.out_of_service == set(nearest[:2])
+    for v in must:
+        battery = p.fleet.vehicles[v].battery
+        battery.charge_as = 0.2 * battery.params.capacity_as
+    run(p, 130.0)  # (the file's order comes at 300 s)
+    assert runners[must[0]].phase == runners[must[1]].phase == "charging"
+    assert runners[nearest[2]].phase == "parked"
+    assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
+
+
 def test_a_vehicle_topping_up_takes_an_order_off_the_charger(program, tmp_path):
     p = program(1, 50.0, tmp_path)
     runner = p.orders.runners[1]

@@ -762,13 +762,17 @@ class OrderRunner(FunctionBlock):
             if self.vehicle not in claims.waiting.get(c, ()):
                 continue
             holder = claims.holder.get(c)
-            if holder is None or claims.offered.get(c) == holder:
+            if (holder is None or claims.offered.get(c) == holder) and not claims.stuck(c):
                 return  # it asked already, and the charger is being given up for it
-            claims.leave(c, self.vehicle)  # its vehicle has come to need the charge itself
+            # its vehicle has come to need the charge itself, or is out of service
+            claims.leave(c, self.vehicle)
         offered = [
             c
             for c, v in claims.offered.items()
-            if claims.holder.get(c) == v and not claims.waiting.get(c) and self._reachable(c)
+            if claims.holder.get(c) == v
+            and not claims.waiting.get(c)
+            and not claims.stuck(c)
+            and self._reachable(c)
         ]
         if offered:
             claims.claim(min(offered, key=lambda c: self.distance(self.current, c)), self.vehicle)
