@@ -227,3 +227,92 @@ def test_a_vehicle_that_must_charge_waits_for_the_sufficient_charge(program, tmp
     assert runner.battery < 60
     order = released(p)
     assert order.state is OrderState.DISPATCHABLE and order.assigned is None
+
+
+def test_a_vehicle_queued_for_a_charger_cut_off_asks_another(program, tmp_path):
+    """A vehicle that must charge queues for a charger a vehicle tops up on; then a
+    blockade closes the way into that charger's spur (the vehicle there can still back
+    out). It cannot get there: it asks a charger it can reach, whose vehicle tops up,
+    and the charger cut off does not stay reserved for it."""
+    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    runners, claims, plant = p.orders.runners, p.orders.claims, p.cfg.plant
+    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+    run(p, 120.0)
+    assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
+    for v in must:
+        battery = p.fleet.vehicles[v].battery
+        battery.charge_as = 0.2 * battery.params.capacity_as
+    asked = None
+    for _ in range(round(120.0 / p.cfg.cycle_time)):
+        p.rt.step()
+        asked = next(
+            ((c, q[0]) for c, q in claims.waiting.items() if c in plant.with_role("charger") and q),
+            None,
+        )
+        if asked is not None:
+            break
+    assert asked is not None
+    charger, waiter = asked
+    (lane,) = {int(plant.ids[j]) for j, _a, _w in plant.neighbors[plant.idx(charger)]}
+    p.blockades.block(lane, charger, both_ways=False)  # in: closed; out: open
+    run(p, 120.0)
+    assert not runners[waiter]._reachable(charger)
+    assert runners[waiter].phase == "charging", (
+        runners[waiter].phase,
+        claims.waiting,
+        {v: (r.phase, r.topping_up, r.current) for v, r in runners.items()},
+    )
+
+
+def test_without_parking_a_vehicle_topping_up_keeps_its_charger(tmp_path):
+    """With ``park = false`` an idle vehicle stays where it is: one topping up that gave
+    its charger up to a vehicle that must charge would stand on it for ever, charging
+    neither itself nor the other."""
+    cfg = load_config(DISTRIBUTION_CENTRE)
+    first_vehicles(cfg, 5)
+    cfg.watchdog = 5.0
+    orders = tmp_path / "orders.csv"
+    orders.write_text("id,get,put,start_s\nlate,31,41,3000\n", encoding="utf-8")
+    cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
+    cfg.battery.start = dict(zip(sorted(cfg.starts), [50.0, 50.0, 50.0, 90.0, 90.0], strict=True))
+    cfg.dispatch.park = False
+    p = FleetProgram(cfg)
+    try:
+        p.rt.start()
+        runners = p.orders.runners
+        by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+        run(p, 120.0)
+        assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
+        for v in must:
+            battery = p.fleet.vehicles[v].battery
+            battery.charge_as = 0.2 * battery.params.capacity_as
+        run(p, 300.0)
+        charging = {v for v, r in runners.items() if r.phase == "charging"}
+        on_chargers = {r.current for r in runners.values()} & set(p.cfg.plant.with_role("charger"))
+        # every vehicle that stands on a charger charges on it
+        assert len(charging) == len(on_chargers), {
+            v: (r.phase, r.topping_up, r.current, r.battery) for v, r in runners.items()
+        }
+        assert runners[must[0]].phase == "charging"
+    finally:
+        p.close()
+
+
+def test_a_vehicle_that_gave_its_charger_up_does_not_take_it_again(program, tmp_path):
+    """Chargers 81 and 82 are cut off; two vehicles top up on 83 and 84. A third must
+    charge and asks one of them for its charger: that one gives it up and does not take
+    it straight back (the two chargers cut off count as free to it). (Or, with the
+    chargers cut off not counted as spare, only one tops up.)"""
+    p = program(3, [50.0, 50.0, 90.0], tmp_path)
+    for charger, lane in ((81, 482), (82, 481)):
+        p.blockades.block(lane, charger)
+    runners = p.orders.runners
+    run(p, 120.0)
+    assert runners[1].phase == "charging" and runners[1].topping_up
+    battery = p.fleet.vehicles[3].battery
+    battery.charge_as = 0.2 * battery.params.capacity_as
+    run(p, 120.0)
+    assert runners[3].phase == "charging", {
+        v: (r.phase, r.topping_up, r.current, r.charges) for v, r in runners.items()
+    }
+    assert all(runners[v].charges <= 2 for v in (1, 2))

@@ -414,7 +414,12 @@ class OrderRunner(FunctionBlock):
         bound for it) by choice, or it is leaving it. A vehicle that must charge may then
         queue for that charger."""
         offered = self.claims.offered
-        if self.topping_up and self.place in self.chargers and self._holds(self.place):
+        if (
+            self.topping_up
+            and self.place in self.chargers
+            and self._holds(self.place)
+            and self._can_leave()
+        ):
             mine = self.place
         elif self.vacating in self.chargers and self._holds(self.vacating):
             mine = self.vacating
@@ -652,7 +657,7 @@ class OrderRunner(FunctionBlock):
                 if self.topping_up and self.charging.must_charge(battery):
                     self.topping_up = False  # (its orders turned out to need more)
                 asked = self.place in self.chargers and self.claims.waiting.get(self.place)
-                if not (self.topping_up and asked):
+                if not (self.topping_up and asked and self._can_leave()):
                     self._charge(ctx)
                     return
                 # one that must charge waits for this charger: charging by choice, it gives
@@ -717,10 +722,21 @@ class OrderRunner(FunctionBlock):
             frontier = reached
         return None
 
+    def _can_leave(self) -> bool:
+        """Whether the vehicle, giving its charger up, would drive off it: to a free
+        parking place it can reach."""
+        return self.park and any(
+            self._holds(p) or (self.claims.free(p, self.vehicle) and self._reachable(p))
+            for p in self.parking
+        )
+
     def _spare_charger(self) -> bool:
-        """Whether a charger is free for charging by choice: two free, so that one stays
-        free for a vehicle that must charge."""
-        return sum(1 for c in self.chargers if self.claims.free(c, self.vehicle)) >= 2
+        """Whether a charger is free for charging by choice: two free that it can reach,
+        so that one stays free for a vehicle that must charge."""
+        free = [
+            c for c in self.chargers if self.claims.free(c, self.vehicle) and self._reachable(c)
+        ]
+        return len(free) >= 2
 
     def _charge(self, ctx: CycleContext) -> None:
         if (
@@ -736,7 +752,9 @@ class OrderRunner(FunctionBlock):
             free = [
                 c
                 for c in self.chargers
-                if (self._holds(c) or self.claims.open_to(c, self.vehicle)) and self._reachable(c)
+                if (self._holds(c) or self.claims.open_to(c, self.vehicle))
+                and self._reachable(c)
+                and not (self.topping_up and self.claims.waiting.get(c))
             ]
             if not free:
                 if not self.topping_up:
@@ -762,9 +780,14 @@ class OrderRunner(FunctionBlock):
             if self.vehicle not in claims.waiting.get(c, ()):
                 continue
             holder = claims.holder.get(c)
-            if (holder is None or claims.offered.get(c) == holder) and not claims.stuck(c):
+            if (
+                (holder is None or claims.offered.get(c) == holder)
+                and not claims.stuck(c)
+                and self._reachable(c)
+            ):
                 return  # it asked already, and the charger is being given up for it
-            # its vehicle has come to need the charge itself, or is out of service
+            # its vehicle has come to need the charge itself or is out of service, or a
+            # blockade has cut it off
             claims.leave(c, self.vehicle)
         offered = [
             c
