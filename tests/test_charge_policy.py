@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from blocks.dispatch.charging import ChargePolicy
-from blocks.dispatch.orders import OrderState
+from blocks.dispatch.executor import Claims, OrderRunner
+from blocks.dispatch.orders import OrderBook, OrderState
 from fleet.config import first_vehicles, load_config
 from fleet.program import FleetProgram
 from plc_runtime.errors import ConfigError
@@ -316,3 +317,24 @@ def test_a_vehicle_that_gave_its_charger_up_does_not_take_it_again(program, tmp_
         v: (r.phase, r.topping_up, r.current, r.charges) for v, r in runners.items()
     }
     assert all(runners[v].charges <= 2 for v in (1, 2))
+
+
+def test_a_vehicle_back_on_the_charger_it_was_leaving_offers_it_only_by_choice():
+    """Leaving its charger, a vehicle offers it to one that must charge; back on it because
+    it must charge itself (its order was taken back before it moved), it does not, and
+    topping up there, it does again."""
+    plant = load_config(DISTRIBUTION_CENTRE).plant
+    claims = Claims()
+    book = OrderBook({s: "station" for s in plant.with_role("station")})
+    runner = OrderRunner(1, plant, book, claims, ChargePolicy(), distance=lambda _a, _b: 0.0)
+    charger = plant.with_role("charger")[0]
+    assert claims.claim(charger, 1)
+    runner.vacating = charger  # it stands on it, given up
+    runner._offer_charger()
+    assert claims.offered == {charger: 1}
+    runner.place = charger  # it must charge, and took the same charger again
+    runner._offer_charger()
+    assert claims.offered == {}
+    runner.topping_up = True
+    runner._offer_charger()
+    assert claims.offered == {charger: 1}

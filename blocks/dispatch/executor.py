@@ -421,7 +421,11 @@ class OrderRunner(FunctionBlock):
             and self._can_leave()
         ):
             mine = self.place
-        elif self.vacating in self.chargers and self._holds(self.vacating):
+        elif (
+            self.vacating in self.chargers
+            and self.vacating != self.place  # (not back on it to charge by need)
+            and self._holds(self.vacating)
+        ):
             mine = self.vacating
         else:
             mine = None
