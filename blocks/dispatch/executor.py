@@ -411,8 +411,8 @@ class OrderRunner(FunctionBlock):
 
     def _offer_charger(self) -> None:
         """Tell the claims whether the vehicle would give its charger up: it is on it (or
-        bound for it) by choice, or it is leaving it. A vehicle that must charge may then
-        queue for that charger."""
+        bound for it) by choice and could drive off to a parking place, or it is leaving
+        it. A vehicle that must charge may then queue for that charger."""
         offered = self.claims.offered
         if (
             self.topping_up
