@@ -86,13 +86,16 @@ def program():
         tmp_path: Path,
         top_up: bool = True,
         top_up_below: float | None = None,
+        park: bool = True,
+        order_s: float = 300.0,
     ) -> FleetProgram:
         cfg = load_config(DISTRIBUTION_CENTRE)
         first_vehicles(cfg, vehicles)
         cfg.watchdog = 5.0
         orders = tmp_path / "orders.csv"
-        orders.write_text("id,get,put,start_s\nlate,31,41,300\n", encoding="utf-8")
+        orders.write_text(f"id,get,put,start_s\nlate,31,41,{order_s:g}\n", encoding="utf-8")
         cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
+        cfg.dispatch.park = park
         charges = charge if isinstance(charge, list) else [charge] * vehicles
         cfg.battery.start = dict(zip(sorted(cfg.starts), charges, strict=True))
         cfg.battery.top_up = top_up
@@ -118,6 +121,23 @@ def released(p: FleetProgram):
     return next(iter(p.orders.book), None)
 
 
+def three_topping_up(p: FleetProgram, seconds: float = 120.0) -> tuple[list[int], list[int]]:
+    """Run a program of five vehicles, the first three at 50 %, until those three top up
+    on chargers; return them and the other two."""
+    runners = p.orders.runners
+    by_choice, others = sorted(runners)[:3], sorted(runners)[3:]
+    run(p, seconds)
+    assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
+    return by_choice, others
+
+
+def drain(p: FleetProgram, vehicles: list[int], percent: float = 20.0) -> None:
+    """The simulated batteries of ``vehicles`` drop to ``percent``: they must charge."""
+    for v in vehicles:
+        battery = p.fleet.vehicles[v].battery
+        battery.charge_as = percent / 100.0 * battery.params.capacity_as
+
+
 def test_idle_vehicles_top_up_and_leave_one_charger_free(program, tmp_path):
     p = program(4, 50.0, tmp_path)
     run(p, 250.0)
@@ -139,12 +159,8 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     charger up and backs out of the charger's spur while the other waits to drive in."""
     p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
     runners = p.orders.runners
-    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
-    run(p, 120.0)
-    assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
-    for v in must:
-        battery = p.fleet.vehicles[v].battery
-        battery.charge_as = 0.2 * battery.params.capacity_as
+    by_choice, must = three_topping_up(p)
+    drain(p, must)
     run(p, 170.0)  # (the file's order comes at 300 s)
     for v in must:
         assert runners[v].phase == "charging" and not runners[v].topping_up, v
@@ -165,18 +181,14 @@ def test_a_charger_held_by_a_vehicle_out_of_service_is_not_asked_for(program, tm
     (they may never move)."""
     p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
     runners = p.orders.runners
-    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
-    run(p, 100.0)
-    assert all(runners[v].phase == "charging" for v in by_choice)
+    by_choice, must = three_topping_up(p, 100.0)
     asking = runners[must[1]]
     nearest = sorted(by_choice, key=lambda v: asking.distance(asking.current, runners[v].current))
     for v in nearest[:2]:
         p.fleet.vehicles[v].fault = True
     run(p, 65.0)  # (out of service for 60 s, a vehicle gives up)
     assert p.orders.claims.out_of_service == set(nearest[:2])
-    for v in must:
-        battery = p.fleet.vehicles[v].battery
-        battery.charge_as = 0.2 * battery.params.capacity_as
+    drain(p, must)
     run(p, 130.0)  # (the file's order comes at 300 s)
     assert runners[must[0]].phase == runners[must[1]].phase == "charging"
     assert runners[nearest[2]].phase == "parked"
@@ -237,12 +249,8 @@ def test_a_vehicle_queued_for_a_charger_cut_off_asks_another(program, tmp_path):
     and the charger cut off does not stay reserved for it."""
     p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
     runners, claims, plant = p.orders.runners, p.orders.claims, p.cfg.plant
-    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
-    run(p, 120.0)
-    assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
-    for v in must:
-        battery = p.fleet.vehicles[v].battery
-        battery.charge_as = 0.2 * battery.params.capacity_as
+    _by_choice, must = three_topping_up(p)
+    drain(p, must)
     asked = None
     for _ in range(round(120.0 / p.cfg.cycle_time)):
         p.rt.step()
@@ -265,38 +273,22 @@ def test_a_vehicle_queued_for_a_charger_cut_off_asks_another(program, tmp_path):
     )
 
 
-def test_without_parking_a_vehicle_topping_up_keeps_its_charger(tmp_path):
+def test_without_parking_a_vehicle_topping_up_keeps_its_charger(program, tmp_path):
     """With ``park = false`` an idle vehicle stays where it is: one topping up that gave
     its charger up to a vehicle that must charge would stand on it for ever, charging
     neither itself nor the other."""
-    cfg = load_config(DISTRIBUTION_CENTRE)
-    first_vehicles(cfg, 5)
-    cfg.watchdog = 5.0
-    orders = tmp_path / "orders.csv"
-    orders.write_text("id,get,put,start_s\nlate,31,41,3000\n", encoding="utf-8")
-    cfg.orders.file, cfg.orders.generator, cfg.orders.lead_s = orders, None, 0.0
-    cfg.battery.start = dict(zip(sorted(cfg.starts), [50.0, 50.0, 50.0, 90.0, 90.0], strict=True))
-    cfg.dispatch.park = False
-    p = FleetProgram(cfg)
-    try:
-        p.rt.start()
-        runners = p.orders.runners
-        by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
-        run(p, 120.0)
-        assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
-        for v in must:
-            battery = p.fleet.vehicles[v].battery
-            battery.charge_as = 0.2 * battery.params.capacity_as
-        run(p, 300.0)
-        charging = {v for v, r in runners.items() if r.phase == "charging"}
-        on_chargers = {r.current for r in runners.values()} & set(p.cfg.plant.with_role("charger"))
-        # every vehicle that stands on a charger charges on it
-        assert len(charging) == len(on_chargers), {
-            v: (r.phase, r.topping_up, r.current, r.battery) for v, r in runners.items()
-        }
-        assert runners[must[0]].phase == "charging"
-    finally:
-        p.close()
+    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path, park=False, order_s=3000.0)
+    runners = p.orders.runners
+    _by_choice, must = three_topping_up(p)
+    drain(p, must)
+    run(p, 300.0)
+    charging = {v for v, r in runners.items() if r.phase == "charging"}
+    on_chargers = {r.current for r in runners.values()} & set(p.cfg.plant.with_role("charger"))
+    # every vehicle that stands on a charger charges on it
+    assert len(charging) == len(on_chargers), {
+        v: (r.phase, r.topping_up, r.current, r.battery) for v, r in runners.items()
+    }
+    assert runners[must[0]].phase == "charging"
 
 
 def test_a_vehicle_that_gave_its_charger_up_does_not_take_it_again(program, tmp_path):
@@ -310,8 +302,7 @@ def test_a_vehicle_that_gave_its_charger_up_does_not_take_it_again(program, tmp_
     runners = p.orders.runners
     run(p, 120.0)
     assert runners[1].phase == "charging" and runners[1].topping_up
-    battery = p.fleet.vehicles[3].battery
-    battery.charge_as = 0.2 * battery.params.capacity_as
+    drain(p, [3])
     run(p, 120.0)
     assert runners[3].phase == "charging", {
         v: (r.phase, r.topping_up, r.current, r.charges) for v, r in runners.items()
