@@ -726,21 +726,22 @@ class OrderRunner(FunctionBlock):
             frontier = reached
         return None
 
+    def _free_places(self, places: list[int]) -> list[int]:
+        """Those of ``places`` nobody holds, waits for or stands on, that the vehicle can
+        reach."""
+        return [p for p in places if self.claims.free(p, self.vehicle) and self._reachable(p)]
+
     def _can_leave(self) -> bool:
-        """Whether the vehicle, giving its charger up, would drive off it: to a free
-        parking place it can reach."""
-        return self.park and any(
-            self._holds(p) or (self.claims.free(p, self.vehicle) and self._reachable(p))
-            for p in self.parking
+        """Whether the vehicle, giving its charger up, would drive off it: to a parking
+        place it holds, or a free one it can reach."""
+        return self.park and (
+            any(self._holds(p) for p in self.parking) or bool(self._free_places(self.parking))
         )
 
     def _spare_charger(self) -> bool:
         """Whether a charger is free for charging by choice: two free that it can reach,
         so that one stays free for a vehicle that must charge."""
-        free = [
-            c for c in self.chargers if self.claims.free(c, self.vehicle) and self._reachable(c)
-        ]
-        return len(free) >= 2
+        return len(self._free_places(self.chargers)) >= 2
 
     def _charge(self, ctx: CycleContext) -> None:
         if (
@@ -816,9 +817,7 @@ class OrderRunner(FunctionBlock):
         if self.place is not None and self._holds(self.place):
             self._forget()  # a parking place cut off by a blockade on its way there
         self.place, self.target = None, self.current
-        spots = [
-            p for p in self.parking if self.claims.free(p, self.vehicle) and self._reachable(p)
-        ]
+        spots = self._free_places(self.parking)
         if spots:
             self.place = min(spots, key=lambda p: self.distance(self.current, p))
             self.claims.claim(self.place, self.vehicle)
@@ -840,11 +839,7 @@ class OrderRunner(FunctionBlock):
             if self.current in self.parking and self.claims.claim(self.current, self.vehicle):
                 self.place = self.current
             else:
-                free = [
-                    p
-                    for p in self.parking
-                    if self.claims.free(p, self.vehicle) and self._reachable(p)
-                ]
+                free = self._free_places(self.parking)
                 if not free:
                     return  # every parking position is taken or cut off: it stays idle
                 self.place = min(free, key=lambda p: self.distance(self.current, p))
