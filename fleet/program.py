@@ -58,7 +58,7 @@ from vehicles.monitor import ConflictMonitor
 from .config import VEHICLES_PER_BUS, Blockade, FleetConfig, check_config, modbus_endpoint
 from .events import EventLog
 from .order_system import OrderSystem, targets
-from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes
+from .tags import FleetCommands, FleetStatus, fleet_tags, marker_bytes, shown_phase
 
 # the newest nodes each vehicle reported that the recorder keeps: the drawing shows the last
 # 48 segments of each, and a few thousand are hours of driving to look back on in Python
@@ -528,7 +528,7 @@ class FleetProgram:
                     "order": _orders_of(s),
                     "recipe": s.recipe_name,
                     "step": f"{s.step + 1}/{len(recipe.functions)}" if recipe else "-",
-                    "phase": s.phase,
+                    "phase": shown_phase(s),
                     "battery": self._battery(v) if rec is not None else None,
                     "rounds": s.rounds_done,
                     "waits": c.waits,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -63,13 +63,40 @@ STATE_CODES = {
 }
 UNKNOWN_STATE = 255
 # a recipe vehicle's sequencer phases, then an order vehicle's, then a goal vehicle's own
-# (its idle is the order vehicle's; docs/hmi-map.md)
+# (its idle is the order vehicle's; docs/hmi-map.md), then the two an order vehicle shows
+# while it charges by choice (after the others, so that no code of theirs moves)
+TOPPING_UP = {"to_charger": "to_top_up", "charging": "topping_up"}
 PHASE_CODES = {
     p: i
     for i, p in enumerate(
-        ("start", "to_station", "processing", "returning", "done", *PHASES, "to_goal")
+        (
+            "start",
+            "to_station",
+            "processing",
+            "returning",
+            "done",
+            *PHASES,
+            "to_goal",
+            *TOPPING_UP.values(),
+        )
     )
 }
+
+PHASE_NAMES = {i: p for p, i in PHASE_CODES.items()}
+
+
+class _Job(Protocol):
+    phase: str
+
+
+def shown_phase(job: _Job) -> str:
+    """The phase an operator sees of a vehicle's job (recipe, orders or goals). An order
+    vehicle charging by choice (idle, topping up, still available for orders and giving
+    its charger up to one that must charge) shows ``to_top_up`` / ``topping_up``, apart
+    from one whose battery needs the charge."""
+    phase = job.phase
+    return TOPPING_UP.get(phase, phase) if getattr(job, "topping_up", False) else phase
+
 
 # a vehicle's acknowledge: the results the program answers with
 ACK_DONE, ACK_REFUSED = 1, 2
@@ -463,7 +490,7 @@ class FleetStatus(FunctionBlock):
                 NO_NODE if s.target is None else s.target,
                 numbers.get(s.recipe_name, 0),
                 s.step + 1 if s.recipe_name else 0,
-                PHASE_CODES.get(s.phase, 0),
+                PHASE_CODES.get(shown_phase(s), 0),
                 min(c.waits, MAX_UINT),
                 min(c.replans, MAX_UINT),
                 min(s.rounds_done, MAX_UINT),

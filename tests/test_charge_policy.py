@@ -16,6 +16,8 @@ from blocks.dispatch.executor import Claims, OrderRunner
 from blocks.dispatch.orders import OrderBook, OrderState
 from fleet.config import first_vehicles, load_config
 from fleet.program import FleetProgram
+from fleet.tags import PHASE_CODES, PHASE_NAMES
+from fleet.web.views import FleetCopy, render_vehicles
 from plc_runtime.errors import ConfigError
 
 DISTRIBUTION_CENTRE = (
@@ -173,6 +175,43 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     assert {claims.holder[c] for c in p.cfg.plant.with_role("charger")} == {*must, *still}
     assert claims.offered == {runners[v].current: v for v in still}
     assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
+
+
+def test_the_operator_tells_a_vehicle_topping_up_from_one_that_must_charge(program, tmp_path):
+    """The same five vehicles as above. The HMI's phase word, the report's rows and the web
+    API show a vehicle driving to a charger or charging by choice as ``to_top_up`` /
+    ``topping_up``, and one whose battery needs the charge as ``to_charger`` /
+    ``charging``."""
+    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    runners = p.orders.runners
+    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+
+    def shown(r: OrderRunner) -> str:
+        if r.phase in ("to_charger", "charging") and r.topping_up:
+            return {"to_charger": "to_top_up", "charging": "topping_up"}[r.phase]
+        return r.phase
+
+    seen: dict[int, set[str]] = {v: set() for v in runners}
+    before = {v: shown(r) for v, r in runners.items()}
+    for second in range(290):
+        if second == 120:
+            drain(p, must)
+        run(p, 1.0)
+        for v, r in runners.items():
+            word = p.rt.image.read(f"agv{v}.phase")
+            # the phase of this scan, or of the one before if it changed after the word's copy
+            assert word in (PHASE_CODES[shown(r)], PHASE_CODES[before[v]]), (v, second)
+            seen[v].add(PHASE_NAMES[word])
+            before[v] = shown(r)
+    for v in by_choice:
+        assert {"to_top_up", "topping_up"} <= seen[v], v
+    for v in must:
+        assert {"to_charger", "charging"} <= seen[v] and "topping_up" not in seen[v], v
+    rows = {row["vehicle"]: row["phase"] for row in p.vehicle_rows()}
+    api = {row["id"]: row["phase"] for row in render_vehicles(FleetCopy(p)())}
+    assert rows == api == {v: shown(r) for v, r in runners.items()}
+    assert sorted(rows.values()).count("topping_up") == 2  # one gave its charger up
+    assert [rows[v] for v in must] == ["charging", "charging"]
 
 
 def test_a_charger_held_by_a_vehicle_out_of_service_is_not_asked_for(program, tmp_path):

@@ -303,6 +303,35 @@ def warehouse_with(n: int) -> str:
     )
 
 
+def test_the_vehicle_table_says_who_tops_up_and_who_must_charge(browser, tmp_path):
+    """The distribution centre with three vehicles at 50 % and no order due: they top up on
+    three of its four chargers, and the table's job column says so, as the API's phase."""
+    text = (ROOT / "examples" / "distribution-centre.toml").read_text()
+    plant = ROOT / "examples" / "plants" / "distribution-centre.toml"
+    head = text[: text.index("[orders]")].replace('"plants/distribution-centre.toml"', f'"{plant}"')
+    rest = text[text.index("[dispatch]") : text.index("[[vehicles]]")]
+    starts = "".join(
+        f"[[vehicles]]\nid = {v}\nstart = {300 + v}\nbattery = 50\n\n" for v in (1, 2, 3)
+    )
+    orders = tmp_path / "late.csv"  # the only order, due long after the test
+    orders.write_text("id,get,put,start_s\nlate,31,41,100000\n")
+    config = tmp_path / "topping-up.toml"
+    config.write_text(f'{head}[orders]\nfile = "{orders}"\n\n{rest}{starts}')
+    with Controller(speed=10, config=config) as ctl:
+        browser.get(ctl.url + "/")
+        wait(browser).until(lambda d: d.find_element(By.ID, "connection").text == "live")
+
+        def jobs(d) -> list[str]:
+            return [td.text for td in d.find_elements(By.CSS_SELECTOR, "#vehicles td.order")]
+
+        wait(browser).until(lambda d: "to charger (topping up)" in jobs(d))
+        wait(browser).until(lambda d: jobs(d) == ["topping up"] * 3)
+        phases = {v["id"]: v["phase"] for v in ctl.call("GET", "/api/v1/vehicles").body}
+        assert phases == {1: "topping_up", 2: "topping_up", 3: "topping_up"}
+        assert not errors_logged(browser)
+    shutil.rmtree(tmp_path, ignore_errors=True)
+
+
 def test_the_order_list_shows_the_newest_orders_when_old_ones_have_left_the_book(browser, tmp_path):
     """1,200 orders added, the first 600 withdrawn and swept from the book (kept 1 s): the
     page reads the newest orders by position, not the first ones the book still holds."""

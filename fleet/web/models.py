@@ -165,6 +165,13 @@ class VehicleOut(BaseModel):
     node: int | None = Field(description="the node it last reported")
     next: int | None = Field(description="the next node it reports (null: standing)")
     target: int | None = Field(description="the node it is sent to")
+    phase: str = Field(
+        description="what its job is at: a recipe vehicle's start, to_station, processing, "
+        "returning, done; an order vehicle's idle, to_get, get_queue, get, to_put, "
+        "put_queue, put, to_charger, charging (its battery needs the charge), to_parking, "
+        "parked, to_top_up, topping_up (charging by choice: still available for orders); "
+        "a goal vehicle's idle, to_goal (docs/hmi-map.md)"
+    )
     released: list[int] = Field(description="nodes released to it and not reached, in order")
     planned: list[int] = Field(description="planned nodes after the released ones")
     battery: int | None = Field(description="charge in % (null: not reported yet)")

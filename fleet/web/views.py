@@ -27,7 +27,7 @@ from topology import Plant
 
 from ..events import Event
 from ..program import FleetProgram
-from ..tags import V
+from ..tags import PHASE_NAMES, V
 from .desk import OrderView
 
 MAX_EVENTS = 500  # events in one page of the log
@@ -174,6 +174,7 @@ def render_vehicles(copied: tuple[np.ndarray, list[VehicleCopy]]) -> list[dict[s
                 "node": _node(row[V["node"]]),
                 "next": _node(row[V["next"]]),
                 "target": _node(row[V["target"]]),
+                "phase": PHASE_NAMES.get(row[V["phase"]], "-"),
                 "released": list(c.released),
                 "planned": list(c.planned),
                 "battery": None if row[V["battery"]] == BATTERY_UNKNOWN else row[V["battery"]],

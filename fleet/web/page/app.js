@@ -558,6 +558,16 @@
     return out.join(" ");
   }
 
+  // what a vehicle without an order or recipe is doing, by its phase (docs/api.md, VehicleOut)
+  const IDLE_JOBS = {
+    to_charger: "to charger (must charge)",
+    charging: "charging (must)",
+    to_top_up: "to charger (topping up)",
+    topping_up: "topping up",
+    to_parking: "to parking",
+    parked: "parked",
+  };
+
   function updateVehicleRow(view, v, kind) {
     const c = view.cells;
     setText(c.state, v.state);
@@ -570,6 +580,7 @@
     let job = v.order ? v.order : "";
     if (v.next_order) job += ` / ${v.next_order}`;
     if (!job && v.recipe) job = `recipe ${v.recipe}`;
+    if (!job) job = IDLE_JOBS[v.phase] || "";
     setText(c.order, job || "–");
     setTitle(c.order, job);
     setText(c.battery, v.battery === null || v.battery === undefined ? "–" : `${v.battery} %`);
