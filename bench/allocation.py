@@ -121,6 +121,8 @@ class Result:
     charging_s: float
     min_battery: int
     conflicts: int
+    top_ups: int = 0  # (0 in the JSON of runs made before it was counted)
+    given_up: int = 0
 
 
 def orders_for(case: Case, cfg) -> list[TransportOrder]:
@@ -202,6 +204,8 @@ def _run(program: FleetProgram, case: Case, total: int) -> Result:
         charging_s=sum(r.charging_s for r in runners),
         min_battery=min(r.min_battery for r in runners),
         conflicts=program.monitor.head_on + program.monitor.node + program.monitor.area,
+        top_ups=sum(r.top_ups for r in runners),
+        given_up=sum(r.chargers_given_up for r in runners),
     )
 
 
@@ -386,6 +390,8 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
             "orders finished",
             "mean order time (s)",
             "charger visits",
+            "of them topping up",
+            "chargers given up",
             "charger use",
             "min battery %",
         ):
@@ -401,6 +407,8 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
                 spread([float(r.finished) for r in rs], "{:.0f}"),
                 spread([r.mean_order_s for r in rs if r.mean_order_s]),
                 spread([float(r.charges) for r in rs], "{:.0f}"),
+                spread([float(r.top_ups) for r in rs], "{:.0f}"),
+                spread([float(r.given_up) for r in rs], "{:.0f}"),
                 spread([100 * u for u in use], "{:.0f} %"),
                 spread([float(r.min_battery) for r in rs], "{:.0f}"),
             )

@@ -179,7 +179,10 @@ def final_tables(result: dict[str, Any]) -> Group:
         _row(fleet, "orders", ", ".join(f"{k} {n}" for k, n in result["orders"].items() if n))
         c = result["charging"]
         _row(
-            fleet, "charging", f"{c['visits']} visits, {c['time_s']:.0f} s, min {c['min_battery']}%"
+            fleet,
+            "charging",
+            f"{c['visits']} visits ({c['top_ups']} topping up, {c['given_up']} given up), "
+            f"{c['time_s']:.0f} s, min {c['min_battery']}%",
         )
     files = "  ".join(f"{k}: {v}" for k, v in result.get("files", {}).items())
     if result["fault_reason"]:

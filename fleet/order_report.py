@@ -146,6 +146,8 @@ def order_summary(system: OrderSystem, totals: OrderTotals | None = None) -> dic
         },
         "charging": {
             "visits": sum(r.charges for r in runners),
+            "top_ups": sum(r.top_ups for r in runners),
+            "given_up": sum(r.chargers_given_up for r in runners),
             "time_s": round(sum(r.charging_s for r in runners), 3),
             "min_battery": min((r.min_battery for r in runners), default=None),
             **energy_summary(system),

@@ -15,6 +15,7 @@ from blocks.dispatch.charging import ChargePolicy
 from blocks.dispatch.executor import Claims, OrderRunner
 from blocks.dispatch.orders import OrderBook, OrderState
 from fleet.config import first_vehicles, load_config
+from fleet.order_report import order_summary
 from fleet.program import FleetProgram
 from fleet.tags import PHASE_CODES, PHASE_NAMES
 from fleet.web.views import FleetCopy, render_vehicles
@@ -175,6 +176,9 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     assert {claims.holder[c] for c in p.cfg.plant.with_role("charger")} == {*must, *still}
     assert claims.offered == {runners[v].current: v for v in still}
     assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
+    charging = order_summary(p.orders)["charging"]
+    assert (charging["visits"], charging["top_ups"], charging["given_up"]) == (5, 3, 1)
+    assert runners[gave_up].chargers_given_up == 1
 
 
 def test_the_operator_tells_a_vehicle_topping_up_from_one_that_must_charge(program, tmp_path):

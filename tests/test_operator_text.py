@@ -60,9 +60,11 @@ def test_the_final_tables_show_names_reasons_and_files_literally(program):
     }
     result["fault_reason"] = "block [red]x raised [/oops]"
     result["files"] = {"summary": "[/out]/summary.json"}
+    result["charging"].update(visits=7, top_ups=5, given_up=2)
     text = rendered(final_tables(result), 200)
     for literal in ("[/s]", "FAULT: block [red]x raised [/oops]", "[/out]/summary.json"):
         assert literal in text
+    assert "7 visits (5 topping up, 2 given up)" in text
 
 
 @pytest.mark.parametrize("width", [80, 60])

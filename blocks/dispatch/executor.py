@@ -212,6 +212,8 @@ class OrderRunner(FunctionBlock):
     orders_done = Output(0)
     stations_visited = Output(0)
     charges = Output(0, doc="visits to a charger")
+    top_ups = Output(0, doc="of its visits to a charger, those it began by choice (topping up)")
+    chargers_given_up = Output(0, doc="chargers it left, topping up, for one that must charge")
     charging_s = Output(0.0, doc="time spent on a charger, finished visits")
     min_battery = Output(100, doc="the lowest state of charge seen, %")
     load = Output(
@@ -669,6 +671,7 @@ class OrderRunner(FunctionBlock):
                 self._forget()
                 self.place, self.hold, self.phase = None, False, "idle"
                 self.topping_up = False
+                self.chargers_given_up += 1
         if self.charging.must_charge(battery) and self.chargers:
             self.topping_up = False
             self._charge(ctx)
@@ -773,6 +776,7 @@ class OrderRunner(FunctionBlock):
         if self.phase == "to_charger" and self.arrived and self.current == self.place:
             self.phase, self.hold = "charging", True
             self.charges += 1
+            self.top_ups += self.topping_up
             self.charging_since = ctx.time
 
     def _ask_for_charger(self) -> None:
