@@ -5,6 +5,7 @@ and the independent monitor counts no conflict."""
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from pathlib import Path
 
@@ -287,6 +288,49 @@ def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, ma
         p.blockades.unblock(29, c)
     run(p, 120)
     assert b.state is OrderState.FINISHED and p.orders.dispatcher.cut_off == 0
+
+
+def test_a_section_over_its_estimate_sends_every_next_order_back_for_a_new_round(tmp_path, made):
+    """two_stage, two vehicles each carrying an order with a next one. An operator holds
+    vehicle 1 on its way to the Put station until that section has taken more than 1.3
+    times its estimate: the plan both next orders were given on no longer holds, so both go
+    back to the pool in that scan, and new rounds give them out again once vehicle 1 is
+    released (B names it). Every order is delivered, without a conflict."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0), (2, 11)))
+    p = start(cfg, made)
+    run(p, 1)
+    for oid, get, put, vehicle in (("A", 20, 24, 1), ("B", 29, 27, 1), ("C", 22, 26, 2)):
+        p.orders.submit(TransportOrder(oid, get, put, vehicle=vehicle))
+    p.orders.submit(TransportOrder("D", 21, 25, vehicle=2))
+    runners, d, book = p.orders.runners, p.orders.dispatcher, p.orders.book
+    assert p.rt.run_until(
+        lambda: all(r.next is not None and r.phase == "to_put" for r in runners.values()),
+        max_cycles=6000,
+    )
+    a, taken_back = runners[1].active, d.reassigned
+    nexts = [r.next.id for r in runners.values()]
+    p.rt.image.write("agv1.hold", 1)
+    assert p.rt.run_until(lambda: (a.id, "Go_To_Put") in d._deviated, max_cycles=2000)
+    assert not runners[1].arrived  # (held on the way: the section is not over)
+    assert d.reassigned == taken_back + 2
+    # both taken back in that scan (and maybe given out again in it)
+    (scan_s,) = {
+        [at for at, state in book.get(oid).history if state is OrderState.DISPATCHABLE][-1]
+        for oid in nexts
+    }
+    assert p.rt.clock_time - scan_s < 2 * p.cfg.cycle_time
+    # (the estimate as the scan saw it: the fleet's measured speed changes as trips end)
+    estimate = d.estimates.travel(a.get, a.put)
+    assert 0 < estimate < math.inf
+    assert scan_s - a.sections["Go_To_Put"][0] > 1.3 * estimate
+    p.rt.image.write("agv1.hold", 0)  # (a held vehicle takes no order: B waits for it)
+    assert p.rt.run_until(
+        lambda: all(book.get(oid).state is OrderState.BEING_PROCESSED for oid in nexts),
+        max_cycles=100,
+    )
+    run(p, 300)
+    assert all(book.get(oid).state is OrderState.FINISHED for oid in "ABCD")
+    assert (p.monitor.head_on, p.monitor.node, p.monitor.area) == (0, 0, 0)
 
 
 @pytest.mark.parametrize("which", ["next", "active"])
