@@ -333,8 +333,10 @@ def test_the_vehicle_table_says_who_tops_up_and_who_must_charge(browser, tmp_pat
 
 
 def test_the_order_list_shows_the_newest_orders_when_old_ones_have_left_the_book(browser, tmp_path):
-    """1,200 orders added, the first 600 withdrawn and swept from the book (kept 1 s): the
-    page reads the newest orders by position, not the first ones the book still holds."""
+    """1,200 orders added; the first 600 and the newest 400 withdrawn and swept from the
+    book (kept 1 s). The page reads the newest orders by position, not the first ones the
+    book still holds, and reads further back where the newest positions are gaps: its 200
+    rows are s799 down to s600."""
     text = (ROOT / "examples" / "workshop-orders.toml").read_text()
     text = text.replace("[orders]\n", "[orders]\nkeep_final_s = 1\n")
     text = text.replace(
@@ -349,16 +351,21 @@ def test_the_order_list_shows_the_newest_orders_when_old_ones_have_left_the_book
         orders = ctl.program.orders
         for k in range(1200):  # never startable in this test: none ends by itself
             orders.submit(TransportOrder(f"s{k}", 20, 21, start_s=1e6))
-        for k in range(600):
+        gone = [*range(600), *range(800, 1200)]
+        for k in gone:
             orders.withdraw(f"s{k}")
         book = orders.book
         deadline = time.monotonic() + 60
-        while any(f"s{k}" in book for k in range(600)) and time.monotonic() < deadline:
+        while any(f"s{k}" in book for k in gone) and time.monotonic() < deadline:
             time.sleep(0.1)  # the scan sweeps them a simulated second after they end
-        assert not any(f"s{k}" in book for k in range(600))
+        assert not any(f"s{k}" in book for k in gone)
         browser.get(ctl.url + "/")
         wait(browser).until(lambda d: d.find_element(By.ID, "connection").text == "live")
-        first = "#orders tbody tr:first-child td.id"
-        wait(browser).until(lambda d: d.find_element(By.CSS_SELECTOR, first).text == "s1199")
+
+        def ids(d) -> list[str]:
+            return [td.text for td in d.find_elements(By.CSS_SELECTOR, "#orders tbody td.id")]
+
+        # (the workshop's own orders come first while they are in the book)
+        wait(browser).until(lambda d: ids(d) == [f"s{k}" for k in range(799, 599, -1)])
         assert not errors_logged(browser)
     shutil.rmtree(tmp_path, ignore_errors=True)

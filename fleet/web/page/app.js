@@ -9,6 +9,7 @@
   const SVG_NS = "http://www.w3.org/2000/svg";
   const ORDER_PAGE = 500; // orders read at once (the API's page limit)
   const ORDER_ROWS = 200; // rows shown: more would only slow the page down
+  const ORDER_PAGES = 20; // pages read back at most to find them (10,000 positions)
   const EVENT_ROWS = 100;
   const WATCH_PERIOD_MS = 500;
   const MAX_WATCH = 200; // the API's limit for one values request
@@ -637,15 +638,23 @@
     orders.loading = true;
     orders.pending = [];
     try {
-      // the newest orders: those added from ORDER_PAGE positions before the next one on
-      // (positions never change; orders that have left the book leave gaps)
+      // the newest orders: those added from ORDER_PAGE positions before the next one on,
+      // then the ORDER_PAGE positions before those, ... until ORDER_ROWS are found
+      // (positions never change; orders that have left the book leave gaps), at most
+      // ORDER_PAGES requests back
       const head = await api("GET", "/orders?offset=0&limit=1");
-      const offset = Math.max(0, head.added - ORDER_PAGE);
-      const page = head.added > 1 ? await api("GET", `/orders?offset=${offset}&limit=${ORDER_PAGE}`) : head;
+      let newest = [];
+      let end = head.added;
+      for (let n = 0; n < ORDER_PAGES && end > 0 && newest.length < ORDER_ROWS; n++) {
+        const offset = Math.max(0, end - ORDER_PAGE);
+        const page = await api("GET", `/orders?offset=${offset}&limit=${end - offset}`);
+        newest = page.orders.filter((o) => o.position < end).concat(newest);
+        end = offset;
+      }
       const tbody = $("#orders tbody");
       orders.rows.clear();
       const fragment = document.createDocumentFragment();
-      for (const o of page.orders.slice(-ORDER_ROWS).reverse()) {
+      for (const o of newest.slice(-ORDER_ROWS).reverse()) {
         const row = orderRow(o, o.position);
         fragment.appendChild(row.tr);
       }
