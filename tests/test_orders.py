@@ -9,6 +9,7 @@ import pytest
 
 from blocks.dispatch.orders import (
     FINAL_STATES,
+    HISTORY_KEPT,
     SECTIONS,
     OrderBook,
     OrderError,
@@ -363,6 +364,32 @@ def test_exactly_the_allowed_transitions_happen(src, dst):
         with pytest.raises(OrderError, match=f"field 'state': cannot go from {src} to {dst}"):
             b.transition(o, dst, 3.0)
         assert snapshot(b) == before
+
+
+def test_an_order_taken_back_again_and_again_keeps_its_release_and_newest_history():
+    """Two-stage allocation may take a next order back at every recompute: its history
+    stays at HISTORY_KEPT entries, the release and the newest transitions, in the life
+    cycle's order; the book's counts and the order's times are those of every transition."""
+    b = book()
+    o = processing(b)  # RAW and DISPATCHABLE at 0 s, BEING_PROCESSED at 1 s
+    for k in range(1, 101):
+        b.transition(o, S.DISPATCHABLE, 10.0 * k, "recomputed")
+        o.assigned = 3
+        b.transition(o, S.BEING_PROCESSED, 10.0 * k + 5)
+    b.transition(o, S.FINISHED, 2000.0)
+    assert len(o.history) == HISTORY_KEPT
+    assert o.history[:2] == [(0.0, S.RAW), (0.0, S.DISPATCHABLE)]
+    assert o.history[-3:] == [
+        (1000.0, S.DISPATCHABLE),
+        (1005.0, S.BEING_PROCESSED),
+        (2000.0, S.FINISHED),
+    ]
+    states = [state for _, state in o.history]
+    assert all(pair in ALLOWED for pair in zip(states, states[1:], strict=False))
+    times = [t for t, _ in o.history]
+    assert times == sorted(times)
+    assert (o.created_s, o.finished_s) == (0.0, 2000.0)
+    assert b.counts()["FINISHED"] == 1 and b.counts()["BEING_PROCESSED"] == 0
 
 
 def test_taking_an_order_back_frees_it_and_forgets_its_sections():

@@ -20,7 +20,9 @@ only finish, fail or be withdrawn.
 The book validates an order completely before it changes anything: a bad order is one
 OrderError naming the order, the field and what is wrong, and the book is as before. Every
 transition is time-stamped in the order's ``history`` with the time the caller passes in
-(the scan's ``ctx.time``): nothing here reads a clock, so a run is reproducible.
+(the scan's ``ctx.time``): nothing here reads a clock, so a run is reproducible. An order
+given out and taken back more often than ``HISTORY_KEPT`` allows keeps its release and its
+newest transitions.
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ from sortedcontainers import SortedList
 from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
+# an order's history: two-stage allocation may take a next order back and give it out again
+# at every recompute (dozens of times an hour while the fleet is behind), so an open order
+# keeps its first two transitions (its release) and its newest ones, HISTORY_KEPT in all
+HISTORY_KEPT = 64
 # a controller that runs for months takes some 10,000 orders a day: a final order leaves the
 # book a day after it became final by default, so the book holds about a day of orders, not
 # the whole run (openTCS sweeps its order pool of old final orders the same way)
@@ -481,6 +487,10 @@ class OrderBook:
         self.revision += 1
         self._changed.append((self.revision, order))
         order.history.append((now_s, state))
+        if len(order.history) > HISTORY_KEPT:
+            # the oldest take-back: BEING_PROCESSED then DISPATCHABLE again (the only cycle
+            # of the life cycle), so what is kept still reads as one
+            del order.history[2:4]
         if state is OrderState.DISPATCHABLE:
             self._dispatchable[order.id] = order
         else:

@@ -63,7 +63,10 @@ class OrderOut(BaseModel):
     state: str = Field(description="RAW, DISPATCHABLE, BEING_PROCESSED or a final state")
     assigned: int | None = Field(description="the vehicle that has it")
     reason: str = Field(description="why its last transition happened")
-    history: list[HistoryEntry]
+    history: list[HistoryEntry] = Field(
+        description="its transitions (an order taken back again and again keeps its first "
+        "two and its newest ones, 64 in all)"
+    )
     sections: dict[str, list[float]] = Field(description="section -> [start] or [start, end]")
     position: int = Field(
         description="the orders added to the book before it in the run: never changes, the "
