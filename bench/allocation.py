@@ -121,8 +121,8 @@ class Result:
     charging_s: float
     min_battery: int
     conflicts: int
-    top_ups: int = 0  # (0 in the JSON of runs made before it was counted)
-    given_up: int = 0
+    top_ups: int | None = None  # (None in the JSON of runs made before they were counted)
+    given_up: int | None = None
 
 
 def orders_for(case: Case, cfg) -> list[TransportOrder]:
@@ -271,6 +271,13 @@ def spread(values: list[float], fmt: str = "{:.1f}") -> str:
     return f"{fmt.format(mean)} ({fmt.format(min(values))}-{fmt.format(max(values))})"
 
 
+def counted(values: list[int | None]) -> str:
+    """The spread of a count, blank for runs made before it was counted."""
+    if any(v is None for v in values):
+        return ""
+    return spread([float(v) for v in values], "{:.0f}")  # type: ignore[arg-type]
+
+
 def group(results: list[Result], **match) -> list[Result]:
     return [r for r in results if all(getattr(r.case, k) == v for k, v in match.items())]
 
@@ -407,8 +414,8 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
                 spread([float(r.finished) for r in rs], "{:.0f}"),
                 spread([r.mean_order_s for r in rs if r.mean_order_s]),
                 spread([float(r.charges) for r in rs], "{:.0f}"),
-                spread([float(r.top_ups) for r in rs], "{:.0f}"),
-                spread([float(r.given_up) for r in rs], "{:.0f}"),
+                counted([r.top_ups for r in rs]),
+                counted([r.given_up for r in rs]),
                 spread([100 * u for u in use], "{:.0f} %"),
                 spread([float(r.min_battery) for r in rs], "{:.0f}"),
             )

@@ -82,6 +82,7 @@ PHASE_CODES = {
     )
 }
 
+UNKNOWN_PHASE = 255
 PHASE_NAMES = {i: p for p, i in PHASE_CODES.items()}
 
 
@@ -220,7 +221,12 @@ VEHICLE_FIELDS = tuple(
             ("target", "UINT", "node it is sent to (65535: none)", False),
             ("recipe", "UINT", "its recipe: position in the [[recipes]] list, from 1", False),
             ("step", "UINT", "step of the recipe, from 1 (0: none)", False),
-            ("phase", "UINT", f"sequencer phase: {_codes(PHASE_CODES)}", False),
+            (
+                "phase",
+                "UINT",
+                f"sequencer phase: {_codes(PHASE_CODES)} (255: a phase this table does not know)",
+                False,
+            ),
             ("waits", "UINT", "times it stopped for a node held by another", False),
             ("replans", "UINT", "routes recomputed because the next segment was taken", False),
             ("rounds", "UINT", "recipes it completed in this run", False),
@@ -490,7 +496,7 @@ class FleetStatus(FunctionBlock):
                 NO_NODE if s.target is None else s.target,
                 numbers.get(s.recipe_name, 0),
                 s.step + 1 if s.recipe_name else 0,
-                PHASE_CODES.get(shown_phase(s), 0),
+                PHASE_CODES.get(shown_phase(s), UNKNOWN_PHASE),
                 min(c.waits, MAX_UINT),
                 min(c.replans, MAX_UINT),
                 min(s.rounds_done, MAX_UINT),

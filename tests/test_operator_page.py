@@ -317,7 +317,8 @@ def test_the_vehicle_table_says_who_tops_up_and_who_must_charge(browser, tmp_pat
     orders.write_text("id,get,put,start_s\nlate,31,41,100000\n")
     config = tmp_path / "topping-up.toml"
     config.write_text(f'{head}[orders]\nfile = "{orders}"\n\n{rest}{starts}')
-    with Controller(speed=10, config=config) as ctl:
+    # (at 5 x real time the vehicles drive to their chargers for some 18 s: the page sees it)
+    with Controller(speed=5, config=config) as ctl:
         browser.get(ctl.url + "/")
         wait(browser).until(lambda d: d.find_element(By.ID, "connection").text == "live")
 

@@ -98,10 +98,12 @@ def test_list_pages_and_show_agree_with_the_book(ctl):
             "assigned",
             "reason",
             "history",
+            "history_dropped",
             "sections",
             "position",
         }
         assert order["history"][0]["state"] == "RAW" and order["get"] in STATIONS
+        assert order["history_dropped"] == 0
     assert [o["position"] for o in everything] == list(range(len(everything)))
     assert first.body["added"] == len(everything) == first.body["next_offset"]
     paged = [

@@ -745,6 +745,32 @@ def test_the_order_list_keeps_ids_and_states_whole_on_a_narrow_terminal():
         assert whole in text
 
 
+def test_show_says_where_transitions_were_dropped_from_a_history():
+    """An order taken back again and again keeps its release and its newest transitions;
+    ``show`` marks the gap with the count, after the release."""
+    from rich.console import Console
+
+    from fleet.commands.orders import order_table
+    from fleet.web.models import OrderOut
+
+    history = [(0.0, "RAW"), (0.0, "DISPATCHABLE"), (905.0, "BEING_PROCESSED")]
+    o = OrderOut.model_validate(
+        _answer_order(
+            state="BEING_PROCESSED",
+            history=[{"time_s": t, "state": state} for t, state in history],
+            history_dropped=140,
+        )
+    )
+    console = Console(width=200, record=True, file=io.StringIO())
+    console.print(order_table(o))
+    text = console.export_text()
+    assert (
+        "0 s RAW, 0 s DISPATCHABLE, ... 140 earlier transitions not kept ..., "
+        "905 s BEING_PROCESSED" in text
+    )
+    assert OrderOut.model_validate(_answer_order()).history_dropped == 0  # an older server
+
+
 def test_list_pages_on_from_next_offset_over_orders_that_have_left_the_book(capsys, monkeypatch):
     """Positions of orders that left the book are gaps: ``list`` asks from each page's
     ``next_offset`` and shows every order once."""

@@ -368,8 +368,9 @@ def test_exactly_the_allowed_transitions_happen(src, dst):
 
 def test_an_order_taken_back_again_and_again_keeps_its_release_and_newest_history():
     """Two-stage allocation may take a next order back at every recompute: its history
-    stays at HISTORY_KEPT entries, the release and the newest transitions, in the life
-    cycle's order; the book's counts and the order's times are those of every transition."""
+    stays at HISTORY_KEPT entries at most, the release and the newest transitions, in the
+    life cycle's order, and counts those it dropped; the book's counts and the order's times
+    are those of every transition."""
     b = book()
     o = processing(b)  # RAW and DISPATCHABLE at 0 s, BEING_PROCESSED at 1 s
     for k in range(1, 101):
@@ -377,7 +378,8 @@ def test_an_order_taken_back_again_and_again_keeps_its_release_and_newest_histor
         o.assigned = 3
         b.transition(o, S.BEING_PROCESSED, 10.0 * k + 5)
     b.transition(o, S.FINISHED, 2000.0)
-    assert len(o.history) == HISTORY_KEPT
+    # 1 + 2 * 101 + 1 transitions: the oldest take-backs dropped in pairs, and counted
+    assert len(o.history) == HISTORY_KEPT and o.history_dropped == 204 - HISTORY_KEPT
     assert o.history[:2] == [(0.0, S.RAW), (0.0, S.DISPATCHABLE)]
     assert o.history[-3:] == [
         (1000.0, S.DISPATCHABLE),

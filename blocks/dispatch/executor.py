@@ -213,7 +213,9 @@ class OrderRunner(FunctionBlock):
     stations_visited = Output(0)
     charges = Output(0, doc="visits to a charger")
     top_ups = Output(0, doc="of its visits to a charger, those it began by choice (topping up)")
-    chargers_given_up = Output(0, doc="chargers it left, topping up, for one that must charge")
+    chargers_given_up = Output(
+        0, doc="chargers it gave up (on one or on its way), topping up, for one that must charge"
+    )
     charging_s = Output(0.0, doc="time spent on a charger, finished visits")
     min_battery = Output(100, doc="the lowest state of charge seen, %")
     load = Output(

@@ -22,7 +22,7 @@ OrderError naming the order, the field and what is wrong, and the book is as bef
 transition is time-stamped in the order's ``history`` with the time the caller passes in
 (the scan's ``ctx.time``): nothing here reads a clock, so a run is reproducible. An order
 given out and taken back more often than ``HISTORY_KEPT`` allows keeps its release and its
-newest transitions.
+newest transitions, and counts the others in ``history_dropped``.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ from topology.formats.numbers import MAX_DIGITS, TOO_LONG, shown
 
 CHANGE_LOG = 4096  # state changes the book remembers for live views
 # an order's history: two-stage allocation may take a next order back and give it out again
-# at every recompute (dozens of times an hour while the fleet is behind), so an open order
-# keeps its first two transitions (its release) and its newest ones, HISTORY_KEPT in all
+# at every recompute (dozens of times an hour while the fleet is behind), so an order keeps
+# its first two transitions (its release) and its newest ones, HISTORY_KEPT at most, and
+# counts those it dropped
 HISTORY_KEPT = 64
 # a controller that runs for months takes some 10,000 orders a day: a final order leaves the
 # book a day after it became final by default, so the book holds about a day of orders, not
@@ -145,6 +146,7 @@ class TransportOrder:
     assigned: int | None = None  # the vehicle that has it
     reason: str = ""  # why the last transition happened (FAILED, WITHDRAWN, taken back ...)
     position: int = -1  # the orders added to the book before it (-1: not in a book yet)
+    history_dropped: int = 0  # transitions dropped from the history (HISTORY_KEPT)
 
     @property
     def created_s(self) -> float | None:
@@ -489,8 +491,9 @@ class OrderBook:
         order.history.append((now_s, state))
         if len(order.history) > HISTORY_KEPT:
             # the oldest take-back: BEING_PROCESSED then DISPATCHABLE again (the only cycle
-            # of the life cycle), so what is kept still reads as one
+            # of the life cycle), so what is kept still follows the life cycle
             del order.history[2:4]
+            order.history_dropped += 2
         if state is OrderState.DISPATCHABLE:
             self._dispatchable[order.id] = order
         else:

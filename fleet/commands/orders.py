@@ -473,8 +473,10 @@ def order_table(o: OrderOut) -> Table:
         _row(table, name, _maybe(getattr(o, name)))
     _row(table, "start_s", _time(o.start_s))
     _row(table, "end_s", _time(o.end_s))
-    history = ", ".join(f"{h.time_s:g} s {h.state}" for h in o.history)
-    _row(table, "history", history)
+    entries = [f"{h.time_s:g} s {h.state}" for h in o.history]
+    if o.history_dropped:
+        entries[2:2] = [f"... {o.history_dropped} earlier transitions not kept ..."]
+    _row(table, "history", ", ".join(entries))
     for name, times in o.sections.items():
         _row(
             table, name, " .. ".join(f"{t:g} s" for t in times) + (" .." if len(times) == 1 else "")

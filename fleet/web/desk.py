@@ -65,6 +65,7 @@ class OrderView(NamedTuple):
     history: tuple[tuple[float, OrderState], ...]
     sections: dict[str, tuple[float, ...]]
     position: int
+    history_dropped: int
 
     @classmethod
     def of(cls, order: TransportOrder) -> OrderView:
@@ -82,6 +83,7 @@ class OrderView(NamedTuple):
             tuple(order.history),
             {name: tuple(times) for name, times in order.sections.items()},
             order.position,
+            order.history_dropped,
         )
 
 

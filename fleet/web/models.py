@@ -65,7 +65,12 @@ class OrderOut(BaseModel):
     reason: str = Field(description="why its last transition happened")
     history: list[HistoryEntry] = Field(
         description="its transitions (an order taken back again and again keeps its first "
-        "two and its newest ones, 64 in all)"
+        "two and its newest ones, 64 at most)"
+    )
+    history_dropped: int = Field(
+        0,
+        description="transitions dropped from its history, oldest first after the first two: "
+        "pairs of being given out and taken back",
     )
     sections: dict[str, list[float]] = Field(description="section -> [start] or [start, end]")
     position: int = Field(
@@ -87,6 +92,7 @@ class OrderOut(BaseModel):
             assigned=view.assigned,
             reason=view.reason,
             history=[HistoryEntry(time_s=t, state=s.value) for t, s in view.history],
+            history_dropped=view.history_dropped,
             sections={name: list(times) for name, times in view.sections.items()},
             position=view.position,
         )
