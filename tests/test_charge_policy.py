@@ -1,6 +1,6 @@
 """The charging policy: its thresholds, the seed's rule, and idle vehicles topping up.
 
-Unit tests of ChargePolicy, then the fleet program on the sample distribution centre (four
+Unit tests of ChargePolicy, then the fleet program on the sample distribution centre (five
 chargers): idle vehicles below ``top_up_below`` (``full`` by default) charge while a charger
 is to spare, leave one free for a vehicle that must charge, and take an order off the
 charger at once."""
@@ -24,6 +24,11 @@ from plc_runtime.errors import ConfigError
 DISTRIBUTION_CENTRE = (
     Path(__file__).resolve().parent.parent / "examples" / "distribution-centre.toml"
 )
+CHARGERS = 5  # the distribution centre's
+# vehicles at 50 % that top up on all chargers but one (kept free for a vehicle that must
+# charge), then two parked at 90 % that will be made to charge
+TOPPING_UP = CHARGERS - 1
+SIX = [50.0] * TOPPING_UP + [90.0, 90.0]
 
 
 def test_thresholds_must_be_ordered():
@@ -124,11 +129,13 @@ def released(p: FleetProgram):
     return next(iter(p.orders.book), None)
 
 
-def three_topping_up(p: FleetProgram, seconds: float = 120.0) -> tuple[list[int], list[int]]:
-    """Run a program of five vehicles, the first three at 50 %, until those three top up
-    on chargers; return them and the other two."""
+def all_but_one_topping_up(
+    p: FleetProgram, seconds: float = 120.0
+) -> tuple[list[int], list[int]]:
+    """Run a program of the vehicles ``SIX`` until the first ``TOPPING_UP`` top up on
+    chargers; return them and the other two."""
     runners = p.orders.runners
-    by_choice, others = sorted(runners)[:3], sorted(runners)[3:]
+    by_choice, others = sorted(runners)[:TOPPING_UP], sorted(runners)[TOPPING_UP:]
     run(p, seconds)
     assert all(runners[v].phase == "charging" and runners[v].topping_up for v in by_choice)
     return by_choice, others
@@ -142,11 +149,12 @@ def drain(p: FleetProgram, vehicles: list[int], percent: float = 20.0) -> None:
 
 
 def test_idle_vehicles_top_up_and_leave_one_charger_free(program, tmp_path):
-    p = program(4, 50.0, tmp_path)
+    assert len(load_config(DISTRIBUTION_CENTRE).plant.with_role("charger")) == CHARGERS
+    p = program(CHARGERS, 50.0, tmp_path)
     run(p, 250.0)
     runners = p.orders.runners
     charging = sorted(v for v, r in runners.items() if r.phase == "charging")
-    assert len(charging) == 3  # four chargers: one stays free for a vehicle that must charge
+    assert len(charging) == TOPPING_UP  # one charger stays free for a vehicle that must charge
     assert all(runners[v].topping_up for v in charging)
     (other,) = set(runners) - set(charging)
     assert runners[other].phase == "parked"
@@ -156,19 +164,19 @@ def test_idle_vehicles_top_up_and_leave_one_charger_free(program, tmp_path):
 
 
 def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, tmp_path):
-    """Four chargers: three vehicles at 50 % top up, leaving one charger free; two more,
+    """Five chargers: four vehicles at 50 % top up, leaving one charger free; two more,
     parked at 90 %, then drop to 20 % and must charge. The first takes the free charger,
     the second finds every charger taken: one vehicle topping up, and only one, gives its
     charger up and backs out of the charger's spur while the other waits to drive in."""
-    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    p = program(len(SIX), SIX, tmp_path)
     runners = p.orders.runners
-    by_choice, must = three_topping_up(p)
+    by_choice, must = all_but_one_topping_up(p)
     drain(p, must)
     run(p, 170.0)  # (the file's order comes at 300 s)
     for v in must:
         assert runners[v].phase == "charging" and not runners[v].topping_up, v
     still = [v for v in by_choice if runners[v].phase == "charging" and runners[v].topping_up]
-    assert len(still) == 2
+    assert len(still) == TOPPING_UP - 1
     (gave_up,) = set(by_choice) - set(still)
     assert runners[gave_up].phase == "parked" and runners[gave_up].charges == 1
     assert runners[gave_up].battery < 60  # it left before it was charged: it was asked to
@@ -177,18 +185,18 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     assert claims.offered == {runners[v].current: v for v in still}
     assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
     charging = order_summary(p.orders)["charging"]
-    assert (charging["visits"], charging["top_ups"], charging["given_up"]) == (5, 3, 1)
+    assert (charging["visits"], charging["top_ups"], charging["given_up"]) == (6, 4, 1)
     assert runners[gave_up].chargers_given_up == 1
 
 
 def test_the_operator_tells_a_vehicle_topping_up_from_one_that_must_charge(program, tmp_path):
-    """The same five vehicles as above. The HMI's phase word, the report's rows and the web
+    """The same six vehicles as above. The HMI's phase word, the report's rows and the web
     API show a vehicle driving to a charger or charging by choice as ``to_top_up`` /
     ``topping_up``, and one whose battery needs the charge as ``to_charger`` /
     ``charging``."""
-    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    p = program(len(SIX), SIX, tmp_path)
     runners = p.orders.runners
-    by_choice, must = sorted(runners)[:3], sorted(runners)[3:]
+    by_choice, must = sorted(runners)[:TOPPING_UP], sorted(runners)[TOPPING_UP:]
 
     def shown(r: OrderRunner) -> str:
         if r.phase in ("to_charger", "charging") and r.topping_up:
@@ -214,27 +222,28 @@ def test_the_operator_tells_a_vehicle_topping_up_from_one_that_must_charge(progr
     rows = {row["vehicle"]: row["phase"] for row in p.vehicle_rows()}
     api = {row["id"]: row["phase"] for row in render_vehicles(FleetCopy(p)())}
     assert rows == api == {v: shown(r) for v, r in runners.items()}
-    assert sorted(rows.values()).count("topping_up") == 2  # one gave its charger up
+    # one gave its charger up
+    assert sorted(rows.values()).count("topping_up") == TOPPING_UP - 1
     assert [rows[v] for v in must] == ["charging", "charging"]
 
 
 def test_a_charger_held_by_a_vehicle_out_of_service_is_not_asked_for(program, tmp_path):
-    """As above, but the two vehicles topping up nearest to the second vehicle that must
-    charge fail on their chargers and are given up: it asks the third, not one of theirs
-    (they may never move)."""
-    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    """As above, but the vehicles topping up nearest to the second vehicle that must
+    charge, all but the farthest, fail on their chargers and are given up: it asks the
+    farthest, not one of theirs (they may never move)."""
+    p = program(len(SIX), SIX, tmp_path)
     runners = p.orders.runners
-    by_choice, must = three_topping_up(p, 100.0)
+    by_choice, must = all_but_one_topping_up(p, 100.0)
     asking = runners[must[1]]
     nearest = sorted(by_choice, key=lambda v: asking.distance(asking.current, runners[v].current))
-    for v in nearest[:2]:
+    for v in nearest[:-1]:
         p.fleet.vehicles[v].fault = True
     run(p, 65.0)  # (out of service for 60 s, a vehicle gives up)
-    assert p.orders.claims.out_of_service == set(nearest[:2])
+    assert p.orders.claims.out_of_service == set(nearest[:-1])
     drain(p, must)
     run(p, 130.0)  # (the file's order comes at 300 s)
     assert runners[must[0]].phase == runners[must[1]].phase == "charging"
-    assert runners[nearest[2]].phase == "parked"
+    assert runners[nearest[-1]].phase == "parked"
     assert p.monitor.head_on == p.monitor.node == p.monitor.area == 0
 
 
@@ -290,9 +299,9 @@ def test_a_vehicle_queued_for_a_charger_cut_off_asks_another(program, tmp_path):
     blockade closes the way into that charger's spur (the vehicle there can still back
     out). It cannot get there: it asks a charger it can reach, whose vehicle tops up,
     and the charger cut off does not stay reserved for it."""
-    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path)
+    p = program(len(SIX), SIX, tmp_path)
     runners, claims, plant = p.orders.runners, p.orders.claims, p.cfg.plant
-    _by_choice, must = three_topping_up(p)
+    _by_choice, must = all_but_one_topping_up(p)
     drain(p, must)
     asked = None
     for _ in range(round(120.0 / p.cfg.cycle_time)):
@@ -320,9 +329,9 @@ def test_without_parking_a_vehicle_topping_up_keeps_its_charger(program, tmp_pat
     """With ``park = false`` an idle vehicle stays where it is: one topping up that gave
     its charger up to a vehicle that must charge would stand on it for ever, charging
     neither itself nor the other."""
-    p = program(5, [50.0, 50.0, 50.0, 90.0, 90.0], tmp_path, park=False, order_s=3000.0)
+    p = program(len(SIX), SIX, tmp_path, park=False, order_s=3000.0)
     runners = p.orders.runners
-    _by_choice, must = three_topping_up(p)
+    _by_choice, must = all_but_one_topping_up(p)
     drain(p, must)
     run(p, 300.0)
     charging = {v for v, r in runners.items() if r.phase == "charging"}
@@ -335,12 +344,12 @@ def test_without_parking_a_vehicle_topping_up_keeps_its_charger(program, tmp_pat
 
 
 def test_a_vehicle_that_gave_its_charger_up_does_not_take_it_again(program, tmp_path):
-    """Chargers 81 and 82 are cut off; two vehicles top up on 83 and 84. A third must
+    """Chargers 81, 82 and 85 are cut off; two vehicles top up on 83 and 84. A third must
     charge and asks one of them for its charger: that one gives it up and does not take
     it straight back (the two chargers cut off count as free to it). (Or, with the
     chargers cut off not counted as spare, only one tops up.)"""
     p = program(3, [50.0, 50.0, 90.0], tmp_path)
-    for charger, lane in ((81, 482), (82, 481)):
+    for charger, lane in ((81, 482), (82, 481), (85, 475)):
         p.blockades.block(lane, charger)
     runners = p.orders.runners
     run(p, 120.0)

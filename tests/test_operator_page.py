@@ -305,7 +305,7 @@ def warehouse_with(n: int) -> str:
 
 def test_the_vehicle_table_says_who_tops_up_and_who_must_charge(browser, tmp_path):
     """The distribution centre with three vehicles at 50 % and no order due: they top up on
-    three of its four chargers, and the table's job column says so, as the API's phase."""
+    three of its five chargers, and the table's job column says so, as the API's phase."""
     text = (ROOT / "examples" / "distribution-centre.toml").read_text()
     plant = ROOT / "examples" / "plants" / "distribution-centre.toml"
     head = text[: text.index("[orders]")].replace('"plants/distribution-centre.toml"', f'"{plant}"')

@@ -506,11 +506,10 @@ BACKED_INTO_AN_AREA = (
     800,
 )
 
-# Three vehicles top up (below 60 %, ten below this file's ``full``) and set off for three
-# of the four chargers; four must charge (31 %: an order would take them below ``good``).
-# The first takes the fourth charger, the other three find every charger taken, and each
-# vehicle topping up gives its charger up to one of them (tests/test_charge_policy.py
-# has one backing out of a charger's spur for it).
+# Three vehicles may top up (55 %: below 60 %, ten below this file's ``full``); four must
+# charge (31 %: an order would take them below ``good``). Seven vehicles for the five
+# chargers: vehicles topping up give theirs up to ones that must charge (twice in this run;
+# tests/test_charge_policy.py has one backing out of a charger's spur for it).
 CHARGERS_GIVEN_UP = (
     [(21, 53, 150, 1), (61, 42, 160, 0), (52, 22, 170, 2), (33, 51, 180, 0)],
     [(301, 55.0), (302, 55.0), (303, 55.0), (304, 31.0), (305, 31.0), (306, 31.0), (307, 31.0)],

@@ -827,23 +827,25 @@ def test_closing_the_segment_a_loaded_vehicle_is_on_does_not_fail_its_order(tmp_
 
 
 def test_a_vehicle_waiting_for_a_charger_does_not_wait_on_the_station_it_served(tmp_path, made):
-    """Every charger is taken when vehicle 5's charge falls below good during its Put:
-    it waits for a charger, but off the station and its single-vehicle area, so vehicle 6,
+    """Every charger is taken when vehicle 6's charge falls below good during its Put:
+    it waits for a charger, but off the station and its single-vehicle area, so vehicle 7,
     bound for the same station, is served meanwhile (chargers free up only after an hour)."""
-    starts = {1: 30.0, 2: 30.0, 3: 30.0, 4: 30.0, 5: 80.0, 6: 90.0}  # 1-4 take every charger
+    starts = {1: 30.0, 2: 30.0, 3: 30.0, 4: 30.0, 5: 30.0, 6: 80.0, 7: 90.0}
+    chargers = (1, 2, 3, 4, 5)  # at 30 %: they take the plant's five chargers
     orders = [
-        TransportOrder("o1", 21, 71, 0.0, vehicle=5),
-        TransportOrder("o2", 22, 71, 300.0, vehicle=6),
+        TransportOrder("o1", 21, 71, 0.0, vehicle=6),
+        TransportOrder("o2", 22, 71, 300.0, vehicle=7),
     ]
-    p = dc_program(made, tmp_path, 6, orders, start=starts)
-    r5 = p.orders.runners[5]
-    assert p.rt.run_until(lambda: r5.phase == "put", max_cycles=round(600 / 0.05))
-    battery = p.fleet.vehicles[5].battery
+    p = dc_program(made, tmp_path, 7, orders, start=starts)
+    assert len(p.cfg.plant.with_role("charger")) == len(chargers)
+    r6 = p.orders.runners[6]
+    assert p.rt.run_until(lambda: r6.phase == "put", max_cycles=round(600 / 0.05))
+    battery = p.fleet.vehicles[6].battery
     battery.charge_as = 0.33 * battery.params.capacity_as
     o2 = p.orders.book.get("o2")
     assert p.rt.run_until(lambda: o2.state is OrderState.FINISHED, max_cycles=round(900 / 0.05))
-    assert r5.phase == "to_charger" and r5.current not in r5._area(71)
-    assert all(p.orders.runners[v].phase == "charging" for v in (1, 2, 3, 4))
+    assert r6.phase == "to_charger" and r6.current not in r6._area(71)
+    assert all(p.orders.runners[v].phase == "charging" for v in chargers)
     assert p.monitor.head_on == 0 and p.monitor.node == 0 and p.monitor.area == 0
 
 

@@ -14,14 +14,14 @@ The layout (north at the top; in the file y grows downwards, positions in metres
         <<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<<< v hrl 33
         >>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>>> v
   62    ^  C        P-^ v-P  C           P-^ v-P          ^ v      v hrl 34
-  61    ^           P-^ v-P              P-^ v-P          ^ v      v hrl 35
+  61    ^           P-^ v-P              P-^ v-C          ^ v      v hrl 35
      SW <----S--------S-+-+---S-------S--------S-+-+-----S-+-+----< SE
             54       53      52      51       43      42      41
                     picking                        depalletising
 
   S: a transfer station (61 and 62: empty pallets, 31-35: the high-bay warehouse's five
-  aisles, each beside the lane); C: the four chargers, two off each lane of the middle
-  aisle H; P: parking places; > v < ^: one-way lanes. The cross aisles V1 (x = 28 | 32),
+  aisles, each beside the lane); C: the five chargers, two off each lane of the middle
+  aisle H and one off the southbound lane of V2; P: parking places; > v < ^: one-way lanes. The cross aisles V1 (x = 28 | 32),
   V2 (52 | 56), V3 (70 | 74) and H (y = 34 | 41) each have a northbound (eastbound) and a
   southbound (westbound) lane.
 
@@ -41,13 +41,13 @@ The layout (north at the top; in the file y grows downwards, positions in metres
   node (role "queue"): a shuttle whose station is occupied waits there, off the lane.
 * Cluster zones (zone = the unit's function id): the lane nodes from a unit's first queue
   junction to its last station junction, with the unit's queue and approach nodes; the
-  chargers' zone is their four junctions.
-* Four chargers (function 8) and twenty parking places (idle positions) on 3 m spurs off
+  chargers' zone is their five junctions.
+* Five chargers (function 8) and nineteen parking places (idle positions) on 3 m spurs off
   the aisles' lanes. Lane nodes are at least 3 m apart.
 
 Node ids: stations function * 10 + k (receiving 21-24, hrl 31-35, depalletising 41-43,
-picking 51-54, empty pallets 61-62, control 71), chargers 81-84, a station's queue node
-100 + its id, its approach node 200 + its id, parking places 301-320, lane and aisle nodes
+picking 51-54, empty pallets 61-62, control 71), chargers 81-85, a station's queue node
+100 + its id, its approach node 200 + its id, parking places 301-319, lane and aisle nodes
 from 401 on (the ring clockwise from the north-west corner, then the aisles). No entry or
 exit: the work is transport orders between stations, not recipes.
 
@@ -93,6 +93,9 @@ PARKING_Y = (15.0, 23.0, 30.0, 45.0, 53.0)  # parking junctions on a vertical ai
 # parking junctions on them
 V_AISLES = ((28.0, 32.0, PARKING_Y), (52.0, 56.0, PARKING_Y), (70.0, 74.0, ()))
 CHARGER_X = (16.0, 40.0)  # junctions on both lanes of the middle aisle, a charger off each
+# A fifth charger, in the parking row of the southbound lane of V2 (its last parking junction):
+# four are not enough for 17 shuttles over a shift (docs/fleet-config.md, "Enough chargers?").
+SOUTH_CHARGER = ((56.0, 53.0), (1.0, 0.0))
 QUEUE_GAP = 4.0  # queue junction this far upstream of the station junction
 APPROACH, STATION, QUEUE = 3.0, 6.0, 4.0  # spur lengths off the lane
 CHARGER_SPUR = PARKING_SPUR = 3.0
@@ -237,7 +240,7 @@ def build() -> Layout:
     chargers = [
         ((x, y), (0.0, side)) for x in CHARGER_X for y, side in ((H_EAST, -1.0), (H_WEST, 1.0))
     ]
-    for k, (junction, direction) in enumerate(chargers, start=1):
+    for k, (junction, direction) in enumerate([*chargers, SOUTH_CHARGER], start=1):
         place = moved(junction, direction, CHARGER_SPUR)
         layout.spur(junction, Node(80 + k, f"charger-{k}", *place, "charger", (CHARGING,)))
         layout.nodes[layout.lane[junction]].zone = CHARGING
@@ -246,6 +249,7 @@ def build() -> Layout:
         for south_x, north_x, ys in V_AISLES
         for y in ys
         for x, side in ((south_x, -1.0), (north_x, 1.0))
+        if (x, y) != SOUTH_CHARGER[0]
     ]
     for k, (junction, direction) in enumerate(parking, start=1):
         place = moved(junction, direction, PARKING_SPUR)
