@@ -129,9 +129,7 @@ def released(p: FleetProgram):
     return next(iter(p.orders.book), None)
 
 
-def all_but_one_topping_up(
-    p: FleetProgram, seconds: float = 120.0
-) -> tuple[list[int], list[int]]:
+def all_but_one_topping_up(p: FleetProgram, seconds: float = 120.0) -> tuple[list[int], list[int]]:
     """Run a program of the vehicles ``SIX`` until the first ``TOPPING_UP`` top up on
     chargers; return them and the other two."""
     runners = p.orders.runners
