@@ -123,6 +123,7 @@ class Result:
     conflicts: int
     top_ups: int | None = None  # (None in the JSON of runs made before they were counted)
     given_up: int | None = None
+    chargers: int = 4  # the plant's (runs written before it had a fifth did not say)
 
 
 def orders_for(case: Case, cfg) -> list[TransportOrder]:
@@ -206,6 +207,7 @@ def _run(program: FleetProgram, case: Case, total: int) -> Result:
         conflicts=program.monitor.head_on + program.monitor.node + program.monitor.area,
         top_ups=sum(r.top_ups for r in runners),
         given_up=sum(r.chargers_given_up for r in runners),
+        chargers=len(program.cfg.plant.with_role("charger")),
     )
 
 
@@ -403,12 +405,11 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
             "min battery %",
         ):
             t.add_column(c, justify="right")
-        chargers = 4
         done = {}
         for on in (False, True):
             rs = group(results, experiment="battery", battery=on)
             done[on] = mean_of(rs, "finished")
-            use = [r.charging_s / (chargers * r.sim_s) for r in rs]
+            use = [r.charging_s / (r.chargers * r.sim_s) for r in rs]
             t.add_row(
                 "on (36-70 % at start)" if on else "off",
                 spread([float(r.finished) for r in rs], "{:.0f}"),

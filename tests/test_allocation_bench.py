@@ -99,3 +99,30 @@ def test_a_short_arrival_run_drives_the_generators_orders_without_conflict():
     r = allocation.run_case(case)
     assert r.sim_s == 120.0 and r.total > 0 and 0 < r.finished < r.total
     assert r.conflicts == 0 and r.charges == 0
+
+
+def test_charger_use_is_time_on_chargers_over_the_plants_chargers(capsys):
+    """Each run's charger use divides by its own plant's chargers: 5 in a run of now, 4 in
+    the JSON of a run made before the distribution centre had its fifth (no such key)."""
+
+    def battery(on: bool, charging_s: float, **more) -> allocation.Result:
+        case = allocation.Case("battery", "two_stage", 17, 1, battery=on, arrival_s=3600.0)
+        return allocation.Result(
+            case, 100, 110, 200.0, 10.0, 3600.0, 3600.0, 1.0, 3, charging_s, 40, 0, **more
+        )
+
+    now = battery(True, 10800.0, top_ups=1, given_up=0, chargers=5)
+    assert now.chargers == len(allocation.load_config(allocation.CONFIG).plant.with_role("charger"))
+    old = {**vars(battery(True, 10800.0)), "case": vars(battery(True, 0.0).case)}
+    del old["chargers"]
+    args = Namespace(
+        experiments=["battery"],
+        no_deadlines=False,
+        battery_s=3600.0,
+        battery_load=0.5,
+        top_up_below=None,
+    )
+    for runs, use in (([now], "60 %"), ([allocation.loaded(old)], "75 %")):
+        allocation.report([battery(False, 0.0), *runs], args, allocation.Console())
+        (row,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| on")]
+        assert [c.strip() for c in row.split("|")[1:-1]][6] == use, row
