@@ -46,6 +46,18 @@ def _cell(value: object) -> str:
     return "-" if value is None else str(value)
 
 
+def chargers_text(charging: dict) -> str:
+    """The plant's chargers against what the run's work needs sustained: a run of an hour
+    or two, batteries started charged, shows no shortage yet, so the table says it."""
+    needed, have = charging.get("chargers_needed"), charging.get("chargers")
+    if needed is None:
+        return f"{have} in the plant; needed: unknown until a vehicle has charged"
+    text = f"{have} in the plant, {needed:g} needed sustained"
+    if needed > have:
+        text += ": too few, the fleet falls behind once the batteries have run down"
+    return text
+
+
 def _row(table: Table, *cells: object) -> None:
     """A row shown literally (see the module's docstring)."""
     table.add_row(*(Text(_cell(c)) for c in cells))
@@ -184,6 +196,7 @@ def final_tables(result: dict[str, Any]) -> Group:
             f"{c['visits']} visits ({c['top_ups']} topping up, {c['given_up']} given up), "
             f"{c['time_s']:.0f} s, min {c['min_battery']}%",
         )
+        _row(fleet, "chargers", chargers_text(c))
     files = "  ".join(f"{k}: {v}" for k, v in result.get("files", {}).items())
     if result["fault_reason"]:
         fleet.caption = Text(f"FAULT: {result['fault_reason']}")

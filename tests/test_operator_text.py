@@ -67,6 +67,26 @@ def test_the_final_tables_show_names_reasons_and_files_literally(program):
     assert "7 visits (5 topping up, 2 given up)" in text
 
 
+@pytest.mark.parametrize(
+    "needed, chargers, says",
+    [
+        (4.43, 4, "4 in the plant, 4.43 needed sustained: too few, the fleet falls behind"),
+        (4.43, 5, "5 in the plant, 4.43 needed sustained"),
+        (None, 1, "1 in the plant; needed: unknown until a vehicle has charged"),
+    ],
+)
+def test_the_final_tables_say_whether_the_plant_has_chargers_enough(
+    program, needed, chargers, says
+):
+    """Batteries start charged, so a short run shows no shortage of chargers yet: the
+    table compares the plant's chargers with the run's energy balance."""
+    result = summary(program, wall_s=1.0)
+    result["charging"].update(chargers_needed=needed, chargers=chargers)
+    text = " ".join(rendered(final_tables(result), 400).split())
+    assert says in text
+    assert ("too few" in text) == (needed is not None and needed > chargers)
+
+
 @pytest.mark.parametrize("width", [80, 60])
 def test_the_final_tables_never_cut_a_number_short(program, width):
     """A long run's numbers in an 80-column terminal (COLUMNS=80) or narrower: every one
