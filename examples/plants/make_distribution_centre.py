@@ -21,9 +21,9 @@ The layout (north at the top; in the file y grows downwards, positions in metres
 
   S: a transfer station (61 and 62: empty pallets, 31-35: the high-bay warehouse's five
   aisles, each beside the lane); C: the five chargers, two off each lane of the middle
-  aisle H and one off the southbound lane of V2; P: parking places; > v < ^: one-way lanes. The cross aisles V1 (x = 28 | 32),
-  V2 (52 | 56), V3 (70 | 74) and H (y = 34 | 41) each have a northbound (eastbound) and a
-  southbound (westbound) lane.
+  aisle H and one off the southbound lane of V2; P: parking places; > v < ^: one-way
+  lanes. The cross aisles V1 (x = 28 | 32), V2 (52 | 56), V3 (70 | 74) and H (y = 34 | 41)
+  each have a northbound (eastbound) and a southbound (westbound) lane.
 
 * The ring lane is one-way and runs clockwise as drawn: east along the north wall, south
   along the east wall (the high-bay warehouse, its five aisles' transfer points), west
@@ -93,8 +93,9 @@ PARKING_Y = (15.0, 23.0, 30.0, 45.0, 53.0)  # parking junctions on a vertical ai
 # parking junctions on them
 V_AISLES = ((28.0, 32.0, PARKING_Y), (52.0, 56.0, PARKING_Y), (70.0, 74.0, ()))
 CHARGER_X = (16.0, 40.0)  # junctions on both lanes of the middle aisle, a charger off each
-# A fifth charger, in the parking row of the southbound lane of V2 (its last parking junction):
-# four are not enough for 17 shuttles over a shift (docs/fleet-config.md, "Enough chargers?").
+# The fifth charger, in the parking row of the southbound lane of V2 (its last parking
+# junction): 17 shuttles need more than four over a shift (docs/fleet-config.md, "Enough
+# chargers?").
 SOUTH_CHARGER = ((56.0, 53.0), (1.0, 0.0))
 QUEUE_GAP = 4.0  # queue junction this far upstream of the station junction
 APPROACH, STATION, QUEUE = 3.0, 6.0, 4.0  # spur lengths off the lane
