@@ -122,7 +122,7 @@ def test_two_processes_give_the_results_of_one_in_the_order_given(monkeypatch):
     assert two == one
     assert [len(samples) for samples, _, _ in two] == [3, 3]
     # no vehicle took orders: nothing measured of the batteries, and the plant's chargers
-    assert two[0][2]["chargers_needed"] is None and two[0][2]["chargers"] == 4
+    assert two[0][2]["chargers_needed"] is None and two[0][2]["chargers"] == 5
     assert [s.in_book for s in two[0][0]] == [4, 8, 12]
 
 
