@@ -28,7 +28,7 @@ CHARGERS = 5  # the distribution centre's
 # vehicles at 50 % that top up on all chargers but one (kept free for a vehicle that must
 # charge), then two parked at 90 % that will be made to charge
 TOPPING_UP = CHARGERS - 1
-SIX = [50.0] * TOPPING_UP + [90.0, 90.0]
+START_CHARGES = [50.0] * TOPPING_UP + [90.0, 90.0]
 
 
 def test_thresholds_must_be_ordered():
@@ -130,8 +130,8 @@ def released(p: FleetProgram):
 
 
 def all_but_one_topping_up(p: FleetProgram, seconds: float = 120.0) -> tuple[list[int], list[int]]:
-    """Run a program of the vehicles ``SIX`` until the first ``TOPPING_UP`` top up on
-    chargers; return them and the other two."""
+    """Run a program of vehicles charged ``START_CHARGES`` until the first ``TOPPING_UP``
+    top up on chargers; return them and the other two."""
     runners = p.orders.runners
     by_choice, others = sorted(runners)[:TOPPING_UP], sorted(runners)[TOPPING_UP:]
     run(p, seconds)
@@ -166,7 +166,7 @@ def test_a_vehicle_that_must_charge_gets_a_charger_from_one_topping_up(program, 
     parked at 90 %, then drop to 20 % and must charge. The first takes the free charger,
     the second finds every charger taken: one vehicle topping up, and only one, gives its
     charger up and backs out of the charger's spur while the other waits to drive in."""
-    p = program(len(SIX), SIX, tmp_path)
+    p = program(len(START_CHARGES), START_CHARGES, tmp_path)
     runners = p.orders.runners
     by_choice, must = all_but_one_topping_up(p)
     drain(p, must)
@@ -192,7 +192,7 @@ def test_the_operator_tells_a_vehicle_topping_up_from_one_that_must_charge(progr
     API show a vehicle driving to a charger or charging by choice as ``to_top_up`` /
     ``topping_up``, and one whose battery needs the charge as ``to_charger`` /
     ``charging``."""
-    p = program(len(SIX), SIX, tmp_path)
+    p = program(len(START_CHARGES), START_CHARGES, tmp_path)
     runners = p.orders.runners
     by_choice, must = sorted(runners)[:TOPPING_UP], sorted(runners)[TOPPING_UP:]
 
@@ -229,7 +229,7 @@ def test_a_charger_held_by_a_vehicle_out_of_service_is_not_asked_for(program, tm
     """As above, but the vehicles topping up nearest to the second vehicle that must
     charge, all but the farthest, fail on their chargers and are given up: it asks the
     farthest, not one of theirs (they may never move)."""
-    p = program(len(SIX), SIX, tmp_path)
+    p = program(len(START_CHARGES), START_CHARGES, tmp_path)
     runners = p.orders.runners
     by_choice, must = all_but_one_topping_up(p, 100.0)
     asking = runners[must[1]]
@@ -297,7 +297,7 @@ def test_a_vehicle_queued_for_a_charger_cut_off_asks_another(program, tmp_path):
     blockade closes the way into that charger's spur (the vehicle there can still back
     out). It cannot get there: it asks a charger it can reach, whose vehicle tops up,
     and the charger cut off does not stay reserved for it."""
-    p = program(len(SIX), SIX, tmp_path)
+    p = program(len(START_CHARGES), START_CHARGES, tmp_path)
     runners, claims, plant = p.orders.runners, p.orders.claims, p.cfg.plant
     _by_choice, must = all_but_one_topping_up(p)
     drain(p, must)
@@ -327,7 +327,7 @@ def test_without_parking_a_vehicle_topping_up_keeps_its_charger(program, tmp_pat
     """With ``park = false`` an idle vehicle stays where it is: one topping up that gave
     its charger up to a vehicle that must charge would stand on it for ever, charging
     neither itself nor the other."""
-    p = program(len(SIX), SIX, tmp_path, park=False, order_s=3000.0)
+    p = program(len(START_CHARGES), START_CHARGES, tmp_path, park=False, order_s=3000.0)
     runners = p.orders.runners
     _by_choice, must = all_but_one_topping_up(p)
     drain(p, must)

@@ -13,7 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from blocks.dispatch.orders import MAX_ID_CHARS, TransportOrder
+from blocks.dispatch.orders import HISTORY_KEPT, MAX_ID_CHARS, TransportOrder
 
 from .desk import OrderView, Page
 
@@ -65,7 +65,7 @@ class OrderOut(BaseModel):
     reason: str = Field(description="why its last transition happened")
     history: list[HistoryEntry] = Field(
         description="its transitions (an order taken back again and again keeps its first "
-        "two and its newest ones, 64 at most)"
+        f"two and its newest ones, {HISTORY_KEPT} at most)"
     )
     history_dropped: int = Field(
         0,
