@@ -45,8 +45,13 @@ order time (the seed: 38 s).
     .venv/bin/python bench/allocation.py [--experiments buffer fleet fixed battery arrival]
         [--seeds 3] [--jobs 2] [--fleets 11 13 15 17] [--buffers 8 18 28 38 48 58]
         [--pool 150] [--max-s 4000] [--battery-s 3600] [--battery-load 0.5] [--top-up-below P]
-        [--arrival-s 3600] [--loads 0.5 0.75 1] [--json FILE]
-        [--report FILE ...] [--quick]
+        [--arrival-s 3600] [--loads 0.5 0.75 1] [--strategies dhht two_stage nearest_idle]
+        [--next-order on|off] [--bottleneck-s S] [--json FILE] [--report FILE ...] [--quick]
+
+``--next-order`` and ``--bottleneck-s`` set two_stage's options of the same names
+(docs/fleet-config.md) in its runs; the fleet table gives each setting found in the results
+its own column, so runs under the seed's rules and under others can be reported together
+(``--report a.json b.json``); the other tables refuse such a mix.
 
 ``--quick``: one seed, 20 orders, 17 vehicles only, B = 8 and 38, 300 s battery and arrival
 runs at 0.5 x the rates:
@@ -63,7 +68,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from math import inf, isnan
 from pathlib import Path
 
@@ -105,6 +110,18 @@ class Case:
     deadlines: bool = True  # pool runs: keep the generator's latest delivery times
     traffic: str = "reactive"  # the fleet's traffic mode
     top_up_below: float | None = None  # battery runs: idle vehicles charge below it (None: default)
+    # two_stage's options (None: the configuration's, the seed's rules by default)
+    next_order: bool | None = None
+    bottleneck_s: float | None = None
+
+    def variant(self) -> str:
+        """The strategy with the options it ran under, as the tables name it."""
+        parts = []
+        if self.next_order is False:
+            parts.append("no next order")
+        if self.bottleneck_s:
+            parts.append(f"bottleneck {self.bottleneck_s:g} s")
+        return f"{self.strategy} ({', '.join(parts)})" if parts else self.strategy
 
 
 @dataclass
@@ -152,6 +169,10 @@ def run_case(case: Case) -> Result:
     cfg.traffic = case.traffic
     if case.buffer_s is not None:
         cfg.dispatch.buffer_s = case.buffer_s
+    if case.next_order is not None:
+        cfg.dispatch.next_order = case.next_order
+    if case.bottleneck_s is not None:
+        cfg.dispatch.bottleneck_s = case.bottleneck_s
     cfg.watchdog = 5.0  # a busy machine slows the wall clock, never the virtual one
     orders = orders_for(case, cfg)
     if case.battery:
@@ -261,7 +282,13 @@ def cases(args: argparse.Namespace) -> list[Case]:
             for st in STRATEGIES
             for s in seeds
         ]
-    return out
+    options = {"next_order": args.next_order, "bottleneck_s": args.bottleneck_s}
+    strategies = set(args.strategies)
+    return [
+        replace(c, **options) if c.strategy == "two_stage" else c
+        for c in out
+        if c.experiment in ("buffer", "battery") or c.strategy in strategies
+    ]
 
 
 def spread(values: list[float], fmt: str = "{:.1f}") -> str:
@@ -319,6 +346,15 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
     if modes != ["reactive"]:
         pool += f", {' / '.join(modes)} traffic"
     conflicts = sum(r.conflicts for r in results)
+    for experiment in {r.case.experiment for r in results} - {"fleet"}:
+        mixed = {
+            r.case.variant() for r in group(results, experiment=experiment, strategy="two_stage")
+        }
+        if len(mixed) > 1:
+            raise SystemExit(
+                f"the {experiment} results mix two_stage run under other options "
+                f"({'; '.join(sorted(mixed))}): report them apart"
+            )
     if "buffer" in args.experiments:
         t = Table(title=f"1. Buffer sweep: two_stage, 17 vehicles, {args.pool} orders {pool}")
         for c in ("B (s)", "mean order time (s)", "station wait (s)", "makespan (s)", "finished"):
@@ -343,17 +379,20 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
         t = Table(
             title=f"2. Fleet size x strategy, {args.pool} orders in the pool {pool}: mean order time (s)"
         )
-        for c in ("vehicles", *STRATEGIES, "two_stage / dhht - 1", "seed at 17"):
+        fleet = group(results, experiment="fleet")
+        ours = sorted({r.case.variant() for r in fleet if r.case.strategy == "two_stage"})
+        columns = ["dhht", *(ours or ["two_stage"]), "nearest_idle"]
+        for c in ("vehicles", *columns, *(f"{v} / dhht - 1" for v in ours), "seed at 17"):
             t.add_column(c, justify="right")
         for n in args.fleets:
             cells, means = [], {}
-            for st in STRATEGIES:
-                rs = group(results, experiment="fleet", vehicles=n, strategy=st)
-                means[st] = mean_of(rs, "mean_order_s")
+            for column in columns:
+                rs = [r for r in fleet if r.case.vehicles == n and r.case.variant() == column]
+                means[column] = mean_of(rs, "mean_order_s")
                 cells.append(spread([r.mean_order_s for r in rs if r.mean_order_s]))
-            gap = means["two_stage"] / means["dhht"] - 1
+            gaps = [change(means[v], means["dhht"]) for v in ours]
             seed = f"{SEED_GAP_17:+.1%}" if n == 17 else ""
-            t.add_row(str(n), *cells, f"{gap:+.1%}", seed)
+            t.add_row(str(n), *cells, *gaps, seed)
         console.print(t)
     if "fixed" in args.experiments:
         t = Table(title=f"3. Fixed {args.fixed} orders, {pool}")
@@ -522,6 +561,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--pool", type=int, default=150, help="orders in the pool of the buffer and fleet runs"
     )
+    parser.add_argument(
+        "--strategies",
+        nargs="+",
+        choices=STRATEGIES,
+        default=list(STRATEGIES),
+        help="the strategies the fleet, fixed and arrival experiments run",
+    )
+    parser.add_argument(
+        "--next-order",
+        choices=("on", "off"),
+        help="two_stage: give a busy vehicle its next order ahead (on, the seed's) or only "
+        "once it is free (default: the configuration's)",
+    )
+    parser.add_argument(
+        "--bottleneck-s",
+        type=float,
+        help="two_stage: the weight of the pool's busiest stations (default: the configuration's)",
+    )
     parser.add_argument("--json", type=Path, help="also write every run's result here")
     parser.add_argument(
         "--report",
@@ -532,6 +589,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args(argv)
     args.fixed = 100
+    args.next_order = None if args.next_order is None else args.next_order == "on"
     if args.quick:
         args.seeds, args.pool, args.fixed = 1, 20, 20
         args.buffers, args.fleets, args.battery_s = (8, 38), (17,), 300.0

@@ -247,6 +247,8 @@ class OrderSystem:
             interval_s=d.interval_s,
             deviation=d.deviation,
             capacity_per_h=d.capacity_per_h,
+            next_order=d.next_order,
+            bottleneck_s=d.bottleneck_s,
         )
         for v in cfg.order_vehicles:
             self.runners[v] = OrderRunner(

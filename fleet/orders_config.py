@@ -48,6 +48,8 @@ class DispatchConfig:
     strategy: str = "two_stage"
     buffer_s: float = 38.0
     deviation: float = 0.3
+    next_order: bool = True
+    bottleneck_s: float = 0.0
     outlier: float = 1.5
     estimate: str = "median"
     budget: int = 500
@@ -187,6 +189,8 @@ def parse_dispatch(r: TableReader) -> DispatchConfig:
         strategy=r.get("strategy", str, "two_stage"),
         buffer_s=r.number("buffer_s", 38.0, 0.0, 3600.0),
         deviation=r.number("deviation", 0.3, 0.0, 100.0),
+        next_order=r.get("next_order", bool, True),
+        bottleneck_s=r.number("bottleneck_s", 0.0, 0.0, 3600.0),
         outlier=r.number("outlier", 1.5, 1.0, 100.0),
         estimate=r.get("estimate", str, "median"),
         budget=r.integer("budget", 500, 1, 10**7),

@@ -6,6 +6,8 @@ import sys
 from argparse import Namespace
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 spec = importlib.util.spec_from_file_location("bench_allocation", ROOT / "bench" / "allocation.py")
 allocation = importlib.util.module_from_spec(spec)
@@ -23,6 +25,9 @@ def arrival_args(**over) -> Namespace:
         arrival_s=1800.0,
         loads=[0.5, 1.0],
         pool=150,
+        strategies=list(allocation.STRATEGIES),
+        next_order=None,
+        bottleneck_s=None,
     )
     return Namespace(**{**args, **over})
 
@@ -38,6 +43,45 @@ def test_the_arrival_experiment_runs_every_strategy_at_every_load_and_seed():
     assert all(c.traffic == "reactive" and c.deadlines for c in cases)
     other = allocation.cases(arrival_args(traffic="time_windows", no_deadlines=True))
     assert all(c.traffic == "time_windows" and not c.deadlines for c in other)
+
+
+def test_two_stage_options_reach_only_its_runs_and_name_its_column(capsys):
+    args = arrival_args(
+        experiments=["fleet", "fixed"], fleets=[17], seeds=1, strategies=["dhht", "two_stage"]
+    )
+    args.fixed = 100
+    plain = allocation.cases(args)
+    assert {c.strategy for c in plain} == {"dhht", "two_stage"}
+    tuned = allocation.cases(Namespace(**{**vars(args), "next_order": False, "bottleneck_s": 60}))
+    for c in tuned:
+        assert (c.next_order, c.bottleneck_s) == (
+            (False, 60) if c.strategy == "two_stage" else (None, None)
+        )
+    assert tuned[1].variant() == "two_stage (no next order, bottleneck 60 s)"
+
+    def run(case, mean_s):
+        return allocation.Result(case, 150, 150, mean_s, 10.0, 1700.0, 1700.0, 1.0, 0, 0.0, 100, 0)
+
+    fleet = [run(c, m) for c, m in zip(plain[:2] + tuned[1:2], (200.0, 190.0, 160.0), strict=True)]
+    allocation.report(
+        fleet, Namespace(**{**vars(args), "experiments": ["fleet"]}), allocation.Console()
+    )
+    (row,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 17")]
+    assert [c.strip() for c in row.split("|")[1:-1]] == [
+        "17",
+        "200.0",
+        "190.0",
+        "160.0",
+        "-",
+        "-5.0%",
+        "-20.0%",
+        "-13.6%",
+    ]
+    fixed = [run(c, 100.0) for c in plain + tuned if c.experiment == "fixed"]
+    with pytest.raises(SystemExit, match="the fixed results mix two_stage run under other options"):
+        allocation.report(
+            fixed, Namespace(**{**vars(args), "experiments": ["fixed"]}), allocation.Console()
+        )
 
 
 def result(strategy: str, load: float, seed: int, finished: int, mean_s: float):

@@ -161,6 +161,25 @@ def test_two_stage_with_fewer_orders_than_vehicles_gives_each_the_earliest_finis
     assert [(a.vehicle, a.finish_s) for a in got] == [(2, 40.0)]
 
 
+def test_two_stage_bottleneck_weight_favours_orders_at_the_pools_busiest_station():
+    # One vehicle at 0. Visits per station in the pool: 90 three times, 80 twice, the
+    # others once, so the share of the busier station is 1/3 for a (10 -> 20) and 1 for
+    # b, c, d. Idle times: a 10, b 50 (Get 50), c 80, d 90.
+    vehicles = [Candidate(1, 0, 0.0, "active")]
+    orders = [order("a", 10, 20), order("b", 50, 90), order("c", 80, 90), order("d", 90, 80)]
+
+    def chosen(bottleneck_s: float) -> tuple[str, float]:
+        round_ = two_stage(vehicles, orders, StationSchedule(0.0), estimates(), 0.0, bottleneck_s)
+        (got,), _ = finish(round_)
+        return got.order.id, got.idle_s
+
+    assert chosen(0.0) == ("a", 10.0)  # the seed's cost: the least idle time
+    # 60 s: a 10 - 20 = -10, b 50 - 60 = -10, a tie: the first evaluated (a) wins
+    assert chosen(60.0) == ("a", 10.0)
+    # 90 s: a 10 - 30 = -20, b 50 - 90 = -40: b; the idle time it reports is its own
+    assert chosen(90.0) == ("b", 50.0)
+
+
 def _busy(schedule: StationSchedule) -> StationSchedule:
     schedule.reserve(50, 9, "other", 40.0, 60.0)
     return schedule

@@ -268,6 +268,36 @@ def carrying_a_with_b_next(tmp_path: Path, made):
     return cfg, p, runner
 
 
+def test_without_next_orders_a_busy_vehicle_is_given_work_only_once_free(tmp_path, made):
+    """``next_order = false``: where the default gives the carrying vehicle its next order
+    (above), B waits in the pool until A is delivered, and is then driven."""
+    cfg = config("id,get,put,start_s\n", tmp_path, vehicles=((1, 0),), extra="next_order = false")
+    assert cfg.dispatch.next_order is False
+    p = start(cfg, made)
+    run(p, 1)
+    p.orders.submit(TransportOrder("A", 20, 24))
+    p.orders.submit(TransportOrder("B", 29, 27))
+    p.rt.step()  # (submitted orders enter the book in the next scan)
+    runner, a, b = p.orders.runners[1], p.orders.book.get("A"), p.orders.book.get("B")
+    for _ in range(4000):
+        p.rt.step()
+        assert runner.next is None
+        if a.state is OrderState.FINISHED:
+            break
+    assert a.state is OrderState.FINISHED and b.state is OrderState.DISPATCHABLE
+    assert p.rt.run_until(lambda: b.state is OrderState.FINISHED, max_cycles=4000)
+    taken = [t for t, state, *_ in b.history if state is OrderState.BEING_PROCESSED]
+    assert taken[0] >= a.finished_s
+
+
+def test_the_two_stage_options_are_checked(tmp_path):
+    with pytest.raises(ConfigError, match=r"dispatch\.next_order: expected true/false, got 'no'"):
+        config("id,get,put\n", tmp_path, extra='next_order = "no"')
+    with pytest.raises(ConfigError, match=r"dispatch\.bottleneck_s: .*-5"):
+        config("id,get,put\n", tmp_path, extra="bottleneck_s = -5")
+    assert config("id,get,put\n", tmp_path, extra="bottleneck_s = 60").dispatch.bottleneck_s == 60
+
+
 def test_a_next_order_a_blockade_cuts_off_goes_back_and_is_reported(tmp_path, made):
     """two_stage: a vehicle carries its active order and holds a next one when a blockade
     cuts the next order's Get station off. The next order must not stay with the vehicle

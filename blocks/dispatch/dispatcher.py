@@ -20,7 +20,11 @@ The dispatcher decides *what* a vehicle does; routing and traffic decide *how* i
    applied at once, after checking each assignment still holds (the order still waits,
    the vehicle is still free). A two_stage round starts from the station reservation
    lists as the vehicles stand (:func:`live_schedule`), so a late vehicle or a queue in
-   front of a station is priced in.
+   front of a station is priced in. With ``next_order`` (the seed's rule) a two_stage
+   vehicle is given its next order once it is in its active order's Get zone; without,
+   only once it is free, when where it stands and what the others took are known, not
+   estimated. ``bottleneck_s`` is two_stage's weight for the pool's busiest stations
+   (:func:`two_stage`).
 
 Vehicles that are offline, stale, faulty or suspect take nothing (``available``), nor does
 one with a load left on board by an order that ended without its Put; a vehicle
@@ -105,6 +109,8 @@ class Dispatcher(FunctionBlock):
         deviation: float = 0.3,
         capacity_per_h: float = 60.0,
         pool_limit: int = 100,
+        next_order: bool = True,
+        bottleneck_s: float = 0.0,
     ) -> None:
         super().__init__()
         if strategy not in strategy_names():
@@ -130,6 +136,8 @@ class Dispatcher(FunctionBlock):
         self.deviation = deviation
         self.capacity_per_h = capacity_per_h
         self.pool_limit = pool_limit
+        self.next_order = next_order
+        self.bottleneck_s = bottleneck_s
         self.stats: dict[int, StationStats] = {}
         self._supply: Counter[int] = Counter()  # dhht: orders per Get station so far
         self._supply_counted = 0  # of the book's orders, in the order added
@@ -348,6 +356,7 @@ class Dispatcher(FunctionBlock):
                     out.append(Candidate(v, r.current, ctx.time, "active"))
             elif (
                 self.strategy == "two_stage"
+                and self.next_order
                 and r.next is None
                 and r.frozen
                 and self.charging.may_take(r.battery - self.charging.use_per_order)
@@ -435,7 +444,9 @@ class Dispatcher(FunctionBlock):
                 self.capacity_per_h,
             )
         else:
-            self._round = two_stage(vehicles, orders, self._working, self.estimates, ctx.time)
+            self._round = two_stage(
+                vehicles, orders, self._working, self.estimates, ctx.time, self.bottleneck_s
+            )
 
     def _advance(self, ctx: CycleContext) -> None:
         plugged = plugged_strategy(self.strategy) is not None

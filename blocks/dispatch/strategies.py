@@ -19,12 +19,17 @@ the A* block, and applies the result only when the round is complete.
   time), each to the vehicle that finishes it earliest; then, with at least as many orders
   as vehicles, the pair of minimum idle time, committed, and the rest re-evaluated; with
   fewer orders, each order to the vehicle that finishes it earliest. An order whose Get
-  arrival would be before its start time waits for a later round.
+  arrival would be before its start time waits for a later round. ``bottleneck_s`` (0 in
+  the seed) takes up to that many seconds off a pair's idle time in the greedy stage, in
+  proportion to how many of the pool's orders visit the busier of its two stations: a
+  station most orders must pass (a plant's bottleneck) is then worked from the start, not
+  left to the end of a pool, where its queue would hold the whole fleet.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 
@@ -192,12 +197,24 @@ def _evaluate(
     return idle, arrive_put + wait_put + dwell_put, arrive_get, arrive_put
 
 
+def _busier_station_share(pool: Sequence[TransportOrder]) -> dict[str, float]:
+    """Per order of ``pool``: the visits the pool makes to the busier of its Get and Put
+    stations, as a share of the visits to the pool's busiest station (0..1]."""
+    visits: Counter[int] = Counter()
+    for order in pool:
+        visits[order.get] += 1
+        visits[order.put] += 1
+    most = max(visits.values())
+    return {o.id: max(visits[o.get], visits[o.put]) / most for o in pool}
+
+
 def two_stage(
     vehicles: Sequence[Candidate],
     orders: Sequence[TransportOrder],
     schedule: StationSchedule,
     estimates: SectionEstimates,
     now_s: float,
+    bottleneck_s: float = 0.0,
 ) -> Round:
     """Works on ``schedule`` (the caller passes a copy): the committed visits are reserved
     in it, so the caller adopts it with the assignments."""
@@ -245,11 +262,13 @@ def two_stage(
     if len(pool) >= len(free):
         while free and pool:
             best, best_idle = None, math.inf
+            busier = _busier_station_share(pool) if bottleneck_s else {}
             for c in free:
                 for order in pool:
                     if not allowed(c, order):
                         continue
                     idle, _finish, arrive_get, _ = _evaluate(c, order, schedule, estimates)
+                    idle -= bottleneck_s * busier.get(order.id, 0.0)
                     yield
                     if arrive_get >= order.start_s and idle < best_idle:
                         best, best_idle = (c, order), idle
