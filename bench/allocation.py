@@ -422,10 +422,10 @@ def report(results: list[Result], args: argparse.Namespace, console: Console) ->
         (d_mk, d_mean), (n_mk, n_mean) = means[("dhht", 17)], means[("two_stage", 17)]
         s16 = means[("two_stage", 16)][0]
         console.print(
-            f"two_stage / dhht - 1 at 17: makespan {n_mk / d_mk - 1:+.1%} "
-            f"(seed {SEED_MAKESPAN_100:+.2%}), mean order time {n_mean / d_mean - 1:+.1%} "
+            f"two_stage / dhht - 1 at 17: makespan {change(n_mk, d_mk)} "
+            f"(seed {SEED_MAKESPAN_100:+.2%}), mean order time {change(n_mean, d_mean)} "
             f"(seed {SEED_GAP_100:+.2%}); two_stage with 16 / dhht with 17 - 1: makespan "
-            f"{s16 / d_mk - 1:+.1%} (seed {697 / 714 - 1:+.1%})"
+            f"{change(s16, d_mk)} (seed {697 / 714 - 1:+.1%})"
         )
     if "battery" in args.experiments:
         t = Table(
